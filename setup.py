@@ -27,7 +27,6 @@ setup(
     maintainer_email='dev@tissue-sim-ros.invalid',
     description='Real-time tensor-mass FEM soft-tissue simulation for needle insertion, ROS 2 node.',
     license='Apache-2.0',
-    tests_require=['pytest'],
     entry_points={
         'console_scripts': [
             'tissue_sim_node = tissue_sim_ros.ros.node:main',

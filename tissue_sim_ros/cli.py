@@ -1,0 +1,53 @@
+"""tissue-sim: the command line (thin; the work is in engine/ and analysis/)."""
+import argparse
+import sys
+from pathlib import Path
+
+
+def _compress(args):
+    from tissue_sim_ros.analysis.compression import plate_compression, plot_compression
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    result = plate_compression(final_strain=args.strain, speed=args.speed_mm_s * 1e-3)
+    print(f'plate compression of a liver-like block: {result.n_elements} tetrahedra, dt = {result.time_step:.3g} s')
+    print(f'{"travel [mm]":>12} {"reaction [N]":>13} {"E A strain [N]":>15}')
+    for k in range(0, len(result.time), max(1, len(result.time) // 10)):
+        print(f'{result.plate_travel[k] * 1e3:>12.3f} {result.reaction[k]:>13.5f} '
+              f'{result.expected_slope * result.plate_travel[k]:>15.5f}')
+    print(f'final reaction {result.reaction[-1]:.5f} N at {result.plate_travel[-1] * 1e3:.3f} mm; '
+          f'simulated {result.time[-1]:.3f} s in {result.wall_time:.2f} s wall '
+          f'(real-time factor {result.time[-1] / result.wall_time:.1f})')
+    plot_compression(result, out / 'compression.png')
+    print(f'wrote {out / "compression.png"}')
+
+
+def _bench(args):
+    from tissue_sim_ros.analysis import bench
+    bench.run(sizes=args.sizes)
+
+
+def build_parser():
+    from tissue_sim_ros import __version__
+    parser = argparse.ArgumentParser(prog='tissue-sim', description='Real-time tensor-mass soft-tissue simulation.')
+    parser.add_argument('--version', action='version', version=f'tissue-sim {__version__}')
+    commands = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
+    compress = commands.add_parser('compress', help='headless plate compression of a liver-like block, with a plot')
+    compress.add_argument('--out', default='out', help='output directory (default: out)')
+    compress.add_argument('--strain', type=float, default=0.10, help='final nominal strain (default 0.10)')
+    compress.add_argument('--speed-mm-s', type=float, default=10.0, help='plate speed [mm/s] (default 10)')
+    compress.set_defaults(run=_compress)
+    bench = commands.add_parser('bench', help='print force/step timings and tet-steps/s per mesh size')
+    bench.add_argument('--sizes', nargs='+', choices=['1e3', '1e4', '1e5', '5e5'], default=None,
+                       help='mesh sizes to run (default: all)')
+    bench.set_defaults(run=_bench)
+    return parser
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    args.run(args)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

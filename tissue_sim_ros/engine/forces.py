@@ -1,0 +1,388 @@
+"""Internal force kernels of the tensor-mass model (numba).
+
+Two formulations of the same forces, held equal by the tests:
+
+* ``element_forces``: the element loop used on the hot path. For each tetrahedron the
+  displacement gradient H = sum_k u_k a_k^T (a_k: shape-function gradients, FORMULAS.md) gives
+  the stress, and the force on vertex j is f_j = -V P a_j, where P is
+    - linear (Cotin et al., seed section 3/4.1):  sigma = lambda tr(eps) I + 2 mu eps, eps = sym(H)
+    - physically non-linear (4.1): the same with lambda + dlambda(q), mu + dmu(q), q the element's
+      Liu-Joe mean ratio relative to its rest value
+    - geometrically non-linear (4.2, St Venant-Kirchhoff): P = F S, F = I + H,
+      E = (F^T F - I) / 2, S = lambda tr(E) I + 2 mu E
+    - Kelvin-Voigt viscosity (4.3): the same linear law on the rate of deformation, sym(dH/dt)
+      (or sym(F^T dF/dt) with the geometric model, so rigid motion is force-free).
+  A non-linearity threshold (seed section 6) sends elements whose |H|_F is below it down the
+  linear path. f_j = -V sigma a_j is the element form of -sum_k K_jk u_k (FORMULAS.md).
+* ``edge_forces``: the paper's assembled form, f_i = -(K_ii u_i + sum_j K_ij u_j), with vertex
+  tensors K_ii and edge tensors K_ij summed over the elements around a vertex or edge; lambda and
+  mu parts stored separately. Linear only, as in the paper.
+
+Parallel loops are race-free: elements are split into contiguous chunks (spatially ordered
+meshes keep each chunk's nodes local), each chunk accumulates into its own buffer, and a node
+loop reduces the buffers it touches and clears them for the next call. Nothing is allocated.
+"""
+import numpy as np
+from numba import njit, prange
+
+# Floating-point contraction and reassociation are fine here; NaN and inf must stay detectable
+# (the watchdog looks for them), so no 'nnan' / 'ninf'.
+FASTMATH = {'contract', 'reassoc', 'nsz', 'arcp', 'afn'}
+
+# Physically non-linear law kinds (see material.MeanRatioLaw); the parameters are a flat array.
+LAW_NONE = 0
+LAW_POLYNOMIAL = 1   # dlambda/lambda = sum_k p_lk s^k, dmu/mu = sum_k p_mk s^k; params [K, p_l1..p_lK, p_m1..p_mK]
+LAW_EXPONENTIAL = 2  # dlambda/lambda = a_l (exp(b_l s) - 1), same for mu; params [a_l, b_l, a_m, b_m]
+
+
+@njit(cache=True, inline='always')
+def _law_correction(law_kind, law_params, distortion):
+    """Relative Lamé corrections (dlambda/lambda, dmu/mu) for a distortion s = 1 - q/q_rest."""
+    if law_kind == LAW_POLYNOMIAL:
+        order = int(law_params[0])
+        corr_lambda = 0.0
+        corr_mu = 0.0
+        power = 1.0
+        for k in range(order):
+            power *= distortion
+            corr_lambda += law_params[1 + k] * power
+            corr_mu += law_params[1 + order + k] * power
+        return corr_lambda, corr_mu
+    if law_kind == LAW_EXPONENTIAL:
+        return (law_params[0] * (np.exp(law_params[1] * distortion) - 1.0),
+                law_params[2] * (np.exp(law_params[3] * distortion) - 1.0))
+    return 0.0, 0.0
+
+
+@njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False)
+def element_forces(tetrahedra, shape_gradients, volume_lambda, volume_mu,
+                   displacement, velocity,
+                   geometric, physical, viscous, threshold_squared,
+                   law_kind, law_params, edge_gram, mean_ratio_scale,
+                   viscous_lambda, viscous_mu,
+                   chunk_bounds, chunk_node_lo, chunk_node_hi, buffers, out, nonlinear_counts):
+    """Internal elastic (+ viscous) force on every node, written to ``out`` (n, 3).
+
+    shape_gradients (m, 3, 3): rows a_1, a_2, a_3 (a_0 = -(a_1 + a_2 + a_3)).
+    volume_lambda, volume_mu (m,): V lambda and V mu of each element (viscous_*: V lambda_v, V mu_v).
+    edge_gram (m, 6): sum over the six rest edges of e e^T (xx, yy, zz, xy, xz, yz), so the
+    deformed sum of squared edge lengths is tr(F^T F G). mean_ratio_scale (m,): 12 (3 V)^(2/3)
+    divided by the rest mean ratio, so q/q_rest = scale |det F|^(2/3) / tr(F^T F G).
+    nonlinear_counts (n_chunks,): elements that took the non-linear path, per chunk.
+    """
+    n_chunks = chunk_bounds.shape[0] - 1
+    any_nonlinear = geometric or physical
+    for c in prange(n_chunks):
+        buf = buffers[c]
+        n_nonlinear = 0
+        for e in range(chunk_bounds[c], chunk_bounds[c + 1]):
+            i0 = tetrahedra[e, 0]
+            i1 = tetrahedra[e, 1]
+            i2 = tetrahedra[e, 2]
+            i3 = tetrahedra[e, 3]
+            a1x = shape_gradients[e, 0, 0]
+            a1y = shape_gradients[e, 0, 1]
+            a1z = shape_gradients[e, 0, 2]
+            a2x = shape_gradients[e, 1, 0]
+            a2y = shape_gradients[e, 1, 1]
+            a2z = shape_gradients[e, 1, 2]
+            a3x = shape_gradients[e, 2, 0]
+            a3y = shape_gradients[e, 2, 1]
+            a3z = shape_gradients[e, 2, 2]
+            # H = sum_k u_k a_k^T = sum_{k=1..3} (u_k - u_0) a_k^T
+            d1x = displacement[i1, 0] - displacement[i0, 0]
+            d1y = displacement[i1, 1] - displacement[i0, 1]
+            d1z = displacement[i1, 2] - displacement[i0, 2]
+            d2x = displacement[i2, 0] - displacement[i0, 0]
+            d2y = displacement[i2, 1] - displacement[i0, 1]
+            d2z = displacement[i2, 2] - displacement[i0, 2]
+            d3x = displacement[i3, 0] - displacement[i0, 0]
+            d3y = displacement[i3, 1] - displacement[i0, 1]
+            d3z = displacement[i3, 2] - displacement[i0, 2]
+            h00 = d1x * a1x + d2x * a2x + d3x * a3x
+            h01 = d1x * a1y + d2x * a2y + d3x * a3y
+            h02 = d1x * a1z + d2x * a2z + d3x * a3z
+            h10 = d1y * a1x + d2y * a2x + d3y * a3x
+            h11 = d1y * a1y + d2y * a2y + d3y * a3y
+            h12 = d1y * a1z + d2y * a2z + d3y * a3z
+            h20 = d1z * a1x + d2z * a2x + d3z * a3x
+            h21 = d1z * a1y + d2z * a2y + d3z * a3y
+            h22 = d1z * a1z + d2z * a2z + d3z * a3z
+
+            # rate of the displacement gradient, for Kelvin-Voigt viscosity
+            r00 = r01 = r02 = r10 = r11 = r12 = r20 = r21 = r22 = 0.0
+            if viscous:
+                d1x = velocity[i1, 0] - velocity[i0, 0]
+                d1y = velocity[i1, 1] - velocity[i0, 1]
+                d1z = velocity[i1, 2] - velocity[i0, 2]
+                d2x = velocity[i2, 0] - velocity[i0, 0]
+                d2y = velocity[i2, 1] - velocity[i0, 1]
+                d2z = velocity[i2, 2] - velocity[i0, 2]
+                d3x = velocity[i3, 0] - velocity[i0, 0]
+                d3y = velocity[i3, 1] - velocity[i0, 1]
+                d3z = velocity[i3, 2] - velocity[i0, 2]
+                r00 = d1x * a1x + d2x * a2x + d3x * a3x
+                r01 = d1x * a1y + d2x * a2y + d3x * a3y
+                r02 = d1x * a1z + d2x * a2z + d3x * a3z
+                r10 = d1y * a1x + d2y * a2x + d3y * a3x
+                r11 = d1y * a1y + d2y * a2y + d3y * a3y
+                r12 = d1y * a1z + d2y * a2z + d3y * a3z
+                r20 = d1z * a1x + d2z * a2x + d3z * a3x
+                r21 = d1z * a1y + d2z * a2y + d3z * a3y
+                r22 = d1z * a1z + d2z * a2z + d3z * a3z
+
+            lam = volume_lambda[e]
+            mu = volume_mu[e]
+            nonlinear = False
+            if any_nonlinear:
+                norm_sq = (h00 * h00 + h01 * h01 + h02 * h02 + h10 * h10 + h11 * h11
+                           + h12 * h12 + h20 * h20 + h21 * h21 + h22 * h22)
+                nonlinear = norm_sq >= threshold_squared
+            if nonlinear:
+                n_nonlinear += 1
+                f00 = 1.0 + h00
+                f11 = 1.0 + h11
+                f22 = 1.0 + h22
+                # C = F^T F - I = 2 E (Green-Lagrange), symmetric
+                e00 = 0.5 * (h00 + h00 + h00 * h00 + h10 * h10 + h20 * h20)
+                e11 = 0.5 * (h11 + h11 + h01 * h01 + h11 * h11 + h21 * h21)
+                e22 = 0.5 * (h22 + h22 + h02 * h02 + h12 * h12 + h22 * h22)
+                e01 = 0.5 * (h01 + h10 + h00 * h01 + h10 * h11 + h20 * h21)
+                e02 = 0.5 * (h02 + h20 + h00 * h02 + h10 * h12 + h20 * h22)
+                e12 = 0.5 * (h12 + h21 + h01 * h02 + h11 * h12 + h21 * h22)
+                if physical:
+                    det_f = (f00 * (f11 * f22 - h12 * h21) - h01 * (h10 * f22 - h12 * h20)
+                             + h02 * (h10 * h21 - f11 * h20))
+                    g = edge_gram[e]
+                    # tr(C G) with C = I + 2E
+                    tr_cg = (g[0] * (1.0 + 2.0 * e00) + g[1] * (1.0 + 2.0 * e11) + g[2] * (1.0 + 2.0 * e22)
+                             + 4.0 * (g[3] * e01 + g[4] * e02 + g[5] * e12))
+                    relative_quality = mean_ratio_scale[e] * np.abs(det_f) ** (2.0 / 3.0) / tr_cg
+                    distortion = max(0.0, 1.0 - relative_quality)
+                    corr_lambda, corr_mu = _law_correction(law_kind, law_params, distortion)
+                    lam *= 1.0 + corr_lambda
+                    mu *= 1.0 + corr_mu
+                if geometric:
+                    tr_e = e00 + e11 + e22
+                    s00 = lam * tr_e + 2.0 * mu * e00
+                    s11 = lam * tr_e + 2.0 * mu * e11
+                    s22 = lam * tr_e + 2.0 * mu * e22
+                    s01 = 2.0 * mu * e01
+                    s02 = 2.0 * mu * e02
+                    s12 = 2.0 * mu * e12
+                    if viscous:
+                        # dE/dt = sym(F^T dF/dt)
+                        q00 = f00 * r00 + h10 * r10 + h20 * r20
+                        q11 = h01 * r01 + f11 * r11 + h21 * r21
+                        q22 = h02 * r02 + h12 * r12 + f22 * r22
+                        q01 = 0.5 * (f00 * r01 + h10 * r11 + h20 * r21 + h01 * r00 + f11 * r10 + h21 * r20)
+                        q02 = 0.5 * (f00 * r02 + h10 * r12 + h20 * r22 + h02 * r00 + h12 * r10 + f22 * r20)
+                        q12 = 0.5 * (h01 * r02 + f11 * r12 + h21 * r22 + h02 * r01 + h12 * r11 + f22 * r21)
+                        tr_q = viscous_lambda[e] * (q00 + q11 + q22)
+                        two_mu_v = 2.0 * viscous_mu[e]
+                        s00 += tr_q + two_mu_v * q00
+                        s11 += tr_q + two_mu_v * q11
+                        s22 += tr_q + two_mu_v * q22
+                        s01 += two_mu_v * q01
+                        s02 += two_mu_v * q02
+                        s12 += two_mu_v * q12
+                    # P = F S (not symmetric)
+                    p00 = f00 * s00 + h01 * s01 + h02 * s02
+                    p01 = f00 * s01 + h01 * s11 + h02 * s12
+                    p02 = f00 * s02 + h01 * s12 + h02 * s22
+                    p10 = h10 * s00 + f11 * s01 + h12 * s02
+                    p11 = h10 * s01 + f11 * s11 + h12 * s12
+                    p12 = h10 * s02 + f11 * s12 + h12 * s22
+                    p20 = h20 * s00 + h21 * s01 + f22 * s02
+                    p21 = h20 * s01 + h21 * s11 + f22 * s12
+                    p22 = h20 * s02 + h21 * s12 + f22 * s22
+                else:
+                    nonlinear = False  # physical only: linear stress law with corrected coefficients
+            if not nonlinear:
+                tr_h = lam * (h00 + h11 + h22)
+                p00 = tr_h + 2.0 * mu * h00
+                p11 = tr_h + 2.0 * mu * h11
+                p22 = tr_h + 2.0 * mu * h22
+                p01 = mu * (h01 + h10)
+                p02 = mu * (h02 + h20)
+                p12 = mu * (h12 + h21)
+                if viscous:
+                    tr_r = viscous_lambda[e] * (r00 + r11 + r22)
+                    mu_v = viscous_mu[e]
+                    p00 += tr_r + 2.0 * mu_v * r00
+                    p11 += tr_r + 2.0 * mu_v * r11
+                    p22 += tr_r + 2.0 * mu_v * r22
+                    p01 += mu_v * (r01 + r10)
+                    p02 += mu_v * (r02 + r20)
+                    p12 += mu_v * (r12 + r21)
+                p10 = p01
+                p20 = p02
+                p21 = p12
+            # f_k = -V P a_k (V is folded into lambda and mu); f_0 = -(f_1 + f_2 + f_3)
+            f1x = -(p00 * a1x + p01 * a1y + p02 * a1z)
+            f1y = -(p10 * a1x + p11 * a1y + p12 * a1z)
+            f1z = -(p20 * a1x + p21 * a1y + p22 * a1z)
+            f2x = -(p00 * a2x + p01 * a2y + p02 * a2z)
+            f2y = -(p10 * a2x + p11 * a2y + p12 * a2z)
+            f2z = -(p20 * a2x + p21 * a2y + p22 * a2z)
+            f3x = -(p00 * a3x + p01 * a3y + p02 * a3z)
+            f3y = -(p10 * a3x + p11 * a3y + p12 * a3z)
+            f3z = -(p20 * a3x + p21 * a3y + p22 * a3z)
+            buf[i0, 0] -= f1x + f2x + f3x
+            buf[i0, 1] -= f1y + f2y + f3y
+            buf[i0, 2] -= f1z + f2z + f3z
+            buf[i1, 0] += f1x
+            buf[i1, 1] += f1y
+            buf[i1, 2] += f1z
+            buf[i2, 0] += f2x
+            buf[i2, 1] += f2y
+            buf[i2, 2] += f2z
+            buf[i3, 0] += f3x
+            buf[i3, 1] += f3y
+            buf[i3, 2] += f3z
+        nonlinear_counts[c] = n_nonlinear
+    _reduce_buffers(buffers, chunk_node_lo, chunk_node_hi, out)
+
+
+@njit(cache=True, parallel=True, boundscheck=False)
+def _reduce_buffers(buffers, chunk_node_lo, chunk_node_hi, out):
+    """out[i] = sum of the chunk buffers that touch node i; those buffer rows are cleared."""
+    n_chunks = buffers.shape[0]
+    for i in prange(out.shape[0]):
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        for c in range(n_chunks):
+            if chunk_node_lo[c] <= i and i < chunk_node_hi[c]:
+                fx += buffers[c, i, 0]
+                fy += buffers[c, i, 1]
+                fz += buffers[c, i, 2]
+                buffers[c, i, 0] = 0.0
+                buffers[c, i, 1] = 0.0
+                buffers[c, i, 2] = 0.0
+        out[i, 0] = fx
+        out[i, 1] = fy
+        out[i, 2] = fz
+
+
+def chunk_layout(tetrahedra, n_nodes, n_chunks):
+    """Split the element range into contiguous chunks; return (bounds, node_lo, node_hi).
+
+    node_lo/node_hi bound the nodes each chunk touches, so the reduction reads only the buffer
+    rows a chunk can have written.
+    """
+    n_elements = tetrahedra.shape[0]
+    n_chunks = max(1, min(n_chunks, n_elements))
+    bounds = np.linspace(0, n_elements, n_chunks + 1).round().astype(np.int64)
+    node_lo = np.zeros(n_chunks, dtype=np.int64)
+    node_hi = np.zeros(n_chunks, dtype=np.int64)
+    for c in range(n_chunks):
+        block = tetrahedra[bounds[c]:bounds[c + 1]]
+        if block.size:
+            node_lo[c] = block.min()
+            node_hi[c] = block.max() + 1
+    return bounds, node_lo, node_hi
+
+
+# ----------------------------------------------------------------------------------------------
+# The paper's assembled form: vertex and edge tensors (linear model).
+
+@njit(cache=True, boundscheck=False)
+def accumulate_tensors(tetrahedra, shape_gradients, volume_lambda, volume_mu, element_edges,
+                       elements, sign, vertex_lambda, vertex_mu, edge_lambda, edge_mu):
+    """Add (sign=+1) or remove (sign=-1) the given elements' K_jk = lambda A_jk + mu B_jk.
+
+    A_jk = V a_j a_k^T, B_jk = V [a_k a_j^T + (a_j . a_k) I] (FORMULAS.md). Vertex tensors get
+    K_jj; the edge tensor of edge (p, q), p < q, gets K_jk with j, k the local indices of p, q.
+    element_edges (m, 6): global edge of each local pair (0,1),(0,2),(0,3),(1,2),(1,3),(2,3).
+    """
+    a = np.empty((4, 3))
+    for e in elements:
+        for r in range(3):
+            a[1, r] = shape_gradients[e, 0, r]
+            a[2, r] = shape_gradients[e, 1, r]
+            a[3, r] = shape_gradients[e, 2, r]
+            a[0, r] = -(a[1, r] + a[2, r] + a[3, r])
+        vl = sign * volume_lambda[e]
+        vm = sign * volume_mu[e]
+        local = 0
+        for j in range(4):
+            for k in range(j, 4):
+                dot = a[j, 0] * a[k, 0] + a[j, 1] * a[k, 1] + a[j, 2] * a[k, 2]
+                if j == k:
+                    p = tetrahedra[e, j]
+                    for r in range(3):
+                        for s in range(3):
+                            vertex_lambda[p, r, s] += vl * a[j, r] * a[j, s]
+                            vertex_mu[p, r, s] += vm * (a[j, s] * a[j, r] + (dot if r == s else 0.0))
+                else:
+                    edge = element_edges[e, local]
+                    local += 1
+                    # stored as K_pq with p < q: K_jk if the local order matches, else K_kj = K_jk^T
+                    jj, kk = (j, k) if tetrahedra[e, j] < tetrahedra[e, k] else (k, j)
+                    for r in range(3):
+                        for s in range(3):
+                            edge_lambda[edge, r, s] += vl * a[jj, r] * a[kk, s]
+                            edge_mu[edge, r, s] += vm * (a[kk, r] * a[jj, s] + (dot if r == s else 0.0))
+
+
+@njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False)
+def edge_forces(vertex_lambda, vertex_mu, edge_lambda, edge_mu, edges,
+                adjacency_ptr, adjacency_edge, displacement, out):
+    """f_p = -(K_pp u_p + sum over edges (p, q) of K_pq u_q), gathered per vertex: no races.
+
+    adjacency_ptr/adjacency_edge: CSR list of the edges at each vertex. An edge stored as (p, q)
+    contributes K_pq u_q to p and K_pq^T u_p to q.
+    """
+    for p in prange(out.shape[0]):
+        ux = displacement[p, 0]
+        uy = displacement[p, 1]
+        uz = displacement[p, 2]
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        for r in range(3):
+            kr0 = vertex_lambda[p, r, 0] + vertex_mu[p, r, 0]
+            kr1 = vertex_lambda[p, r, 1] + vertex_mu[p, r, 1]
+            kr2 = vertex_lambda[p, r, 2] + vertex_mu[p, r, 2]
+            value = kr0 * ux + kr1 * uy + kr2 * uz
+            if r == 0:
+                fx -= value
+            elif r == 1:
+                fy -= value
+            else:
+                fz -= value
+        for slot in range(adjacency_ptr[p], adjacency_ptr[p + 1]):
+            edge = adjacency_edge[slot]
+            if edges[edge, 0] == p:
+                q = edges[edge, 1]
+                vx = displacement[q, 0]
+                vy = displacement[q, 1]
+                vz = displacement[q, 2]
+                fx -= ((edge_lambda[edge, 0, 0] + edge_mu[edge, 0, 0]) * vx
+                       + (edge_lambda[edge, 0, 1] + edge_mu[edge, 0, 1]) * vy
+                       + (edge_lambda[edge, 0, 2] + edge_mu[edge, 0, 2]) * vz)
+                fy -= ((edge_lambda[edge, 1, 0] + edge_mu[edge, 1, 0]) * vx
+                       + (edge_lambda[edge, 1, 1] + edge_mu[edge, 1, 1]) * vy
+                       + (edge_lambda[edge, 1, 2] + edge_mu[edge, 1, 2]) * vz)
+                fz -= ((edge_lambda[edge, 2, 0] + edge_mu[edge, 2, 0]) * vx
+                       + (edge_lambda[edge, 2, 1] + edge_mu[edge, 2, 1]) * vy
+                       + (edge_lambda[edge, 2, 2] + edge_mu[edge, 2, 2]) * vz)
+            else:
+                q = edges[edge, 0]
+                vx = displacement[q, 0]
+                vy = displacement[q, 1]
+                vz = displacement[q, 2]
+                # K_qp u_q with K_qp = K_pq^T, the stored tensor transposed
+                fx -= ((edge_lambda[edge, 0, 0] + edge_mu[edge, 0, 0]) * vx
+                       + (edge_lambda[edge, 1, 0] + edge_mu[edge, 1, 0]) * vy
+                       + (edge_lambda[edge, 2, 0] + edge_mu[edge, 2, 0]) * vz)
+                fy -= ((edge_lambda[edge, 0, 1] + edge_mu[edge, 0, 1]) * vx
+                       + (edge_lambda[edge, 1, 1] + edge_mu[edge, 1, 1]) * vy
+                       + (edge_lambda[edge, 2, 1] + edge_mu[edge, 2, 1]) * vz)
+                fz -= ((edge_lambda[edge, 0, 2] + edge_mu[edge, 0, 2]) * vx
+                       + (edge_lambda[edge, 1, 2] + edge_mu[edge, 1, 2]) * vy
+                       + (edge_lambda[edge, 2, 2] + edge_mu[edge, 2, 2]) * vz)
+        out[p, 0] = fx
+        out[p, 1] = fy
+        out[p, 2] = fz

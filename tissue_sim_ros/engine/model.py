@@ -1,0 +1,230 @@
+"""TensorMassModel: per-element precomputation and the internal forces of a tetrahedral mesh.
+
+Holds, as plain arrays, what the force kernels need (shape-function gradients, V lambda, V mu,
+rest edge Gram matrices for the mean ratio) plus the paper's assembled vertex and edge tensors,
+and the preallocated per-thread buffers, so that a force evaluation allocates nothing.
+"""
+import numba
+import numpy as np
+import scipy.sparse
+from numba import njit, prange
+
+from tissue_sim_ros.engine import forces
+from tissue_sim_ros.engine.material import Material, MaterialError
+from tissue_sim_ros.engine.mesh import TetMesh, mean_ratio
+
+_LOCAL_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+
+
+def element_geometry(rest_positions, tetrahedra):
+    """Shape-function gradients (m, 3, 3) (rows a_1..a_3), rest volumes (m,), edge Gram (m, 6).
+
+    With D = [P1 - P0, P2 - P0, P3 - P0] (columns), the rows of D^-1 are a_1, a_2, a_3 and
+    V = det(D) / 6 (FORMULAS.md).
+    """
+    corners = rest_positions[tetrahedra]                        # (m, 4, 3)
+    columns = (corners[:, 1:, :] - corners[:, :1, :]).transpose(0, 2, 1)
+    volumes = np.linalg.det(columns) / 6.0
+    shape_gradients = np.ascontiguousarray(np.linalg.inv(columns))
+    gram = np.zeros((len(tetrahedra), 6))
+    for j, k in _LOCAL_EDGES:
+        edge = corners[:, k, :] - corners[:, j, :]
+        gram[:, 0] += edge[:, 0] ** 2
+        gram[:, 1] += edge[:, 1] ** 2
+        gram[:, 2] += edge[:, 2] ** 2
+        gram[:, 3] += edge[:, 0] * edge[:, 1]
+        gram[:, 4] += edge[:, 0] * edge[:, 2]
+        gram[:, 5] += edge[:, 1] * edge[:, 2]
+    return shape_gradients, volumes, gram
+
+
+def _per_element_material(mesh, material):
+    """Material of each element: one Material, or a {region tag: Material} mapping."""
+    if isinstance(material, Material):
+        return [material], np.zeros(mesh.n_elements, dtype=np.int64)
+    if isinstance(material, dict) and all(isinstance(m, Material) for m in material.values()):
+        tags = np.unique(mesh.element_tags)
+        missing = sorted(set(tags.tolist()) - set(material))
+        if missing:
+            raise MaterialError(f'material: no Material for element tag(s) {missing}; '
+                                f'expected a key for every tag in the mesh {tags.tolist()}')
+        keys = sorted(material)
+        index_of = {k: i for i, k in enumerate(keys)}
+        return [material[k] for k in keys], np.array([index_of[t] for t in mesh.element_tags.tolist()])
+    raise MaterialError(f'material = {material!r}: expected a Material or a dict of tag -> Material')
+
+
+class TensorMassModel:
+    """The tensor-mass finite-element model of a tetrahedral mesh (linear for now).
+
+    ``internal_forces(u)`` returns -K u (n, 3) in newtons through the element kernel; the
+    paper's vertex/edge-tensor form is ``edge_form_forces(u)`` and is kept equal by the tests.
+    """
+
+    def __init__(self, mesh: TetMesh, material, *, n_threads=None):
+        if not isinstance(mesh, TetMesh):
+            raise TypeError(f'mesh: expected a TetMesh, got {type(mesh).__name__}')
+        self.mesh = mesh
+        materials, material_index = _per_element_material(mesh, material)
+        self.materials = materials
+        self.element_material = material_index
+        self.tetrahedra = np.ascontiguousarray(mesh.tetrahedra, dtype=np.int64)
+        self.shape_gradients, self.volumes, self.edge_gram = element_geometry(
+            mesh.rest_positions, self.tetrahedra)
+        lam = np.array([m.lame_lambda for m in materials])[material_index]
+        mu = np.array([m.lame_mu for m in materials])[material_index]
+        self.volume_lambda = self.volumes * lam
+        self.volume_mu = self.volumes * mu
+        rest_quality = mean_ratio(mesh.rest_positions, self.tetrahedra)
+        self.mean_ratio_scale = 12.0 * (3.0 * self.volumes) ** (2.0 / 3.0) / rest_quality
+        density = np.array([m.density for m in materials])[material_index]
+        self.element_mass = density * self.volumes
+        self._options_linear()
+        self._allocate(n_threads or numba.get_num_threads())
+        self._assemble_tensors()
+
+    # -- configuration --------------------------------------------------------------------
+    def _options_linear(self):
+        self.geometric = False
+        self.physical = False
+        self.viscous = False
+        self.threshold_squared = 0.0
+        self.law_kind = forces.LAW_NONE
+        self.law_params = np.zeros(1)
+        self.viscous_lambda = np.zeros(1)
+        self.viscous_mu = np.zeros(1)
+
+    def _allocate(self, n_chunks):
+        n = self.mesh.n_nodes
+        self.chunk_bounds, self.chunk_node_lo, self.chunk_node_hi = forces.chunk_layout(
+            self.tetrahedra, n, n_chunks)
+        self._buffers = np.zeros((len(self.chunk_bounds) - 1, n, 3))
+        self._nonlinear_counts = np.zeros(len(self.chunk_bounds) - 1, dtype=np.int64)
+        self._zero_velocity = np.zeros((n, 3))
+
+    def _assemble_tensors(self):
+        """Vertex tensors (n, 3, 3) and edge tensors (E, 3, 3), lambda and mu parts apart."""
+        n = self.mesh.n_nodes
+        pairs = np.stack([np.sort(self.tetrahedra[:, [j, k]], axis=1) for j, k in _LOCAL_EDGES], axis=1)
+        self.edges, inverse = np.unique(pairs.reshape(-1, 2), axis=0, return_inverse=True)
+        self.element_edges = inverse.reshape(-1, 6).astype(np.int64)
+        n_edges = len(self.edges)
+        self.vertex_lambda = np.zeros((n, 3, 3))
+        self.vertex_mu = np.zeros((n, 3, 3))
+        self.edge_lambda = np.zeros((n_edges, 3, 3))
+        self.edge_mu = np.zeros((n_edges, 3, 3))
+        forces.accumulate_tensors(self.tetrahedra, self.shape_gradients, self.volume_lambda,
+                                  self.volume_mu, self.element_edges,
+                                  np.arange(self.mesh.n_elements), 1.0, self.vertex_lambda,
+                                  self.vertex_mu, self.edge_lambda, self.edge_mu)
+        ends = self.edges.ravel()
+        order = np.argsort(ends, kind='stable')
+        self.adjacency_edge = (order // 2).astype(np.int64)
+        self.adjacency_ptr = np.concatenate([[0], np.cumsum(np.bincount(ends, minlength=n))]).astype(np.int64)
+
+    # -- forces ---------------------------------------------------------------------------
+    def internal_forces(self, displacement, velocity=None, out=None):
+        """Internal force on every node (n, 3) [N]: -K u for the linear model."""
+        if out is None:
+            out = np.empty((self.mesh.n_nodes, 3))
+        forces.element_forces(
+            self.tetrahedra, self.shape_gradients, self.volume_lambda, self.volume_mu,
+            displacement, self._zero_velocity if velocity is None else velocity,
+            self.geometric, self.physical, self.viscous and velocity is not None,
+            self.threshold_squared, self.law_kind, self.law_params, self.edge_gram,
+            self.mean_ratio_scale, self.viscous_lambda, self.viscous_mu,
+            self.chunk_bounds, self.chunk_node_lo, self.chunk_node_hi, self._buffers, out,
+            self._nonlinear_counts)
+        return out
+
+    @property
+    def nonlinear_fraction(self):
+        """Fraction of elements that took the non-linear path in the last force evaluation."""
+        return float(self._nonlinear_counts.sum()) / max(1, self.mesh.n_elements)
+
+    def edge_form_forces(self, displacement, out=None):
+        """-K u from the assembled vertex and edge tensors (the paper's form, linear model)."""
+        if out is None:
+            out = np.empty((self.mesh.n_nodes, 3))
+        forces.edge_forces(self.vertex_lambda, self.vertex_mu, self.edge_lambda, self.edge_mu,
+                           self.edges, self.adjacency_ptr, self.adjacency_edge, displacement, out)
+        return out
+
+    def stiffness_matrix(self):
+        """The global linear stiffness K (3n x 3n, scipy CSR) from the vertex and edge tensors."""
+        n = self.mesh.n_nodes
+        vertex = self.vertex_lambda + self.vertex_mu
+        edge = self.edge_lambda + self.edge_mu
+        r, s = np.meshgrid(np.arange(3), np.arange(3), indexing='ij')
+        p, q = self.edges[:, 0], self.edges[:, 1]
+        nodes = np.arange(n)
+        rows = np.concatenate([(3 * nodes[:, None, None] + r).ravel(),
+                               (3 * p[:, None, None] + r).ravel(), (3 * q[:, None, None] + s).ravel()])
+        cols = np.concatenate([(3 * nodes[:, None, None] + s).ravel(),
+                               (3 * q[:, None, None] + s).ravel(), (3 * p[:, None, None] + r).ravel()])
+        values = np.concatenate([vertex.ravel(), edge.ravel(), edge.ravel()])
+        return scipy.sparse.csr_matrix((values, (rows, cols)), shape=(3 * n, 3 * n))
+
+    # -- mass, energy, stability ------------------------------------------------------------
+    def lumped_masses(self):
+        """Node masses (n,) [kg]: each element's mass rho V split equally over its 4 vertices."""
+        return np.bincount(self.tetrahedra.ravel(), weights=np.repeat(self.element_mass / 4.0, 4),
+                           minlength=self.mesh.n_nodes)
+
+    def strain_energy(self, displacement):
+        """Elastic energy [J] and the number of inverted elements (det F <= 0) at ``displacement``.
+
+        Linear model: sum V (lambda/2 tr(eps)^2 + mu eps:eps) = u.K u / 2.
+        """
+        return _strain_energy(self.tetrahedra, self.shape_gradients, self.volume_lambda,
+                              self.volume_mu, displacement, self.geometric)
+
+    def critical_time_step(self):
+        """Upper bound on the stable explicit step [s], from the element eigenvalue inequality.
+
+        The largest eigenvalue of M^-1 K is at most the largest over elements of that of
+        M_e^-1 K_e (lumped M_e = rho V / 4 per vertex), so dt = 2 / sqrt(max_e omega_e^2) is
+        stable for undamped symplectic Euler with the linear model (damping, being implicit in
+        our solver, does not lower it). Stiffening under deformation lowers it: see the solver.
+        """
+        largest = 0.0
+        step = 20000
+        for start in range(0, self.mesh.n_elements, step):
+            stiff = _element_stiffness(self.shape_gradients[start:start + step],
+                                       self.volume_lambda[start:start + step],
+                                       self.volume_mu[start:start + step])
+            eig = np.linalg.eigvalsh(stiff)[:, -1] / (self.element_mass[start:start + step] / 4.0)
+            largest = max(largest, float(eig.max()))
+        return 2.0 / np.sqrt(largest)
+
+
+def _element_stiffness(shape_gradients, volume_lambda, volume_mu):
+    """Element stiffness matrices (m, 12, 12): K_jk = V (lambda a_j a_k^T + mu a_k a_j^T + mu a_j.a_k I)."""
+    a = np.concatenate([-shape_gradients.sum(axis=1, keepdims=True), shape_gradients], axis=1)  # (m,4,3)
+    outer = np.einsum('mjr,mks->mjkrs', a, a)                    # a_j[r] a_k[s]
+    dots = np.einsum('mjr,mkr->mjk', a, a)
+    stiff = (volume_lambda[:, None, None, None, None] * outer
+             + volume_mu[:, None, None, None, None] * outer.transpose(0, 2, 1, 4, 3)
+             + volume_mu[:, None, None, None, None] * dots[:, :, :, None, None] * np.eye(3))
+    return stiff.transpose(0, 1, 3, 2, 4).reshape(-1, 12, 12)
+
+
+@njit(cache=True, parallel=True, fastmath=forces.FASTMATH)
+def _strain_energy(tetrahedra, shape_gradients, volume_lambda, volume_mu, displacement, geometric):
+    energy = 0.0
+    inverted = 0
+    for e in prange(tetrahedra.shape[0]):
+        h = np.zeros((3, 3))
+        for k in range(1, 4):
+            for r in range(3):
+                du = displacement[tetrahedra[e, k], r] - displacement[tetrahedra[e, 0], r]
+                for s in range(3):
+                    h[r, s] += du * shape_gradients[e, k - 1, s]
+        strain = 0.5 * (h + h.T)
+        if geometric:
+            strain += 0.5 * (h.T @ h)
+        trace = strain[0, 0] + strain[1, 1] + strain[2, 2]
+        energy += 0.5 * volume_lambda[e] * trace * trace + volume_mu[e] * np.sum(strain * strain)
+        if np.linalg.det(np.eye(3) + h) <= 0.0:
+            inverted += 1
+    return energy, inverted

@@ -1,0 +1,235 @@
+"""Explicit time integration of the lumped-mass tensor-mass model, with a stability watchdog.
+
+Each node obeys m_i a_i + gamma_i v_i - f_i(u, v) = f_ext,i (DESIGN.md). We integrate with
+symplectic (semi-implicit) Euler, velocity first:
+
+    v_{n+1} = (v_n + dt (f_n + f_ext) / m) / (1 + dt gamma / m),   u_{n+1} = u_n + dt v_{n+1}
+
+The damping term is taken implicitly, so it never lowers the stable step; the elastic part is
+explicit and stable below dt_crit = 2 / omega_max (see TensorMassModel.critical_time_step).
+Degrees of freedom are free, fixed, or prescribed (a displacement given as a function of time),
+per node and per axis, so a frictionless plate can drive z alone.
+"""
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from tissue_sim_ros.engine.forces import FASTMATH
+
+FREE, FIXED, PRESCRIBED = 0, 1, 2
+_AXES = {'x': 0, 'y': 1, 'z': 2}
+
+
+class SimulationDiverged(RuntimeError):
+    """The watchdog stopped a run: what diverged, at which step, with which time step."""
+
+    def __init__(self, reason, step, time, time_step, critical_time_step):
+        self.reason = reason
+        self.step = step
+        self.time = time
+        self.time_step = time_step
+        self.critical_time_step = critical_time_step
+        super().__init__(
+            f'simulation diverged at step {step} (t = {time:.6g} s): {reason}; time step '
+            f'{time_step:.4g} s against the estimated critical step {critical_time_step:.4g} s '
+            f'({time_step / critical_time_step:.2f}x)')
+
+
+@njit(cache=True, parallel=True, fastmath=FASTMATH)
+def _advance_free(displacement, velocity, force, external, inverse_mass, damping_rate, dof_kind, dt):
+    """Symplectic Euler on free DOFs; returns (external work, kinetic energy, non-finite count)."""
+    work = 0.0
+    kinetic = 0.0
+    bad = 0
+    for i in prange(displacement.shape[0]):
+        inv_m = inverse_mass[i]
+        for r in range(3):
+            if dof_kind[i, r] == FREE:
+                v = (velocity[i, r] + dt * inv_m * (force[i, r] + external[i, r])) / (1.0 + dt * damping_rate[i])
+                velocity[i, r] = v
+                displacement[i, r] += dt * v
+                work += external[i, r] * dt * v
+                kinetic += 0.5 * v * v / inv_m
+                if not (abs(displacement[i, r]) < np.inf and abs(v) < np.inf):
+                    bad += 1
+    return work, kinetic, bad
+
+
+@njit(cache=True)
+def _apply_prescribed(nodes, axes, targets, displacement, velocity, force, external, mass, dt):
+    """Move prescribed DOFs to their targets; return the work the constraint did on the tissue.
+
+    The constraint force r closes m a = f + f_ext + r, so its work over the step is r . du.
+    """
+    work = 0.0
+    kinetic = 0.0
+    for j in range(nodes.shape[0]):
+        i = nodes[j]
+        for r in range(3):
+            if axes[r]:
+                step = targets[j, r] - displacement[i, r]
+                v_new = step / dt
+                reaction = mass[i] * (v_new - velocity[i, r]) / dt - force[i, r] - external[i, r]
+                work += reaction * step
+                velocity[i, r] = v_new
+                displacement[i, r] = targets[j, r]
+                kinetic += 0.5 * mass[i] * v_new * v_new
+    return work, kinetic
+
+
+class _Prescribed:
+    def __init__(self, nodes, axes, displacement_at):
+        self.nodes = nodes
+        self.axes = axes
+        self.displacement_at = displacement_at
+        self.targets = np.zeros((len(nodes), 3))
+
+
+def _node_indices(nodes, n_nodes, field):
+    nodes = np.asarray(nodes)
+    if nodes.dtype == bool:
+        if nodes.shape != (n_nodes,):
+            raise ValueError(f'{field}: a boolean mask must have shape ({n_nodes},), got {nodes.shape}')
+        return np.flatnonzero(nodes)
+    nodes = nodes.astype(np.int64).ravel()
+    bad = nodes[(nodes < 0) | (nodes >= n_nodes)]
+    if bad.size:
+        raise ValueError(f'{field}: node indices {bad[:10].tolist()} out of range [0, {n_nodes})')
+    return nodes
+
+
+def _axes_mask(axes, field):
+    if not axes or set(axes) - set(_AXES):
+        raise ValueError(f"{field}: axes = {axes!r}; expected a non-empty combination of 'x', 'y', 'z'")
+    mask = np.zeros(3, dtype=np.bool_)
+    for a in axes:
+        mask[_AXES[a]] = True
+    return mask
+
+
+class Simulation:
+    """Explicit dynamics of a TensorMassModel with constraints, external forces and a watchdog.
+
+    damping: mass-proportional damping rate [1/s] (gamma_i = damping * m_i), or an (n,) array
+    of gamma_i [kg/s]. fixed: nodes fixed on all axes (indices or boolean mask). dt: time step
+    [s]; None picks ``time_step_safety`` times the critical step estimate.
+    """
+
+    def __init__(self, model, *, damping=0.0, fixed=None, dt=None, time_step_safety=0.8,
+                 check_interval=25, energy_growth_factor=2.0, allow_inverted=False):
+        self.model = model
+        n = model.mesh.n_nodes
+        self.mass = model.lumped_masses()
+        massless = self.mass <= 0.0
+        self.inverse_mass = np.where(massless, 0.0, 1.0 / np.where(massless, 1.0, self.mass))
+        damping_arr = np.asarray(damping, dtype=float)
+        if damping_arr.ndim == 0:
+            if not (math.isfinite(float(damping_arr)) and damping_arr >= 0):
+                raise ValueError(f'damping = {float(damping_arr)!r}: expected a finite rate >= 0 [1/s]')
+            self.damping_rate = np.full(n, float(damping_arr))
+        else:
+            if damping_arr.shape != (n,) or not np.all(np.isfinite(damping_arr)) or np.any(damping_arr < 0):
+                raise ValueError(f'damping: expected a rate >= 0 [1/s] or ({n},) finite gamma >= 0 [kg/s]')
+            self.damping_rate = damping_arr * self.inverse_mass
+        self.dof_kind = np.zeros((n, 3), dtype=np.int8)
+        self.dof_kind[massless] = FIXED
+        self._prescribed = []
+        if fixed is not None:
+            self.fix(fixed)
+        self._critical = None
+        if dt is None:
+            dt = time_step_safety * self.critical_time_step()
+        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+            raise ValueError(f'dt = {dt!r}: expected a finite time step > 0 s')
+        self.dt = float(dt)
+        self.check_interval = int(check_interval)
+        self.energy_growth_factor = float(energy_growth_factor)
+        self.allow_inverted = allow_inverted
+        total_stiffness = float(np.sum(model.volume_lambda + 2.0 * model.volume_mu))
+        self.energy_floor = 1e-12 * total_stiffness   # energy of a strain of 1e-6
+        self.displacement = np.zeros((n, 3))
+        self.velocity = np.zeros((n, 3))
+        self.internal_force = np.zeros((n, 3))
+        self.external_forces = np.zeros((n, 3))
+        self.reset()
+
+    # -- set-up -------------------------------------------------------------------------------
+    def fix(self, nodes, axes='xyz'):
+        """Hold the given nodes' displacement at zero along ``axes``."""
+        idx = _node_indices(nodes, self.model.mesh.n_nodes, 'fixed')
+        self.dof_kind[np.ix_(idx, np.flatnonzero(_axes_mask(axes, 'fixed')))] = FIXED
+
+    def prescribe(self, nodes, displacement_at, axes='xyz'):
+        """Drive nodes along ``axes``: displacement_at(t) gives (3,) or (k, 3) metres at time t."""
+        idx = _node_indices(nodes, self.model.mesh.n_nodes, 'prescribed')
+        mask = _axes_mask(axes, 'prescribed')
+        self.dof_kind[np.ix_(idx, np.flatnonzero(mask))] = PRESCRIBED
+        self._prescribed.append(_Prescribed(idx, mask, displacement_at))
+
+    def critical_time_step(self):
+        """Estimated critical (largest stable) time step [s] of the linearised model, cached."""
+        if self._critical is None:
+            self._critical = self.model.critical_time_step()
+        return self._critical
+
+    def reset(self):
+        """Back to the rest state at t = 0."""
+        self.displacement[:] = 0.0
+        self.velocity[:] = 0.0
+        self.internal_force[:] = 0.0
+        self.time = 0.0
+        self.step_count = 0
+        self.input_work = 0.0
+        self.kinetic_energy = 0.0
+        self.reference_energy = None   # measured at the first step, after any initial state is set
+
+    # -- stepping -------------------------------------------------------------------------------
+    def step(self, n_steps=1):
+        """Advance ``n_steps`` time steps; raises SimulationDiverged when the watchdog trips."""
+        model, dt = self.model, self.dt
+        if self.reference_energy is None:
+            self.reference_energy = sum(self.energy())
+        for _ in range(n_steps):
+            model.internal_forces(self.displacement, self.velocity, out=self.internal_force)
+            work, kinetic, bad = _advance_free(self.displacement, self.velocity, self.internal_force,
+                                               self.external_forces, self.inverse_mass,
+                                               self.damping_rate, self.dof_kind, dt)
+            t_next = self.time + dt
+            for p in self._prescribed:
+                np.copyto(p.targets, p.displacement_at(t_next))
+                w, k = _apply_prescribed(p.nodes, p.axes, p.targets, self.displacement, self.velocity,
+                                         self.internal_force, self.external_forces, self.mass, dt)
+                work += w
+                kinetic += k
+            self.input_work += work
+            self.kinetic_energy = kinetic
+            self.time = t_next
+            self.step_count += 1
+            if bad:
+                self._diverged(f'{bad} displacement or velocity components became NaN or infinite')
+            if self.step_count % self.check_interval == 0:
+                self._check_energy()
+
+    def _check_energy(self):
+        strain, inverted = self.model.strain_energy(self.displacement)
+        total = self.kinetic_energy + strain
+        budget = self.reference_energy + max(self.input_work, 0.0)
+        if not math.isfinite(total) or total > self.energy_growth_factor * budget + self.energy_floor:
+            self._diverged(f'energy grew without input: kinetic + strain energy {total:.4g} J against '
+                           f'{budget:.4g} J initial plus work put in')
+        if inverted and not self.allow_inverted:
+            self._diverged(f'{inverted} inverted elements (det F <= 0)')
+
+    def _diverged(self, reason):
+        raise SimulationDiverged(reason, self.step_count, self.time, self.dt, self.critical_time_step())
+
+    # -- outputs --------------------------------------------------------------------------------
+    def reaction_force(self, nodes):
+        """Total force (3,) [N] the tissue exerts on whatever holds ``nodes`` (sum of internal forces)."""
+        return self.internal_force[_node_indices(nodes, self.model.mesh.n_nodes, 'nodes')].sum(axis=0)
+
+    def energy(self):
+        """(kinetic, strain) energy [J] of the current state."""
+        kinetic = 0.5 * float(np.sum(self.mass[:, None] * self.velocity ** 2))
+        return kinetic, self.model.strain_energy(self.displacement)[0]
