@@ -660,3 +660,35 @@ def test_typescript_reader_validates_the_file(recorded, mcap_js, tmp_path):
     recovered = ml.recover_truncated(torn)['messages']
     assert 0 < recovered < 100
     assert bad['stream']['counts'] == {'needle/wrench': recovered}  # same intact chunks
+
+
+@pytest.mark.parametrize('background', [False, True])
+def test_a_hard_kill_loses_exactly_the_unsaved_messages(tmp_path, background):
+    """At any moment the file holds every message but those the recorder reports unsaved.
+
+    Small chunks (size limit) and a short interval: chunks end by size and by log time, and each
+    ended chunk must be in the OS at once (no buffer of the writer holds it back).
+    """
+    path = tmp_path / 'unsaved.mcap'
+    rng = np.random.default_rng(3)
+    with ml.McapRecorder(path, metadata={}, chunk_size=8192, chunk_interval_s=0.5,
+                         background=background) as rec:
+        rec.add_topic('tissue/nodes', CLOUD, {})
+        rec.add_topic('needle/wrench', WRENCH, {})
+        cloud = serialize_message(_sample('tissue/nodes', 0))  # about 1 kB
+        wrench = serialize_message(_sample('needle/wrench', 0))
+        checks = 0
+        for i in range(400):
+            rec.write('needle/wrench', wrench, T0 + i * PERIOD)
+            if i % 3 == 0:
+                rec.write('tissue/nodes', cloud, T0 + i * PERIOD)
+            if rng.random() < 0.06:
+                if background:
+                    rec._queue.join()  # a quiet moment, so the snapshot is consistent
+                st = rec.stats()
+                snap = _snapshot(path, tmp_path / f'snap{i}.mcap')
+                got = ml.recover_truncated(snap)['messages']
+                assert got == st.messages_written - st.messages_unsaved, (i, st)
+                assert st.messages_unsaved < 60  # 0.5 s of log time or 8 kB
+                checks += 1
+        assert checks >= 10 and rec.stats().chunks_closed > 20

@@ -137,6 +137,18 @@ class TensorMassModel:
             self._nonlinear_counts)
         return out
 
+    def linear_forces(self, displacement, out=None):
+        """-K u of the linear (small-strain, elastic) part, whatever the model's options."""
+        if out is None:
+            out = np.empty((self.mesh.n_nodes, 3))
+        forces.element_forces(
+            self.tetrahedra, self.shape_gradients, self.volume_lambda, self.volume_mu,
+            displacement, self._zero_velocity, False, False, False, 0.0, self.law_kind,
+            self.law_params, self.edge_gram, self.mean_ratio_scale, self.viscous_lambda,
+            self.viscous_mu, self.chunk_bounds, self.chunk_node_lo, self.chunk_node_hi,
+            self._buffers, out, self._nonlinear_counts)
+        return out
+
     @property
     def nonlinear_fraction(self):
         """Fraction of elements that took the non-linear path in the last force evaluation."""
@@ -179,14 +191,39 @@ class TensorMassModel:
         return _strain_energy(self.tetrahedra, self.shape_gradients, self.volume_lambda,
                               self.volume_mu, displacement, self.geometric)
 
-    def critical_time_step(self):
-        """Upper bound on the stable explicit step [s], from the element eigenvalue inequality.
+    def critical_time_step(self, method='lanczos'):
+        """Critical (largest stable) explicit time step [s] of the linearised model, 2 / omega_max.
 
-        The largest eigenvalue of M^-1 K is at most the largest over elements of that of
-        M_e^-1 K_e (lumped M_e = rho V / 4 per vertex), so dt = 2 / sqrt(max_e omega_e^2) is
-        stable for undamped symplectic Euler with the linear model (damping, being implicit in
-        our solver, does not lower it). Stiffening under deformation lowers it: see the solver.
+        'lanczos': omega_max^2, the largest eigenvalue of M^-1/2 K M^-1/2, by scipy's ARPACK
+        Lanczos on the force kernel, for the unconstrained body (constraints only lower it, so the
+        result is safe for any boundary conditions). 'element_bound': the element eigenvalue
+        inequality, max over elements of the largest eigenvalue of M_e^-1 K_e (lumped M_e = rho V / 4
+        per vertex), a guaranteed upper bound on omega_max^2, hence a smaller, always-safe step.
+        Stiffening under deformation (non-linear models) lowers the limit: keep a safety margin.
         """
+        if method == 'element_bound':
+            return 2.0 / np.sqrt(self._element_eigenvalue_bound())
+        if method != 'lanczos':
+            raise ValueError(f"method = {method!r}: expected 'lanczos' or 'element_bound'")
+        import scipy.sparse.linalg
+        mass = self.lumped_masses()
+        inv_sqrt_mass = np.repeat(np.where(mass > 0, 1.0 / np.sqrt(np.where(mass > 0, mass, 1.0)), 0.0), 3)
+        u = np.empty((self.mesh.n_nodes, 3))
+        f = np.empty((self.mesh.n_nodes, 3))
+
+        def apply(x):
+            u.ravel()[:] = inv_sqrt_mass * x.ravel()
+            self.linear_forces(u, out=f)
+            return -inv_sqrt_mass * f.ravel()
+
+        n_dofs = 3 * self.mesh.n_nodes
+        operator = scipy.sparse.linalg.LinearOperator((n_dofs, n_dofs), matvec=apply, dtype=float)
+        start = np.random.default_rng(0).normal(size=n_dofs)
+        largest = scipy.sparse.linalg.eigsh(operator, k=1, which='LA', v0=start, tol=1e-6,
+                                            return_eigenvectors=False)[0]
+        return 2.0 / np.sqrt(largest * (1.0 + 1e-6))
+
+    def _element_eigenvalue_bound(self):
         largest = 0.0
         step = 20000
         for start in range(0, self.mesh.n_elements, step):
@@ -195,7 +232,7 @@ class TensorMassModel:
                                        self.volume_mu[start:start + step])
             eig = np.linalg.eigvalsh(stiff)[:, -1] / (self.element_mass[start:start + step] / 4.0)
             largest = max(largest, float(eig.max()))
-        return 2.0 / np.sqrt(largest)
+        return largest
 
 
 def _element_stiffness(shape_gradients, volume_lambda, volume_mu):

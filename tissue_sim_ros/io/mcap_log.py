@@ -391,8 +391,9 @@ class _TopicInfo:
 class RecorderStats:
     """Counters of a recorder (a snapshot)."""
 
-    messages_written: int = 0
+    messages_written: int = 0  # handed to the MCAP writer
     messages_dropped: int = 0
+    messages_unsaved: int = 0  # queued or in the open chunk: what a hard kill now would lose
     chunks_closed: int = 0
     bytes_written: int = 0
     queued_bytes: int = 0
@@ -463,6 +464,8 @@ class McapRecorder:
         self._chunk_opened_at: float | None = None
         self._max_queue_bytes = int(max_queue_bytes)
         self._queued_bytes = 0
+        self._queued_count = 0
+        self._chunk_messages = 0
         self._queue_lock = threading.Lock()
 
         raw = open(self.path, 'wb' if overwrite else 'xb', buffering=0)  # noqa: SIM115
@@ -590,6 +593,7 @@ class McapRecorder:
                 self._stats.messages_dropped += 1
                 return False
             self._queued_bytes += len(data)
+            self._queued_count += 1
         self._queue.put((topic, data, log_time, publish_time, sequence))
         return True
 
@@ -603,6 +607,7 @@ class McapRecorder:
             publish_time=publish_time, sequence=seq)
         self._stats.messages_written += 1
         self._stats.per_topic[topic] += 1
+        self._chunk_messages += 1
         if self._sink.position != before:  # the writer ended the chunk (size), this message in it
             self._chunk_done()
             return
@@ -614,6 +619,7 @@ class McapRecorder:
 
     def _chunk_done(self) -> None:
         self._stats.chunks_closed += 1
+        self._chunk_messages = 0
         self._chunk_first_log_ns = None
         self._chunk_opened_at = None
         self._sink.flush()
@@ -649,11 +655,14 @@ class McapRecorder:
                     item()
                     continue
                 topic, data, log_time, publish_time, sequence = item
-                with self._queue_lock:
-                    self._queued_bytes -= len(data)
-                if self._error is None:
-                    with self._lock:
-                        self._add_locked(topic, data, log_time, publish_time, sequence)
+                with self._lock:  # then the queue lock: the order stats() takes them in
+                    try:
+                        if self._error is None:
+                            self._add_locked(topic, data, log_time, publish_time, sequence)
+                    finally:
+                        with self._queue_lock:
+                            self._queued_bytes -= len(data)
+                            self._queued_count -= 1
             except BaseException as exc:  # noqa: BLE001
                 self._error = exc
             finally:
@@ -714,6 +723,7 @@ class McapRecorder:
                     self._writer.finish()  # ends the chunk, writes DataEnd, summary, footer
                     self._stats.chunks_closed += int(self._chunk_first_log_ns is not None)
                     self._chunk_first_log_ns = None
+                    self._chunk_messages = 0
                 self._sink.flush()
         finally:
             self._stats.bytes_written = self._sink.position
@@ -729,12 +739,13 @@ class McapRecorder:
 
     def stats(self) -> RecorderStats:
         """A snapshot of the counters."""
-        with self._queue_lock:
-            queued = self._queued_bytes
         with self._lock:
+            with self._queue_lock:
+                queued, queued_count = self._queued_bytes, self._queued_count
             return RecorderStats(
                 messages_written=self._stats.messages_written,
                 messages_dropped=self._stats.messages_dropped,
+                messages_unsaved=queued_count + self._chunk_messages,
                 chunks_closed=self._stats.chunks_closed,
                 bytes_written=self._sink.position,
                 queued_bytes=queued,
