@@ -76,7 +76,8 @@ def test_pose_from_msg_passes_nan_through():  # validation belongs to the engine
 
 
 def test_wrench_msg_values_and_round_trip():
-    msg = cv.wrench_msg([1.5, -2.0, 3.25], np.array([0.01, 0.02, -0.03]), 'needle_base', 7_000_000_001)
+    msg = cv.wrench_msg([1.5, -2.0, 3.25], np.array([0.01, 0.02, -0.03]), 'needle_base',
+                        7_000_000_001)
     back = deserialize_message(serialize_message(msg), type(msg))
     assert back.header.frame_id == 'needle_base'
     assert (back.header.stamp.sec, back.header.stamp.nanosec) == (7, 1)
@@ -239,7 +240,8 @@ def test_surface_mesh_message_does_not_alias_the_input(rng):
 def test_surface_mesh_refuses_bad_indices(rng):
     positions, triangles = _surface(rng, 10, 6)
     triangles[4, 1] = 10
-    with pytest.raises(ValueError, match=r'triangles: rows \[4\] index vertices outside \[0, 10\)'):
+    with pytest.raises(ValueError,
+                       match=r'triangles: rows \[4\] index vertices outside \[0, 10\)'):
         cv.surface_mesh_msg(positions, triangles)
     triangles[4, 1] = -1
     with pytest.raises(ValueError, match=r'rows \[4\]'):

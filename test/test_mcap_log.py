@@ -15,7 +15,6 @@ import sys
 import textwrap
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,6 +23,7 @@ import yaml
 pytest.importorskip('rclpy')
 
 from mcap.reader import make_reader  # noqa: E402
+from mcap.stream_reader import StreamReader  # noqa: E402
 from mcap.writer import Writer  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 from rosbags.highlevel import AnyReader  # noqa: E402
@@ -308,7 +308,8 @@ def test_wrench_schema_text_has_each_dependency_once():
 
 def test_rosbags_deserializes_from_the_schema_text():
     """An empty rosbags type store, filled only from our text, decodes rclpy's CDR bytes."""
-    for type_name, msg in ((WRENCH, _sample('needle/wrench', 3)), (MARKER, _sample('tissue/marker', 2)),
+    for type_name, msg in ((WRENCH, _sample('needle/wrench', 3)),
+                           (MARKER, _sample('tissue/marker', 2)),
                            (DIAG, _sample('/diagnostics', 1))):
         store = get_typestore(Stores.EMPTY)
         store.register(get_types_from_msg(ml.message_definition(type_name), type_name))
@@ -365,7 +366,8 @@ def test_create_in_directory_gives_distinct_files(tmp_path):
     with ml.McapRecorder.create(tmp_path, metadata={}) as a, \
             ml.McapRecorder.create(tmp_path, metadata={}) as b:
         assert a.path != b.path
-        assert re.fullmatch(r'tissue_sim_\d{4}-\d\d-\d\dT\d\d-\d\d-\d\dZ(_\d+)?\.mcap', a.path.name)
+        name = r'tissue_sim_\d{4}-\d\d-\d\dT\d\d-\d\d-\d\dZ(_\d+)?\.mcap'
+        assert re.fullmatch(name, a.path.name)
 
 
 def test_misuse_is_refused(tmp_path):
@@ -427,7 +429,20 @@ def _snapshot(path, dst):
     return dst
 
 
-def test_end_chunk_makes_messages_readable(tmp_path):
+class _WriterWithoutFlush:
+    """A writer as mcap < 1.6 had it: no public flush()."""
+
+    def __init__(self, writer):
+        self._writer = writer
+
+    def __getattr__(self, name):
+        if name == 'flush':
+            raise AttributeError(name)
+        return getattr(self._writer, name)
+
+
+@pytest.mark.parametrize('old_mcap', [False, True])
+def test_end_chunk_makes_messages_readable(tmp_path, old_mcap):
     path = tmp_path / 'w.mcap'
     with open(path, 'wb') as f:
         writer = Writer(f, chunk_size=1 << 30)
@@ -438,7 +453,8 @@ def test_end_chunk_makes_messages_readable(tmp_path):
             writer.add_message(cid, T0 + i, b'\0\1\0\0' + bytes(4), T0 + i)
         f.flush()
         before = ml.recover_truncated(_snapshot(path, tmp_path / 'before.mcap'))
-        ml.end_chunk(writer)
+        ml.end_chunk(_WriterWithoutFlush(writer) if old_mcap else writer)
+        f.flush()  # the fallback ends the chunk but leaves this buffered file to its owner
         after = ml.recover_truncated(_snapshot(path, tmp_path / 'after.mcap'))
         writer.finish()
     assert before['messages'] == 0  # the open chunk lives in memory only
@@ -580,7 +596,9 @@ for (const file of process.argv.slice(2)) {
       if (r.type === 'Header') profile = r.profile;
       if (r.type === 'Channel') topics.set(r.id, r.topic);
       if (r.type === 'Metadata') metadata.push(r.name);
-      if (r.type === 'Message') { const t = topics.get(r.channelId); counts[t] = (counts[t] ?? 0) + 1; }
+      if (r.type === 'Message') {
+        const t = topics.get(r.channelId); counts[t] = (counts[t] ?? 0) + 1;
+      }
     }
     Object.assign(out.stream, { profile, counts, metadata, done: reader.done() });
   } catch (e) { out.stream.error = String(e); }
@@ -692,3 +710,32 @@ def test_a_hard_kill_loses_exactly_the_unsaved_messages(tmp_path, background):
                 assert st.messages_unsaved < 60  # 0.5 s of log time or 8 kB
                 checks += 1
         assert checks >= 10 and rec.stats().chunks_closed > 20
+
+
+def test_complete_file_passes_a_crc_checked_stream_read(recorded):
+    path, written = recorded
+    report = ml.recover_truncated(path)  # chunk CRCs and the data-section CRC are checked
+    assert report['complete'] and report['error'] is None
+    assert report['messages'] == len(written)
+    with open(path, 'rb') as f:
+        data_end = [r for r in StreamReader(f, validate_crcs=True).records
+                    if type(r).__name__ == 'DataEnd']
+    assert len(data_end) == 1 and data_end[0].data_section_crc != 0
+
+
+def test_writer_thread_errors_reach_the_caller(tmp_path):
+    rec = ml.McapRecorder(tmp_path / 'err.mcap', metadata={})
+    rec.add_topic('needle/wrench', WRENCH, {})
+
+    def disk_full(data):
+        raise OSError(28, 'No space left on device')
+    rec._sink.write = disk_full  # the next chunk end fails in the writer thread
+    rec.write('needle/wrench', serialize_message(_sample('needle/wrench', 0)), T0)
+    with pytest.raises(RuntimeError, match='No space left'):
+        rec.flush()
+    with pytest.raises(RuntimeError, match='No space left'):
+        rec.write('needle/wrench', serialize_message(_sample('needle/wrench', 1)), T0)
+    with pytest.raises(RuntimeError, match='No space left'):
+        rec.close()
+    rec.close()  # once reported, closing again is quiet
+    assert rec.closed

@@ -60,8 +60,11 @@ def element_forces(tetrahedra, shape_gradients, volume_lambda, volume_mu,
                    geometric, physical, viscous, threshold_squared,
                    law_kind, law_params, edge_gram, mean_ratio_scale,
                    viscous_lambda, viscous_mu,
-                   chunk_bounds, chunk_node_lo, chunk_node_hi, buffers, out, nonlinear_counts):
-    """Internal elastic (+ viscous) force on every node, written to ``out`` (n, 3).
+                   chunk_bounds, buffers, nonlinear_counts):
+    """Accumulate the internal elastic (+ viscous) forces into the per-chunk ``buffers``.
+
+    The node forces are the sum over chunks (``reduce_buffers``, or fused into the solver's
+    node update through ``take_node_force``).
 
     shape_gradients (m, 3, 3): rows a_1, a_2, a_3 (a_0 = -(a_1 + a_2 + a_3)).
     volume_lambda, volume_mu (m,): V lambda and V mu of each element (viscous_*: V lambda_v, V mu_v).
@@ -241,28 +244,30 @@ def element_forces(tetrahedra, shape_gradients, volume_lambda, volume_mu,
             buf[i3, 1] += f3y
             buf[i3, 2] += f3z
         nonlinear_counts[c] = n_nonlinear
-    _reduce_buffers(buffers, chunk_node_lo, chunk_node_hi, out)
+
+
+@njit(cache=True, inline='always')
+def take_node_force(buffers, chunk_node_lo, chunk_node_hi, i):
+    """Sum of the chunk buffers that can hold node i's force; those rows are cleared for the next pass."""
+    fx = 0.0
+    fy = 0.0
+    fz = 0.0
+    for c in range(buffers.shape[0]):
+        if chunk_node_lo[c] <= i and i < chunk_node_hi[c]:
+            fx += buffers[c, i, 0]
+            fy += buffers[c, i, 1]
+            fz += buffers[c, i, 2]
+            buffers[c, i, 0] = 0.0
+            buffers[c, i, 1] = 0.0
+            buffers[c, i, 2] = 0.0
+    return fx, fy, fz
 
 
 @njit(cache=True, parallel=True, boundscheck=False)
-def _reduce_buffers(buffers, chunk_node_lo, chunk_node_hi, out):
-    """out[i] = sum of the chunk buffers that touch node i; those buffer rows are cleared."""
-    n_chunks = buffers.shape[0]
+def reduce_buffers(buffers, chunk_node_lo, chunk_node_hi, out):
+    """out[i] = the node force gathered from the chunk buffers (which are left cleared)."""
     for i in prange(out.shape[0]):
-        fx = 0.0
-        fy = 0.0
-        fz = 0.0
-        for c in range(n_chunks):
-            if chunk_node_lo[c] <= i and i < chunk_node_hi[c]:
-                fx += buffers[c, i, 0]
-                fy += buffers[c, i, 1]
-                fz += buffers[c, i, 2]
-                buffers[c, i, 0] = 0.0
-                buffers[c, i, 1] = 0.0
-                buffers[c, i, 2] = 0.0
-        out[i, 0] = fx
-        out[i, 1] = fy
-        out[i, 2] = fz
+        out[i, 0], out[i, 1], out[i, 2] = take_node_force(buffers, chunk_node_lo, chunk_node_hi, i)
 
 
 def chunk_layout(tetrahedra, n_nodes, n_chunks):

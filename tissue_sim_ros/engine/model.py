@@ -68,7 +68,7 @@ class TensorMassModel:
         materials, material_index = _per_element_material(mesh, material)
         self.materials = materials
         self.element_material = material_index
-        self.tetrahedra = np.ascontiguousarray(mesh.tetrahedra, dtype=np.int64)
+        self.tetrahedra = np.ascontiguousarray(mesh.tetrahedra, dtype=np.int32)  # halves index traffic
         self.shape_gradients, self.volumes, self.edge_gram = element_geometry(
             mesh.rest_positions, self.tetrahedra)
         lam = np.array([m.lame_lambda for m in materials])[material_index]
@@ -108,6 +108,7 @@ class TensorMassModel:
         pairs = np.stack([np.sort(self.tetrahedra[:, [j, k]], axis=1) for j, k in _LOCAL_EDGES], axis=1)
         self.edges, inverse = np.unique(pairs.reshape(-1, 2), axis=0, return_inverse=True)
         self.element_edges = inverse.reshape(-1, 6).astype(np.int64)
+        self.edges = self.edges.astype(np.int64)
         n_edges = len(self.edges)
         self.vertex_lambda = np.zeros((n, 3, 3))
         self.vertex_mu = np.zeros((n, 3, 3))
@@ -127,15 +128,24 @@ class TensorMassModel:
         """Internal force on every node (n, 3) [N]: -K u for the linear model."""
         if out is None:
             out = np.empty((self.mesh.n_nodes, 3))
+        self.accumulate_forces(displacement, velocity)
+        forces.reduce_buffers(self._buffers, self.chunk_node_lo, self.chunk_node_hi, out)
+        return out
+
+    def accumulate_forces(self, displacement, velocity=None):
+        """Run the element pass into the per-chunk buffers (see ``force_buffers``) without reducing."""
         forces.element_forces(
             self.tetrahedra, self.shape_gradients, self.volume_lambda, self.volume_mu,
             displacement, self._zero_velocity if velocity is None else velocity,
             self.geometric, self.physical, self.viscous and velocity is not None,
             self.threshold_squared, self.law_kind, self.law_params, self.edge_gram,
             self.mean_ratio_scale, self.viscous_lambda, self.viscous_mu,
-            self.chunk_bounds, self.chunk_node_lo, self.chunk_node_hi, self._buffers, out,
-            self._nonlinear_counts)
-        return out
+            self.chunk_bounds, self._buffers, self._nonlinear_counts)
+
+    @property
+    def force_buffers(self):
+        """(buffers, node_lo, node_hi): what ``forces.take_node_force`` needs to gather node forces."""
+        return self._buffers, self.chunk_node_lo, self.chunk_node_hi
 
     def linear_forces(self, displacement, out=None):
         """-K u of the linear (small-strain, elastic) part, whatever the model's options."""
@@ -145,8 +155,8 @@ class TensorMassModel:
             self.tetrahedra, self.shape_gradients, self.volume_lambda, self.volume_mu,
             displacement, self._zero_velocity, False, False, False, 0.0, self.law_kind,
             self.law_params, self.edge_gram, self.mean_ratio_scale, self.viscous_lambda,
-            self.viscous_mu, self.chunk_bounds, self.chunk_node_lo, self.chunk_node_hi,
-            self._buffers, out, self._nonlinear_counts)
+            self.viscous_mu, self.chunk_bounds, self._buffers, self._nonlinear_counts)
+        forces.reduce_buffers(self._buffers, self.chunk_node_lo, self.chunk_node_hi, out)
         return out
 
     @property
@@ -246,22 +256,49 @@ def _element_stiffness(shape_gradients, volume_lambda, volume_mu):
     return stiff.transpose(0, 1, 3, 2, 4).reshape(-1, 12, 12)
 
 
-@njit(cache=True, parallel=True, fastmath=forces.FASTMATH)
+@njit(cache=True, parallel=True, fastmath=forces.FASTMATH, boundscheck=False)
 def _strain_energy(tetrahedra, shape_gradients, volume_lambda, volume_mu, displacement, geometric):
+    """Sum of V (lambda/2 tr(E)^2 + mu E:E) with E = sym(H) (+ H^T H / 2 if geometric); inverted count."""
     energy = 0.0
     inverted = 0
     for e in prange(tetrahedra.shape[0]):
-        h = np.zeros((3, 3))
+        i0 = tetrahedra[e, 0]
+        h00 = h01 = h02 = h10 = h11 = h12 = h20 = h21 = h22 = 0.0
         for k in range(1, 4):
-            for r in range(3):
-                du = displacement[tetrahedra[e, k], r] - displacement[tetrahedra[e, 0], r]
-                for s in range(3):
-                    h[r, s] += du * shape_gradients[e, k - 1, s]
-        strain = 0.5 * (h + h.T)
+            ik = tetrahedra[e, k]
+            dx = displacement[ik, 0] - displacement[i0, 0]
+            dy = displacement[ik, 1] - displacement[i0, 1]
+            dz = displacement[ik, 2] - displacement[i0, 2]
+            ax = shape_gradients[e, k - 1, 0]
+            ay = shape_gradients[e, k - 1, 1]
+            az = shape_gradients[e, k - 1, 2]
+            h00 += dx * ax
+            h01 += dx * ay
+            h02 += dx * az
+            h10 += dy * ax
+            h11 += dy * ay
+            h12 += dy * az
+            h20 += dz * ax
+            h21 += dz * ay
+            h22 += dz * az
+        e00 = h00
+        e11 = h11
+        e22 = h22
+        e01 = 0.5 * (h01 + h10)
+        e02 = 0.5 * (h02 + h20)
+        e12 = 0.5 * (h12 + h21)
         if geometric:
-            strain += 0.5 * (h.T @ h)
-        trace = strain[0, 0] + strain[1, 1] + strain[2, 2]
-        energy += 0.5 * volume_lambda[e] * trace * trace + volume_mu[e] * np.sum(strain * strain)
-        if np.linalg.det(np.eye(3) + h) <= 0.0:
+            e00 += 0.5 * (h00 * h00 + h10 * h10 + h20 * h20)
+            e11 += 0.5 * (h01 * h01 + h11 * h11 + h21 * h21)
+            e22 += 0.5 * (h02 * h02 + h12 * h12 + h22 * h22)
+            e01 += 0.5 * (h00 * h01 + h10 * h11 + h20 * h21)
+            e02 += 0.5 * (h00 * h02 + h10 * h12 + h20 * h22)
+            e12 += 0.5 * (h01 * h02 + h11 * h12 + h21 * h22)
+        trace = e00 + e11 + e22
+        energy += (0.5 * volume_lambda[e] * trace * trace
+                   + volume_mu[e] * (e00 * e00 + e11 * e11 + e22 * e22 + 2.0 * (e01 * e01 + e02 * e02 + e12 * e12)))
+        det_f = ((1.0 + h00) * ((1.0 + h11) * (1.0 + h22) - h12 * h21) - h01 * (h10 * (1.0 + h22) - h12 * h20)
+                 + h02 * (h10 * h21 - (1.0 + h11) * h20))
+        if det_f <= 0.0:
             inverted += 1
     return energy, inverted

@@ -15,7 +15,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from tissue_sim_ros.engine.forces import FASTMATH
+from tissue_sim_ros.engine.forces import FASTMATH, take_node_force
 
 FREE, FIXED, PRESCRIBED = 0, 1, 2
 _AXES = {'x': 0, 'y': 1, 'z': 2}
@@ -36,18 +36,22 @@ class SimulationDiverged(RuntimeError):
             f'({time_step / critical_time_step:.2f}x)')
 
 
-@njit(cache=True, parallel=True, fastmath=FASTMATH)
-def _advance_free(displacement, velocity, force, external, inverse_mass, damping_rate, dof_kind, dt):
-    """Symplectic Euler on free DOFs; returns (external work, kinetic energy, non-finite count)."""
+@njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False)
+def _advance_free(displacement, velocity, buffers, chunk_node_lo, chunk_node_hi, force, external,
+                  inverse_mass, damping_rate, dof_kind, dt):
+    """Gather each node's force from the element pass's buffers (into ``force``) and advance its
+    free DOFs by symplectic Euler; returns (external work, kinetic energy, non-finite count)."""
     work = 0.0
     kinetic = 0.0
     bad = 0
     for i in prange(displacement.shape[0]):
+        force[i, 0], force[i, 1], force[i, 2] = take_node_force(buffers, chunk_node_lo, chunk_node_hi, i)
         inv_m = inverse_mass[i]
+        damping_factor = 1.0 / (1.0 + dt * damping_rate[i])
         for r in range(3):
             if dof_kind[i, r] == FREE:
                 v_old = velocity[i, r]
-                v = (v_old + dt * inv_m * (force[i, r] + external[i, r])) / (1.0 + dt * damping_rate[i])
+                v = (v_old + dt * inv_m * (force[i, r] + external[i, r])) * damping_factor
                 velocity[i, r] = v
                 displacement[i, r] += dt * v
                 work += external[i, r] * dt * v
@@ -120,7 +124,7 @@ class Simulation:
     """
 
     def __init__(self, model, *, damping=0.0, fixed=None, dt=None, time_step_safety=0.8,
-                 check_interval=25, energy_growth_factor=2.0, allow_inverted=False):
+                 check_interval=50, energy_growth_factor=2.0, allow_inverted=False):
         self.model = model
         n = model.mesh.n_nodes
         self.mass = model.lumped_masses()
@@ -197,8 +201,9 @@ class Simulation:
             check = (self.step_count + 1) % self.check_interval == 0
             if check:   # energy at u_n, matched with the velocity at t_n from the advance
                 strain, inverted = model.strain_energy(self.displacement)
-            model.internal_forces(self.displacement, self.velocity, out=self.internal_force)
-            work, kinetic, bad = _advance_free(self.displacement, self.velocity, self.internal_force,
+            model.accumulate_forces(self.displacement, self.velocity)
+            work, kinetic, bad = _advance_free(self.displacement, self.velocity, *model.force_buffers,
+                                               self.internal_force,
                                                self.external_forces, self.inverse_mass,
                                                self.damping_rate, self.dof_kind, dt)
             t_next = self.time + dt

@@ -20,17 +20,19 @@ Durability (what a reader sees if the process dies):
 
 - ``close()`` (also on ``with`` exit, SIGINT handled by the caller, or interpreter exit through
   ``atexit``) writes the summary: the file is complete and every reader opens it.
-- After SIGKILL or a power cut the file under its final name holds the header, the metadata record
-  and every chunk closed so far; the open chunk (at most ``chunk_interval_s`` of log time or wall
-  time, or ``chunk_size`` bytes) and the summary are missing. Readers that seek to the footer
-  (``rosbags``, rosbag2, ``mcap.reader.SeekingReader``) refuse it; a stream reader reads every
-  closed chunk: :func:`recover_truncated` reports what is intact and can write a repaired copy,
-  and :func:`read_log` takes ``allow_truncated=True``. Closed chunks are handed to the OS at once
-  (the file is unbuffered); ``fsync=True`` also forces them to the disk (power loss).
+- After SIGKILL (or, with ``fsync=True``, a power cut) the file under its final name holds the
+  header, the metadata record and every chunk closed so far; the open chunk (at most
+  ``chunk_interval_s`` of log time or wall time, or ``chunk_size`` bytes), the writer queue and
+  the summary are missing. Readers that need the footer refuse it (``rosbags``,
+  ``mcap.reader.SeekingReader``, ``McapIndexedReader`` of ``@mcap/core``; rosbag2's C++ reader
+  has a fallback scan, not tried here); stream readers read every closed chunk:
+  :func:`recover_truncated` reports what is intact and can write a repaired copy, and
+  :func:`read_log` takes ``allow_truncated=True``. Closed chunks are handed to the OS at once
+  (the file is unbuffered); ``fsync=True`` also forces them to the disk.
 
 Chunk ending: ``mcap.writer.Writer`` (1.6) ends a chunk only when it outgrows ``chunk_size``, or
-in ``Writer.flush()`` (public since mcap 1.6: "finishes the chunk in progress ... flushes the
-stream"). :func:`end_chunk` wraps that in one place.
+in the public ``Writer.flush()`` of mcap 1.6 ("finishes the chunk in progress ... flushes the
+stream"); :func:`end_chunk` wraps that in one place, with a fallback for older versions.
 """
 from __future__ import annotations
 
@@ -67,6 +69,7 @@ __all__ = [
     'DEFAULT_METADATA_NAME',
     'LogMessage',
     'McapRecorder',
+    'RecorderStats',
     'TruncatedLogError',
     'end_chunk',
     'message_definition',
@@ -253,7 +256,8 @@ def qos_profile(qos: Mapping[str, Any] | None = None) -> dict[str, Any]:
     for key in list(given):
         if key.endswith('_ns') and key[:-3] in _QOS_DURATIONS:
             given[key[:-3]] = given.pop(key)
-    allowed = set(_QOS_POLICIES) | set(_QOS_DURATIONS) | {'depth', 'avoid_ros_namespace_conventions'}
+    allowed = (set(_QOS_POLICIES) | set(_QOS_DURATIONS)
+               | {'depth', 'avoid_ros_namespace_conventions'})
     unknown = sorted(set(given) - allowed)
     if unknown:
         raise ValueError(f'qos: unknown keys {unknown}; expected some of {sorted(allowed)}')
@@ -419,6 +423,11 @@ class McapRecorder:
     - Errors of the writer thread (disk full...) are raised by the next ``write``/``flush``/
       ``close``.
     - The path must not exist unless ``overwrite=True``: a log is never overwritten by accident.
+
+    In a node, serialize each outgoing message once and hand the same bytes to both:
+    ``data = serialize_message(msg); publisher.publish(data); recorder.write(topic, data, t)``
+    (rclpy publishes ``bytes`` as they are); record incoming messages from a second
+    subscription with ``raw=True``, whose callback receives the wire bytes.
     """
 
     def __init__(
@@ -614,8 +623,9 @@ class McapRecorder:
         if self._chunk_first_log_ns is None:
             self._chunk_first_log_ns = log_time
             self._chunk_opened_at = time.monotonic()
-        elif abs(log_time - self._chunk_first_log_ns) >= self._interval_ns:
-            self._end_chunk_locked()
+        elif (abs(log_time - self._chunk_first_log_ns) >= self._interval_ns
+              or time.monotonic() - self._chunk_opened_at >= self._interval_s):
+            self._end_chunk_locked()  # span of log time, or age in wall time (slow sim time)
 
     def _chunk_done(self) -> None:
         self._stats.chunks_closed += 1

@@ -71,7 +71,7 @@ _POINT_FIELD_DTYPES = {
 
 
 def stamp_to_ns(stamp) -> int:
-    """Nanoseconds since the epoch of a ``builtin_interfaces/Time`` (or anything with sec/nanosec)."""
+    """Nanoseconds of a ``builtin_interfaces/Time`` (or of anything with sec and nanosec)."""
     return int(stamp.sec) * _NS_PER_S + int(stamp.nanosec)
 
 
