@@ -14,7 +14,7 @@ def _compress(args):
     for k in range(0, len(result.time), max(1, len(result.time) // 10)):
         print(f'{result.plate_travel[k] * 1e3:>12.3f} {result.reaction[k]:>13.5f} '
               f'{result.expected_slope * result.plate_travel[k]:>15.5f}')
-    print(f'final reaction {result.reaction[-1]:.5f} N at {result.plate_travel[-1] * 1e3:.3f} mm; '
+    print(f'final reaction {result.reaction[-1]:.5f} N at {result.plate_travel[-1] * 1e3:.3f} mm after the hold; '
           f'simulated {result.time[-1]:.3f} s in {result.wall_time:.2f} s wall '
           f'(real-time factor {result.time[-1] / result.wall_time:.1f})')
     plot_compression(result, out / 'compression.png')

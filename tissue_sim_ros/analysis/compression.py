@@ -18,7 +18,7 @@ from tissue_sim_ros.engine.solver import Simulation
 class CompressionResult:
     time: np.ndarray            # (k,) s
     plate_travel: np.ndarray    # (k,) m, positive downwards
-    reaction: np.ndarray        # (k,) N, force of the tissue on the plate along +z
+    reaction: np.ndarray        # (k,) N, force of the tissue on the plate along +z (last: settled)
     expected_slope: float       # E A / height [N/m], the small-strain analytic stiffness
     n_elements: int
     time_step: float
@@ -26,8 +26,9 @@ class CompressionResult:
 
 
 def plate_compression(size=(0.05, 0.05, 0.03), divisions=(10, 10, 6), material=None,
-                      final_strain=0.10, speed=0.01, damping=50.0, samples=60):
-    """Compress the block to ``final_strain`` at ``speed`` [m/s]; sample the reaction ``samples`` times."""
+                      final_strain=0.10, speed=0.01, damping=50.0, samples=60, hold=0.15):
+    """Compress the block to ``final_strain`` at ``speed`` [m/s], then hold the plate for ``hold`` [s]
+    so the reaction settles; sample the reaction about ``samples`` times during the travel."""
     import time as clock
     material = material or Material(young_modulus=5e3, poisson_ratio=0.45, density=1060.0)
     mesh = box_mesh(size=size, divisions=divisions)
@@ -47,8 +48,9 @@ def plate_compression(size=(0.05, 0.05, 0.03), divisions=(10, 10, 6), material=N
         return plate
 
     sim.prescribe(top, plate_position, axes='z')
-    duration = final_strain * size[2] / speed
-    steps_per_sample = max(1, int(round(duration / samples / sim.dt)))
+    travel_time = final_strain * size[2] / speed
+    duration = travel_time + hold
+    steps_per_sample = max(1, int(round(travel_time / samples / sim.dt)))
     times, travel, reaction = [0.0], [0.0], [0.0]
     start = clock.perf_counter()
     while sim.time < duration:
