@@ -7,7 +7,7 @@ from tissue_sim_ros import _threading  # noqa: F401  (must precede the first num
 
 from importlib.metadata import PackageNotFoundError, version as _version
 
-from tissue_sim_ros.engine.material import Material, MaterialError
+from tissue_sim_ros.engine.material import Material, MaterialError, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.mesh import (MeshError, TetMesh, box_mesh, graded_box_mesh, load_mesh,
                                         make_mesh, mean_ratio, save_mesh)
 from tissue_sim_ros.engine.model import TensorMassModel
@@ -18,6 +18,6 @@ try:
 except PackageNotFoundError:  # running from a source tree that was not installed
     __version__ = '0+unknown'
 
-__all__ = ['Material', 'MaterialError', 'MeshError', 'TetMesh', 'box_mesh', 'graded_box_mesh',
+__all__ = ['Material', 'MaterialError', 'MeanRatioLaw', 'Viscosity', 'MeshError', 'TetMesh', 'box_mesh', 'graded_box_mesh',
            'load_mesh', 'make_mesh', 'mean_ratio', 'save_mesh', 'TensorMassModel', 'Simulation',
            'SimulationDiverged', '__version__']

@@ -10,7 +10,7 @@ import scipy.sparse
 from numba import njit, prange
 
 from tissue_sim_ros.engine import forces
-from tissue_sim_ros.engine.material import Material, MaterialError
+from tissue_sim_ros.engine.material import Material, MaterialError, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.mesh import TetMesh, mean_ratio
 
 _LOCAL_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
@@ -55,13 +55,20 @@ def _per_element_material(mesh, material):
 
 
 class TensorMassModel:
-    """The tensor-mass finite-element model of a tetrahedral mesh (linear for now).
+    """The tensor-mass finite-element model of a tetrahedral mesh, any combination of the paper's.
 
-    ``internal_forces(u)`` returns -K u (n, 3) in newtons through the element kernel; the
-    paper's vertex/edge-tensor form is ``edge_form_forces(u)`` and is kept equal by the tests.
+    geometric: St Venant-Kirchhoff (Green-Lagrange strain) instead of small strain.
+    physical: a MeanRatioLaw of Lamé corrections (None: no correction).
+    viscosity: Kelvin-Voigt Viscosity (None: elastic only).
+    nonlinearity_threshold: elements whose displacement gradient norm |H|_F is below it take
+    the linear path (0: every element is non-linear, the full model exactly).
+
+    ``internal_forces(u, v)`` returns the internal force (n, 3) in newtons; for the linear model
+    it is -K u, and the paper's vertex/edge-tensor form ``edge_form_forces(u)`` equals it.
     """
 
-    def __init__(self, mesh: TetMesh, material, *, n_threads=None):
+    def __init__(self, mesh: TetMesh, material, *, geometric=False, physical=None, viscosity=None,
+                 nonlinearity_threshold=0.0, n_threads=None):
         if not isinstance(mesh, TetMesh):
             raise TypeError(f'mesh: expected a TetMesh, got {type(mesh).__name__}')
         self.mesh = mesh
@@ -80,6 +87,7 @@ class TensorMassModel:
         density = np.array([m.density for m in materials])[material_index]
         self.element_mass = density * self.volumes
         self._options_linear()
+        self._set_options(geometric, physical, viscosity, nonlinearity_threshold)
         self._allocate(n_threads or numba.get_num_threads())
         self._assemble_tensors()
 
@@ -93,6 +101,31 @@ class TensorMassModel:
         self.law_params = np.zeros(1)
         self.viscous_lambda = np.zeros(1)
         self.viscous_mu = np.zeros(1)
+
+    def _set_options(self, geometric, physical, viscosity, nonlinearity_threshold):
+        if not isinstance(geometric, bool):
+            raise TypeError(f'geometric = {geometric!r}: expected True or False')
+        if physical is not None and not isinstance(physical, MeanRatioLaw):
+            raise TypeError(f'physical = {physical!r}: expected a MeanRatioLaw or None')
+        if viscosity is not None and not isinstance(viscosity, Viscosity):
+            raise TypeError(f'viscosity = {viscosity!r}: expected a Viscosity or None')
+        if not (isinstance(nonlinearity_threshold, (int, float)) and np.isfinite(nonlinearity_threshold)
+                and nonlinearity_threshold >= 0):
+            raise ValueError(f'nonlinearity_threshold = {nonlinearity_threshold!r}: expected a finite '
+                             'displacement-gradient norm >= 0')
+        self.geometric = geometric
+        self.physical_law = physical
+        self.physical = physical is not None and physical.kind != forces.LAW_NONE
+        if self.physical:
+            self.law_kind = physical.kind
+            self.law_params = physical.parameters
+        self.viscosity = viscosity
+        self.viscous = viscosity is not None
+        if self.viscous:
+            self.viscous_lambda = self.volumes * viscosity.lambda_v
+            self.viscous_mu = self.volumes * viscosity.mu_v
+        self.nonlinearity_threshold = float(nonlinearity_threshold)
+        self.threshold_squared = self.nonlinearity_threshold ** 2
 
     def _allocate(self, n_chunks):
         n = self.mesh.n_nodes

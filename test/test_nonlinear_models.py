@@ -1,0 +1,221 @@
+"""Non-linear and visco-elastic models against independent truth: the paper's precomputed form,
+rigid-rotation invariance, exact homogeneous stretch, energy gradients, dissipation rates, the
+mean-ratio law, and the non-linearity threshold."""
+import numpy as np
+import pytest
+
+import tissue_sim_ros as ts
+from tissue_sim_ros.engine.reference import all_shape_gradients, picinbono_forces
+
+
+def _rotation(axis, angle):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+def _boundary_forces(mesh, stress_times_normal):
+    """-sum over surface triangles of (P N) A / 3 per vertex: the consistent nodal forces of a
+    homogeneous first Piola-Kirchhoff stress P on the reference boundary."""
+    tri = mesh.surface_triangles()
+    p = mesh.rest_positions[tri]
+    area_normal = 0.5 * np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    traction = stress_times_normal(area_normal) / 3.0
+    out = np.zeros((mesh.n_nodes, 3))
+    for k in range(3):
+        np.add.at(out, tri[:, k], -traction)
+    return out
+
+
+def test_picinbono_form_equals_deformation_gradient_form_on_random_elements():
+    rng = np.random.default_rng(11)
+    worst = 0.0
+    for _ in range(25):
+        mesh = ts.make_mesh(rng.normal(size=(4, 3)), np.array([[0, 1, 2, 3]]))
+        material = ts.Material(young_modulus=rng.uniform(1e3, 1e5), poisson_ratio=rng.uniform(0.0, 0.49),
+                               density=1000.0)
+        model = ts.TensorMassModel(mesh, material, geometric=True)
+        size = np.abs(mesh.rest_positions).max()
+        u = rng.normal(scale=0.5 * size, size=(4, 3))                 # strains of order 1
+        kernel = model.internal_forces(u)
+        reference = picinbono_forces(model.tetrahedra, model.shape_gradients, model.volume_lambda,
+                                     model.volume_mu, u)
+        worst = max(worst, np.abs(kernel - reference).max() / np.abs(reference).max())
+    assert worst < 1e-12
+    print(f'Picinbono K/c/d form vs P = F S kernel: worst relative difference {worst:.2e}')
+
+
+@pytest.mark.parametrize('angle', [0.1, 0.5, np.pi / 2, 2.5, np.pi])
+def test_rigid_rotation_no_geometric_force_linear_ghost_forces(jittered_block, liver, angle):
+    mesh = jittered_block
+    rotation = _rotation([1.0, 2.0, -0.5], angle)
+    centre = mesh.rest_positions.mean(axis=0)
+    u = (mesh.rest_positions - centre) @ rotation.T + centre - mesh.rest_positions
+    geometric = ts.TensorMassModel(mesh, liver, geometric=True).internal_forces(u)
+    linear = ts.TensorMassModel(mesh, liver).internal_forces(u)
+    # force scale: mu |u| h, the size of the ghost forces of the linear model (FORMULAS.md)
+    h = np.cbrt(mesh.volumes().mean())
+    scale = liver.lame_mu * np.abs(u).max() * h
+    assert np.abs(geometric).max() < 1e-12 * scale
+    ghost = np.abs(linear).max() / scale
+    assert ghost > 0.1 * angle          # of order one: the linear model is not rotation invariant
+    print(f'rotation {angle:.2f} rad: StVK residual {np.abs(geometric).max() / scale:.1e}, '
+          f'linear ghost force {ghost:.2f} mu |u| h')
+
+
+@pytest.mark.parametrize('stretch', [0.7, 0.9, 1.1, 1.5])
+def test_uniaxial_stretch_exact_first_piola_and_lateral_strain(jittered_block, liver, stretch):
+    """Homogeneous uniaxial stress: E_11 = (s^2-1)/2, E_22 = E_33 = -nu E_11, P_11 = Y s (s^2-1)/2.
+    The mesh must be in equilibrium with exactly this traction on its boundary."""
+    mesh = jittered_block
+    lam, mu, nu = liver.lame_lambda, liver.lame_mu, liver.poisson_ratio
+    young = mu * (3 * lam + 2 * mu) / (lam + mu)
+    e11 = 0.5 * (stretch ** 2 - 1.0)
+    lateral = np.sqrt(1.0 + 2.0 * (-nu * e11))
+    deformation = np.diag([stretch, lateral, lateral])
+    u = mesh.rest_positions @ (deformation - np.eye(3)).T
+    p11 = young * stretch * e11
+    first_piola = np.diag([p11, 0.0, 0.0])
+    force = ts.TensorMassModel(mesh, liver, geometric=True).internal_forces(u)
+    expected = _boundary_forces(mesh, lambda area_normal: area_normal @ first_piola.T)
+    scale = np.abs(expected).max()
+    assert np.abs(force - expected).max() < 1e-9 * scale
+    x_max = np.isclose(mesh.rest_positions[:, 0], mesh.rest_positions[:, 0].max())
+    face_area = np.ptp(mesh.rest_positions[:, 1]) * np.ptp(mesh.rest_positions[:, 2])
+    assert -force[x_max, 0].sum() == pytest.approx(p11 * face_area, rel=1e-9)
+
+
+def test_geometric_forces_are_minus_energy_gradient(jittered_block, liver):
+    model = ts.TensorMassModel(jittered_block, liver, geometric=True)
+    rng = np.random.default_rng(5)
+    u = rng.normal(scale=0.004, size=(jittered_block.n_nodes, 3))        # strains ~ 0.3
+    force = model.internal_forces(u)
+    step = 1e-7
+    for node, axis in [(0, 0), (7, 1), (20, 2), (33, 0), (jittered_block.n_nodes - 1, 2)]:
+        plus, minus = u.copy(), u.copy()
+        plus[node, axis] += step
+        minus[node, axis] -= step
+        gradient = (model.strain_energy(plus)[0] - model.strain_energy(minus)[0]) / (2 * step)
+        assert -gradient == pytest.approx(force[node, axis], rel=1e-6, abs=1e-9 * np.abs(force).max())
+
+
+def _independent_physical_force(mesh, material, law, u, geometric):
+    """(K + dlambda A + dmu B) u, or its St Venant-Kirchhoff analogue, with the corrections from
+    meshio-free numpy: mesh.mean_ratio of the deformed positions over the rest mean ratio."""
+    distortion = np.maximum(0.0, 1.0 - mesh.mean_ratio(mesh.rest_positions + u) / mesh.mean_ratio())
+    g_lambda, g_mu = law.corrections(distortion)
+    frozen = ts.TensorMassModel(mesh, material, geometric=geometric)
+    frozen.volume_lambda = frozen.volume_lambda * (1.0 + g_lambda)
+    frozen.volume_mu = frozen.volume_mu * (1.0 + g_mu)
+    frozen._assemble_tensors()
+    return frozen, distortion
+
+
+@pytest.mark.parametrize('law', [ts.MeanRatioLaw.polynomial([2.0, 30.0], [5.0, -3.0, 40.0]),
+                                 ts.MeanRatioLaw.exponential(0.5, 8.0, 1.5, 12.0)])
+def test_physical_law_scales_forces_as_K_plus_dlambda_A_plus_dmu_B(jittered_block, liver, law):
+    mesh = jittered_block
+    rng = np.random.default_rng(2)
+    u = rng.normal(scale=0.002, size=(mesh.n_nodes, 3))
+    physical = ts.TensorMassModel(mesh, liver, physical=law).internal_forces(u)
+    frozen, distortion = _independent_physical_force(mesh, liver, law, u, geometric=False)
+    assert distortion.max() > 0.05                     # the law is really exercised
+    expected = -(frozen.stiffness_matrix() @ u.ravel()).reshape(-1, 3)
+    assert np.abs(physical - expected).max() < 1e-10 * np.abs(expected).max()
+    # with the corrections frozen, the force is minus the gradient of the frozen energy
+    assert frozen.strain_energy(u)[0] == pytest.approx(-0.5 * np.sum(u * expected), rel=1e-12)
+    # full model: St Venant-Kirchhoff with the corrected coefficients
+    full = ts.TensorMassModel(mesh, liver, geometric=True, physical=law).internal_forces(u)
+    frozen_geometric, _ = _independent_physical_force(mesh, liver, law, u, geometric=True)
+    reference = picinbono_forces(frozen_geometric.tetrahedra, frozen_geometric.shape_gradients,
+                                 frozen_geometric.volume_lambda, frozen_geometric.volume_mu, u)
+    assert np.abs(full - reference).max() < 1e-10 * np.abs(reference).max()
+
+
+def test_viscous_dissipation_rate_and_rigid_motion(jittered_block, liver):
+    mesh = jittered_block
+    viscosity = ts.Viscosity(lambda_v=3.0, mu_v=7.0)
+    model = ts.TensorMassModel(mesh, liver, viscosity=viscosity)
+    rng = np.random.default_rng(9)
+    v = rng.normal(scale=0.01, size=(mesh.n_nodes, 3))
+    force = model.internal_forces(np.zeros_like(v), v)
+    a = all_shape_gradients(model.shape_gradients)
+    rate = np.einsum('mkr,mks->mrs', v[model.tetrahedra], a)            # dH/dt per element
+    strain_rate = 0.5 * (rate + rate.transpose(0, 2, 1))
+    trace = np.trace(strain_rate, axis1=1, axis2=2)
+    dissipation = np.sum(model.volumes * (viscosity.lambda_v * trace ** 2
+                                          + 2 * viscosity.mu_v * np.sum(strain_rate ** 2, axis=(1, 2))))
+    assert -np.sum(force * v) == pytest.approx(dissipation, rel=1e-12)
+    assert dissipation > 0
+    # rigid motion: translation plus infinitesimal rotation rate, at rest (linear model)
+    omega, drift = np.array([0.3, -1.0, 0.5]), np.array([0.01, 0.02, -0.03])
+    rigid_v = np.cross(omega, mesh.rest_positions) + drift
+    scale = np.abs(force).max()
+    assert np.abs(model.internal_forces(np.zeros_like(v), rigid_v)).max() < 1e-12 * scale
+    # geometric model: a finite rotation R moving rigidly (v = omega x (current x)) gives no force
+    geometric = ts.TensorMassModel(mesh, liver, geometric=True, viscosity=viscosity)
+    rotation = _rotation([0.2, 1.0, 0.4], 1.1)
+    current = mesh.rest_positions @ rotation.T
+    moving = geometric.internal_forces(current - mesh.rest_positions, np.cross(omega, current) + drift)
+    assert np.abs(moving).max() < 1e-12 * liver.lame_mu * np.abs(current).max() * np.cbrt(mesh.volumes().mean())
+
+
+def test_threshold_zero_is_full_model_and_large_threshold_is_linear(jittered_block, liver):
+    mesh = jittered_block
+    law = ts.MeanRatioLaw.exponential(0.5, 8.0, 1.5, 12.0)
+    viscosity = ts.Viscosity(lambda_v=1.0, mu_v=2.0)
+    rng = np.random.default_rng(4)
+    u = rng.normal(scale=0.003, size=(mesh.n_nodes, 3))
+    v = rng.normal(scale=0.01, size=(mesh.n_nodes, 3))
+    full = ts.TensorMassModel(mesh, liver, geometric=True, physical=law, viscosity=viscosity)
+    thresholded = ts.TensorMassModel(mesh, liver, geometric=True, physical=law, viscosity=viscosity,
+                                     nonlinearity_threshold=0.0)
+    assert np.array_equal(full.internal_forces(u, v), thresholded.internal_forces(u, v))
+    assert thresholded.nonlinear_fraction == 1.0
+    # against the independent full-model reference
+    frozen, _ = _independent_physical_force(mesh, liver, law, u, geometric=True)
+    elastic = ts.TensorMassModel(mesh, liver, geometric=True, physical=law).internal_forces(u)
+    reference = picinbono_forces(frozen.tetrahedra, frozen.shape_gradients, frozen.volume_lambda,
+                                 frozen.volume_mu, u)
+    assert np.abs(elastic - reference).max() < 1e-10 * np.abs(reference).max()
+    huge = ts.TensorMassModel(mesh, liver, geometric=True, physical=law, viscosity=viscosity,
+                              nonlinearity_threshold=1e9)
+    linear = ts.TensorMassModel(mesh, liver, viscosity=viscosity)
+    assert np.array_equal(huge.internal_forces(u, v), linear.internal_forces(u, v))
+    assert huge.nonlinear_fraction == 0.0
+
+
+def test_threshold_selects_deformed_elements(jittered_block, liver):
+    """The fraction on the non-linear path equals the count of elements with |H|_F >= threshold,
+    and each element's force is the full model's or the linear one's accordingly."""
+    mesh = jittered_block
+    centre = mesh.rest_positions.mean(axis=0)
+    distance = np.linalg.norm(mesh.rest_positions - centre, axis=1)
+    u = np.zeros((mesh.n_nodes, 3))
+    u[:, 2] = -0.004 * np.exp(-(distance / 0.006) ** 2)             # a needle-like local dent
+    threshold = 0.05
+    model = ts.TensorMassModel(mesh, liver, geometric=True, nonlinearity_threshold=threshold)
+    force = model.internal_forces(u)
+    a = all_shape_gradients(model.shape_gradients)
+    norms = np.linalg.norm(np.einsum('mkr,mks->mrs', u[model.tetrahedra], a), axis=(1, 2))
+    selected = norms >= threshold
+    assert 0 < selected.sum() < mesh.n_elements
+    assert model.nonlinear_fraction == pytest.approx(selected.mean(), abs=1e-15)
+    nonlinear_part = picinbono_forces(model.tetrahedra[selected], model.shape_gradients[selected],
+                                      model.volume_lambda[selected], model.volume_mu[selected], u)
+    linear_model = ts.TensorMassModel(mesh, liver)
+    linear_model.volume_lambda = np.where(selected, 0.0, linear_model.volume_lambda)
+    linear_model.volume_mu = np.where(selected, 0.0, linear_model.volume_mu)
+    expected = nonlinear_part + linear_model.internal_forces(u)
+    assert np.abs(force - expected).max() < 1e-12 * np.abs(expected).max()
+
+
+def test_bad_options_named(jittered_block, liver):
+    with pytest.raises(ValueError, match='nonlinearity_threshold'):
+        ts.TensorMassModel(jittered_block, liver, nonlinearity_threshold=-1.0)
+    with pytest.raises(TypeError, match='physical'):
+        ts.TensorMassModel(jittered_block, liver, physical='exponential')
+    with pytest.raises(ts.MaterialError, match='mu_v'):
+        ts.Viscosity(lambda_v=1.0, mu_v=-2.0)
+    with pytest.raises(ts.MaterialError, match='mu_rate'):
+        ts.MeanRatioLaw.exponential(mu_rate=float('nan'))
