@@ -23,7 +23,7 @@ def _compress(args):
 
 def _bench(args):
     from tissue_sim_ros.analysis import bench
-    bench.run(sizes=args.sizes)
+    bench.run(sizes=args.sizes, models=args.models)
 
 
 def build_parser():
@@ -39,6 +39,9 @@ def build_parser():
     bench = commands.add_parser('bench', help='print force/step timings and tet-steps/s per mesh size')
     bench.add_argument('--sizes', nargs='+', choices=['1e3', '1e4', '1e5', '5e5'], default=None,
                        help='mesh sizes to run (default: all)')
+    bench.add_argument('--models', nargs='+', default=None, metavar='MODEL',
+                       help='models to run (default: all): linear, linear+visc, physical, physical+visc, '
+                            'geometric, geometric+visc, full, full+visc, full+thr0.02')
     bench.set_defaults(run=_bench)
     return parser
 

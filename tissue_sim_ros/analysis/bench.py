@@ -9,14 +9,40 @@ import time
 import numba
 import numpy as np
 
-from tissue_sim_ros.engine.material import Material
+from tissue_sim_ros.engine.material import Material, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.mesh import box_mesh
 from tissue_sim_ros.engine.model import TensorMassModel
 from tissue_sim_ros.engine.solver import Simulation
 
 # divisions of a box of 6 nx ny nz tetrahedra: about 1e3, 1e4, 1e5, 5e5
 SIZES = {'1e3': (8, 7, 3), '1e4': (15, 15, 8), '1e5': (32, 32, 16), '5e5': (56, 55, 28)}
-PAPER_TETS_AT_50HZ = {'linear': 17000}
+PAPER_TETS_AT_50HZ = {'linear': 17000, 'physical': 2500, 'full': 350}
+
+_LAW = MeanRatioLaw.exponential(lambda_amplitude=0.5, lambda_rate=8.0, mu_amplitude=1.5, mu_rate=12.0)
+_VISCOSITY = Viscosity(lambda_v=5.0, mu_v=2.0)
+MODELS = {
+    'linear': dict(),
+    'linear+visc': dict(viscosity=_VISCOSITY),
+    'physical': dict(physical=_LAW),
+    'physical+visc': dict(physical=_LAW, viscosity=_VISCOSITY),
+    'geometric': dict(geometric=True),
+    'geometric+visc': dict(geometric=True, viscosity=_VISCOSITY),
+    'full': dict(geometric=True, physical=_LAW),
+    'full+visc': dict(geometric=True, physical=_LAW, viscosity=_VISCOSITY),
+    'full+thr0.02': dict(geometric=True, physical=_LAW, viscosity=_VISCOSITY, nonlinearity_threshold=0.02),
+}
+
+
+def needle_dent(mesh, depth=0.005, radius=0.005):
+    """A needle-like local deformation: the top surface pushed down by ``depth`` under a point,
+    decaying as a Gaussian of ``radius`` with distance and with depth into the block."""
+    x = mesh.rest_positions
+    top = x[:, 2].max()
+    centre = np.array([x[:, 0].mean(), x[:, 1].mean(), top])
+    distance = np.linalg.norm(x - centre, axis=1)
+    u = np.zeros_like(x)
+    u[:, 2] = -depth * np.exp(-(distance / radius) ** 2)
+    return u
 
 
 def _time_per_call(function, repeats=5, min_seconds=0.1, min_calls=3):
@@ -33,39 +59,47 @@ def _time_per_call(function, repeats=5, min_seconds=0.1, min_calls=3):
 
 
 def bench_model(model, steps_per_call=10):
-    """(force evaluation seconds, full step seconds) for one model on its mesh."""
+    """(force evaluation s, full step s, non-linear fraction) for one model, on a needle dent."""
     mesh = model.mesh
-    rng = np.random.default_rng(0)
-    u = rng.normal(scale=1e-4, size=(mesh.n_nodes, 3))
-    v = rng.normal(scale=1e-4, size=(mesh.n_nodes, 3))
+    u = needle_dent(mesh)
+    v = 0.01 * u
     out = np.empty_like(u)
     force_time = _time_per_call(lambda: model.internal_forces(u, v, out=out))
+    fraction = model.nonlinear_fraction
     bottom = np.flatnonzero(np.isclose(mesh.rest_positions[:, 2], mesh.rest_positions[:, 2].min()))
-    sim = Simulation(model, damping=10.0, fixed=bottom)
-    sim.displacement[:] = u * 0.01
+    # a tiny step keeps the dent in place while timing (stability is not what is measured here)
+    sim = Simulation(model, damping=10.0, fixed=bottom, dt=1e-9)
+    sim.displacement[:] = u
     sim.displacement[bottom] = 0.0
     step_time = _time_per_call(lambda: sim.step(steps_per_call)) / steps_per_call
-    return force_time, step_time
+    return force_time, step_time, fraction
 
 
 def run(sizes=None, models=None, material=None, stream=print):
     material = material or Material(young_modulus=5e3, poisson_ratio=0.45, density=1060.0)
     sizes = sizes or list(SIZES)
-    models = models or {'linear': {}}
+    models = {name: MODELS[name] for name in (models or MODELS)}
     stream(f'threads: {numba.get_num_threads()} ({numba.config.THREADING_LAYER} layer); best of 5 batches')
-    stream(f'{"model":<12} {"tets":>8} {"force [ms]":>11} {"step [ms]":>10} {"tet-steps/s":>12}')
+    stream('displacement: a needle-like dent, 5 mm deep, 5 mm Gaussian radius, at the top centre')
+    stream(f'{"model":<15} {"tets":>8} {"force [ms]":>11} {"step [ms]":>10} {"tet-steps/s":>12} {"non-linear":>11}')
     rows = []
-    for name, options in models.items():
-        for label in sizes:
-            mesh = box_mesh(size=(0.1, 0.1, 0.05), divisions=SIZES[label])
+    for label in sizes:
+        mesh = box_mesh(size=(0.1, 0.1, 0.05), divisions=SIZES[label])
+        for name, options in models.items():
             model = TensorMassModel(mesh, material, **options)
-            force_time, step_time = bench_model(model)
+            force_time, step_time, fraction = bench_model(model)
             rate = mesh.n_elements / step_time
             rows.append((name, mesh.n_elements, force_time, step_time, rate))
-            stream(f'{name:<12} {mesh.n_elements:>8} {force_time * 1e3:>11.3f} {step_time * 1e3:>10.3f} {rate:>12.3g}')
+            stream(f'{name:<15} {mesh.n_elements:>8} {force_time * 1e3:>11.3f} {step_time * 1e3:>10.3f} '
+                   f'{rate:>12.3g} {fraction:>10.1%}')
     stream('largest mesh at one step per 20 ms (rate at the largest size x 0.02 s), against the paper:')
     for name in models:
         rate = [r for r in rows if r[0] == name][-1][4]
         paper = PAPER_TETS_AT_50HZ.get(name)
-        stream(f'  {name:<12} {rate * 0.02:>10.3g} tets' + (f'   (paper: {paper})' if paper else ''))
+        stream(f'  {name:<15} {rate * 0.02:>10.3g} tets' + (f'   (paper: {paper})' if paper else ''))
+    linear = {r[1]: r[3] for r in rows if r[0] == 'linear'}
+    for name in ('full', 'full+visc'):
+        ratios = [f'{r[3] / linear[r[1]]:.2f}' for r in rows if r[0] == name and r[1] in linear]
+        if ratios:
+            stream(f'cost of {name} / linear per step, by size: {", ".join(ratios)}   (paper: 49)')
     return rows

@@ -11,7 +11,7 @@ from numba import njit, prange
 
 from tissue_sim_ros.engine import forces
 from tissue_sim_ros.engine.material import Material, MaterialError, MeanRatioLaw, Viscosity
-from tissue_sim_ros.engine.mesh import TetMesh, mean_ratio
+from tissue_sim_ros.engine.mesh import TetMesh, make_mesh, mean_ratio
 
 _LOCAL_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
 
@@ -72,24 +72,27 @@ class TensorMassModel:
         if not isinstance(mesh, TetMesh):
             raise TypeError(f'mesh: expected a TetMesh, got {type(mesh).__name__}')
         self.mesh = mesh
-        materials, material_index = _per_element_material(mesh, material)
-        self.materials = materials
-        self.element_material = material_index
+        self.materials, self.element_material = _per_element_material(mesh, material)
+        self.element_tags = np.asarray(mesh.element_tags)
         self.tetrahedra = np.ascontiguousarray(mesh.tetrahedra, dtype=np.int32)  # halves index traffic
-        self.shape_gradients, self.volumes, self.edge_gram = element_geometry(
-            mesh.rest_positions, self.tetrahedra)
-        lam = np.array([m.lame_lambda for m in materials])[material_index]
-        mu = np.array([m.lame_mu for m in materials])[material_index]
-        self.volume_lambda = self.volumes * lam
-        self.volume_mu = self.volumes * mu
-        rest_quality = mean_ratio(mesh.rest_positions, self.tetrahedra)
-        self.mean_ratio_scale = 12.0 * (3.0 * self.volumes) ** (2.0 / 3.0) / rest_quality
-        density = np.array([m.density for m in materials])[material_index]
-        self.element_mass = density * self.volumes
+        self._element_data(self.tetrahedra, self.element_material)
         self._options_linear()
         self._set_options(geometric, physical, viscosity, nonlinearity_threshold)
-        self._allocate(n_threads or numba.get_num_threads())
+        self._n_threads = n_threads or numba.get_num_threads()
+        self._allocate(self._n_threads)
         self._assemble_tensors()
+        self.topology_version = 0
+
+    def _element_data(self, tetrahedra, material_index):
+        """Per-element arrays for ``tetrahedra``, set on self (used at start and on topology change)."""
+        positions = self.mesh.rest_positions
+        self.shape_gradients, self.volumes, self.edge_gram = element_geometry(positions, tetrahedra)
+        materials = self.materials
+        self.volume_lambda = self.volumes * np.array([m.lame_lambda for m in materials])[material_index]
+        self.volume_mu = self.volumes * np.array([m.lame_mu for m in materials])[material_index]
+        rest_quality = mean_ratio(positions, tetrahedra)
+        self.mean_ratio_scale = 12.0 * (3.0 * self.volumes) ** (2.0 / 3.0) / rest_quality
+        self.element_mass = self.volumes * np.array([m.density for m in materials])[material_index]
 
     # -- configuration --------------------------------------------------------------------
     def _options_linear(self):
@@ -121,11 +124,14 @@ class TensorMassModel:
             self.law_params = physical.parameters
         self.viscosity = viscosity
         self.viscous = viscosity is not None
-        if self.viscous:
-            self.viscous_lambda = self.volumes * viscosity.lambda_v
-            self.viscous_mu = self.volumes * viscosity.mu_v
+        self._set_viscous_arrays()
         self.nonlinearity_threshold = float(nonlinearity_threshold)
         self.threshold_squared = self.nonlinearity_threshold ** 2
+
+    def _set_viscous_arrays(self):
+        if self.viscous:
+            self.viscous_lambda = self.volumes * self.viscosity.lambda_v
+            self.viscous_mu = self.volumes * self.viscosity.mu_v
 
     def _allocate(self, n_chunks):
         n = self.mesh.n_nodes
@@ -155,6 +161,77 @@ class TensorMassModel:
         order = np.argsort(ends, kind='stable')
         self.adjacency_edge = (order // 2).astype(np.int64)
         self.adjacency_ptr = np.concatenate([[0], np.cumsum(np.bincount(ends, minlength=n))]).astype(np.int64)
+
+    # -- topology change ------------------------------------------------------------------
+    def remove_elements(self, elements):
+        """Remove tetrahedra (cutting, carving): their forces, mass and surface go.
+
+        The vertex and edge tensors are updated incrementally (each removed element's K_jk is
+        subtracted); element arrays are compacted, and ``mesh`` is rebuilt so its surface follows.
+        Returns the removed elements' (tetrahedra, material index, tags) for ``add_elements``.
+        """
+        elements = np.unique(np.asarray(elements, dtype=np.int64).ravel())
+        bad = elements[(elements < 0) | (elements >= len(self.tetrahedra))]
+        if bad.size:
+            raise ValueError(f'elements: indices {bad[:10].tolist()} out of range [0, {len(self.tetrahedra)})')
+        forces.accumulate_tensors(self.tetrahedra, self.shape_gradients, self.volume_lambda,
+                                  self.volume_mu, self.element_edges, elements, -1.0,
+                                  self.vertex_lambda, self.vertex_mu, self.edge_lambda, self.edge_mu)
+        removed = (self.tetrahedra[elements].copy(), self.element_material[elements].copy(),
+                   self.element_tags[elements].copy())
+        keep = np.ones(len(self.tetrahedra), dtype=bool)
+        keep[elements] = False
+        for name in ('tetrahedra', 'shape_gradients', 'volumes', 'edge_gram', 'volume_lambda',
+                     'volume_mu', 'mean_ratio_scale', 'element_mass', 'element_material',
+                     'element_tags', 'element_edges'):
+            setattr(self, name, np.ascontiguousarray(getattr(self, name)[keep]))
+        self._topology_changed()
+        return removed
+
+    def add_elements(self, tetrahedra, material_index=None, tags=None):
+        """Add tetrahedra over existing nodes (e.g. undo a removal); their K_jk are added to the tensors."""
+        new = np.ascontiguousarray(np.asarray(tetrahedra).reshape(-1, 4), dtype=np.int32)
+        material_index = np.zeros(len(new), dtype=np.int64) if material_index is None else np.asarray(material_index)
+        tags = np.zeros(len(new), dtype=self.element_tags.dtype) if tags is None else np.asarray(tags)
+        check = make_mesh(self.mesh.rest_positions, new, fix_orientation=False)   # refuses bad elements
+        saved = {name: getattr(self, name) for name in ('shape_gradients', 'volumes', 'edge_gram',
+                                                         'volume_lambda', 'volume_mu',
+                                                         'mean_ratio_scale', 'element_mass')}
+        self._element_data(check.tetrahedra.astype(np.int32), material_index)
+        added = {name: getattr(self, name) for name in saved}
+        pairs = np.sort(np.stack([new[:, [j, k]] for j, k in _LOCAL_EDGES], axis=1), axis=2).reshape(-1, 2)
+        known = {tuple(e): i for i, e in enumerate(self.edges.tolist())}
+        fresh = [tuple(p) for p in np.unique(pairs, axis=0).tolist() if tuple(p) not in known]
+        if fresh:
+            for p in fresh:
+                known[p] = len(known)
+            self.edges = np.concatenate([self.edges, np.array(fresh, dtype=np.int64)])
+            zeros = np.zeros((len(fresh), 3, 3))
+            self.edge_lambda = np.concatenate([self.edge_lambda, zeros])
+            self.edge_mu = np.concatenate([self.edge_mu, zeros])
+        new_edges = np.array([known[tuple(p)] for p in pairs.tolist()], dtype=np.int64).reshape(-1, 6)
+        forces.accumulate_tensors(new, added['shape_gradients'], added['volume_lambda'],
+                                  added['volume_mu'], new_edges, np.arange(len(new)), 1.0,
+                                  self.vertex_lambda, self.vertex_mu, self.edge_lambda, self.edge_mu)
+        for name in saved:
+            setattr(self, name, np.concatenate([saved[name], added[name]]))
+        self.tetrahedra = np.ascontiguousarray(np.concatenate([self.tetrahedra, new]))
+        self.element_material = np.concatenate([self.element_material, material_index])
+        self.element_tags = np.concatenate([self.element_tags, tags])
+        self.element_edges = np.concatenate([self.element_edges, new_edges])
+        self._topology_changed()
+
+    def _topology_changed(self):
+        self._set_viscous_arrays()
+        self.mesh = make_mesh(self.mesh.rest_positions, self.tetrahedra.astype(np.int64),
+                              self.element_tags.astype(np.int32), fix_orientation=False)
+        ends = self.edges.ravel()
+        order = np.argsort(ends, kind='stable')
+        self.adjacency_edge = (order // 2).astype(np.int64)
+        self.adjacency_ptr = np.concatenate(
+            [[0], np.cumsum(np.bincount(ends, minlength=self.mesh.n_nodes))]).astype(np.int64)
+        self._allocate(self._n_threads)
+        self.topology_version += 1
 
     # -- forces ---------------------------------------------------------------------------
     def internal_forces(self, displacement, velocity=None, out=None):

@@ -127,9 +127,8 @@ class Simulation:
                  check_interval=50, energy_growth_factor=2.0, allow_inverted=False):
         self.model = model
         n = model.mesh.n_nodes
-        self.mass = model.lumped_masses()
-        massless = self.mass <= 0.0
-        self.inverse_mass = np.where(massless, 0.0, 1.0 / np.where(massless, 1.0, self.mass))
+        self.dof_kind = np.zeros((n, 3), dtype=np.int8)
+        self._update_masses()
         damping_arr = np.asarray(damping, dtype=float)
         if damping_arr.ndim == 0:
             if not (math.isfinite(float(damping_arr)) and damping_arr >= 0):
@@ -139,8 +138,6 @@ class Simulation:
             if damping_arr.shape != (n,) or not np.all(np.isfinite(damping_arr)) or np.any(damping_arr < 0):
                 raise ValueError(f'damping: expected a rate >= 0 [1/s] or ({n},) finite gamma >= 0 [kg/s]')
             self.damping_rate = damping_arr * self.inverse_mass
-        self.dof_kind = np.zeros((n, 3), dtype=np.int8)
-        self.dof_kind[massless] = FIXED
         self._prescribed = []
         if fixed is not None:
             self.fix(fixed)
@@ -160,6 +157,14 @@ class Simulation:
         self.internal_force = np.zeros((n, 3))
         self.external_forces = np.zeros((n, 3))
         self.reset()
+
+    def _update_masses(self):
+        """Lumped masses from the model's current elements; nodes left without mass are held."""
+        self.mass = self.model.lumped_masses()
+        massless = self.mass <= 0.0
+        self.inverse_mass = np.where(massless, 0.0, 1.0 / np.where(massless, 1.0, self.mass))
+        self.dof_kind[massless] = FIXED
+        self._topology_version = self.model.topology_version
 
     # -- set-up -------------------------------------------------------------------------------
     def fix(self, nodes, axes='xyz'):
@@ -195,6 +200,8 @@ class Simulation:
     def step(self, n_steps=1):
         """Advance ``n_steps`` time steps; raises SimulationDiverged when the watchdog trips."""
         model, dt = self.model, self.dt
+        if model.topology_version != self._topology_version:   # elements were cut away or added
+            self._update_masses()
         if self.reference_energy is None:
             self.reference_energy = sum(self.energy())
         for _ in range(n_steps):

@@ -1,0 +1,59 @@
+"""Run-time topology change: removing elements updates the vertex/edge tensors incrementally to
+exactly what a model built from scratch on the remaining elements holds; re-adding restores them."""
+import numpy as np
+import pytest
+
+import tissue_sim_ros as ts
+
+
+@pytest.fixture
+def model(jittered_block, liver):
+    return ts.TensorMassModel(jittered_block, liver)
+
+
+def test_remove_then_readd_restores_every_tensor(model):
+    original = [a.copy() for a in (model.vertex_lambda, model.vertex_mu, model.edge_lambda, model.edge_mu)]
+    n_elements = model.mesh.n_elements
+    removed = model.remove_elements([0, 13, 14, 57, n_elements - 1])
+    assert model.mesh.n_elements == n_elements - 5
+    model.add_elements(*removed)
+    restored = (model.vertex_lambda, model.vertex_mu, model.edge_lambda, model.edge_mu)
+    for before, after in zip(original, restored):
+        assert np.abs(after - before).max() < 1e-13 * np.abs(before).max()
+
+
+def test_incremental_removal_equals_a_fresh_model(model, jittered_block, liver):
+    cut = np.arange(10, 40)                      # carve a block of elements out
+    model.remove_elements(cut)
+    keep = np.setdiff1d(np.arange(jittered_block.n_elements), cut)
+    fresh_mesh = ts.make_mesh(jittered_block.rest_positions, jittered_block.tetrahedra[keep])
+    fresh = ts.TensorMassModel(fresh_mesh, liver)
+    scale = np.abs(fresh.vertex_mu).max()
+    assert np.abs(model.vertex_lambda - fresh.vertex_lambda).max() < 1e-13 * scale
+    assert np.abs(model.vertex_mu - fresh.vertex_mu).max() < 1e-13 * scale
+    index = {tuple(e): i for i, e in enumerate(model.edges.tolist())}
+    rows = [index[tuple(e)] for e in fresh.edges.tolist()]
+    assert np.abs(model.edge_mu[rows] - fresh.edge_mu).max() < 1e-13 * scale
+    gone = np.setdiff1d(np.arange(len(model.edges)), rows)        # edges with no element left
+    assert gone.size == 0 or np.abs(model.edge_mu[gone]).max() < 1e-13 * scale
+    u = np.random.default_rng(0).normal(scale=1e-3, size=(jittered_block.n_nodes, 3))
+    f_fresh = fresh.internal_forces(u)
+    assert np.abs(model.internal_forces(u) - f_fresh).max() < 1e-12 * np.abs(f_fresh).max()
+    assert np.abs(model.edge_form_forces(u) - f_fresh).max() < 1e-12 * np.abs(f_fresh).max()
+    assert np.allclose(model.lumped_masses(), fresh.lumped_masses(), rtol=1e-14, atol=0)
+    surface = lambda tri: sorted(map(tuple, np.sort(tri, axis=1).tolist()))
+    assert surface(model.mesh.surface_triangles()) == surface(fresh_mesh.surface_triangles())
+
+
+def test_simulation_follows_removal(model):
+    sim = ts.Simulation(model, dt=1e-4)
+    total = sim.mass.sum()
+    removed_mass = model.element_mass[:6].sum()
+    model.remove_elements(np.arange(6))
+    sim.step()
+    assert sim.mass.sum() == pytest.approx(total - removed_mass, rel=1e-12)
+
+
+def test_bad_removal_named(model):
+    with pytest.raises(ValueError, match='elements'):
+        model.remove_elements([10**6])
