@@ -20,7 +20,6 @@ setup(
         ('share/' + package_name + '/config', glob('config/*')),
         ('share/' + package_name + '/msg_examples', glob('msg_examples/*')),
     ],
-    package_data={package_name: ['data/*']},
     install_requires=['setuptools'],
     zip_safe=True,
     maintainer='tissue_sim_ros developers',

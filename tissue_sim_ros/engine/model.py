@@ -82,6 +82,7 @@ class TensorMassModel:
         self._allocate(self._n_threads)
         self._assemble_tensors()
         self.topology_version = 0
+        self.internal_forces(np.zeros((mesh.n_nodes, 3)))   # compile (or load) the kernels now, not on the step loop
 
     def _element_data(self, tetrahedra, material_index):
         """Per-element arrays for ``tetrahedra``, set on self (used at start and on topology change)."""

@@ -157,6 +157,16 @@ class Simulation:
         self.internal_force = np.zeros((n, 3))
         self.external_forces = np.zeros((n, 3))
         self.reset()
+        self._warm_up()
+
+    def _warm_up(self):
+        """Compile (or load from numba's cache) the step kernels at start-up: one step from rest
+        with no input changes nothing, then the state is reset."""
+        saved = self._prescribed
+        self._prescribed = []
+        self.step()
+        self._prescribed = saved
+        self.reset()
 
     def _update_masses(self):
         """Lumped masses from the model's current elements; nodes left without mass are held."""
