@@ -54,13 +54,154 @@ def _law_correction(law_kind, law_params, distortion):
     return 0.0, 0.0
 
 
+# Inversion safeguard (Irving, Teran and Fedkiw, "Invertible finite elements", 2004): St Venant-
+# Kirchhoff softens in compression (its uniaxial stress has a limit point at a stretch of
+# 1/sqrt(3)) and pushes an inverted element further inside out. Below STRETCH_CLAMP the principal
+# stresses are continued linearly with a slope of at least mu, and an inverted element's smallest
+# principal stretch is taken negative (F = U diag(s) V^T with U, V rotations), so the force always
+# pushes the element back out.
+STRETCH_CLAMP = 0.6
+
+
+@njit(cache=True, inline='always')
+def _principal_stress(s0, s1, s2, lam, mu):
+    """St Venant-Kirchhoff principal first Piola stress P_i = s_i (lam/2 sum(s^2-1) + mu (s_i^2 - 1))."""
+    half_trace = 0.5 * (s0 * s0 + s1 * s1 + s2 * s2 - 3.0)
+    return (s0 * (lam * half_trace + mu * (s0 * s0 - 1.0)),
+            s1 * (lam * half_trace + mu * (s1 * s1 - 1.0)),
+            s2 * (lam * half_trace + mu * (s2 * s2 - 1.0)))
+
+
+@njit(cache=True, boundscheck=False)
+def _symmetric_eigen(a, vectors):
+    """Cyclic Jacobi on the 3x3 symmetric ``a`` (overwritten): eigenvalues on its diagonal,
+    eigenvectors in the columns of ``vectors``. A few sweeps reach round-off for 3x3."""
+    for r in range(3):
+        for c in range(3):
+            vectors[r, c] = 1.0 if r == c else 0.0
+    for _ in range(12):
+        off = a[0, 1] * a[0, 1] + a[0, 2] * a[0, 2] + a[1, 2] * a[1, 2]
+        if off < 1e-30 * (a[0, 0] * a[0, 0] + a[1, 1] * a[1, 1] + a[2, 2] * a[2, 2]):
+            break
+        for p, q in ((0, 1), (0, 2), (1, 2)):
+            if a[p, q] == 0.0:
+                continue
+            theta = 0.5 * (a[q, q] - a[p, p]) / a[p, q]
+            t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+            cos = 1.0 / np.sqrt(t * t + 1.0)
+            sin = t * cos
+            for k in range(3):        # a <- J^T a J
+                akp = a[k, p]
+                akq = a[k, q]
+                a[k, p] = cos * akp - sin * akq
+                a[k, q] = sin * akp + cos * akq
+            for k in range(3):
+                apk = a[p, k]
+                aqk = a[q, k]
+                a[p, k] = cos * apk - sin * aqk
+                a[q, k] = sin * apk + cos * aqk
+            for k in range(3):
+                vkp = vectors[k, p]
+                vkq = vectors[k, q]
+                vectors[k, p] = cos * vkp - sin * vkq
+                vectors[k, q] = sin * vkp + cos * vkq
+
+
+@njit(cache=True, boundscheck=False)
+def safeguarded_piola(f, lam, mu, scratch, out):
+    """First Piola stress (into ``out``) of F = ``f`` (3x3) with the inversion safeguard.
+
+    scratch: (4, 3, 3) work space, so nothing is allocated.
+
+    Returns True when the safeguard changed the stress (a principal stretch below the clamp or an
+    inverted element); otherwise ``out`` is left alone and the caller keeps P = F S.
+    """
+    work = scratch[0]
+    vectors = scratch[1]
+    v = scratch[2]
+    u = scratch[3]
+    for r in range(3):
+        for c in range(3):
+            work[r, c] = f[0, r] * f[0, c] + f[1, r] * f[1, c] + f[2, r] * f[2, c]    # C = F^T F
+    _symmetric_eigen(work, vectors)
+    # sort eigenpairs descending, so the smallest stretch is last
+    order0, order1, order2 = 0, 1, 2
+    ev = (work[0, 0], work[1, 1], work[2, 2])
+    if ev[order0] < ev[order1]:
+        order0, order1 = order1, order0
+    if ev[order1] < ev[order2]:
+        order1, order2 = order2, order1
+    if ev[order0] < ev[order1]:
+        order0, order1 = order1, order0
+    det_f = (f[0, 0] * (f[1, 1] * f[2, 2] - f[1, 2] * f[2, 1]) - f[0, 1] * (f[1, 0] * f[2, 2] - f[1, 2] * f[2, 0])
+             + f[0, 2] * (f[1, 0] * f[2, 1] - f[1, 1] * f[2, 0]))
+    stretch0 = np.sqrt(max(ev[order0], 0.0))
+    stretch1 = np.sqrt(max(ev[order1], 0.0))
+    stretch2 = np.sqrt(max(ev[order2], 0.0))
+    if stretch2 >= STRETCH_CLAMP and det_f > 0.0:
+        return False
+    for k in range(3):
+        v[k, 0] = vectors[k, order0]
+        v[k, 1] = vectors[k, order1]
+        v[k, 2] = vectors[k, order2]
+    # make V a rotation
+    det_v = (v[0, 0] * (v[1, 1] * v[2, 2] - v[1, 2] * v[2, 1]) - v[0, 1] * (v[1, 0] * v[2, 2] - v[1, 2] * v[2, 0])
+             + v[0, 2] * (v[1, 0] * v[2, 1] - v[1, 1] * v[2, 0]))
+    if det_v < 0.0:
+        for k in range(3):
+            v[k, 2] = -v[k, 2]
+    # U = F V diag(1/s) for the two largest stretches; the third column completes a rotation
+    for j in range(2):
+        norm = 0.0
+        for r in range(3):
+            u[r, j] = f[r, 0] * v[0, j] + f[r, 1] * v[1, j] + f[r, 2] * v[2, j]
+            norm += u[r, j] * u[r, j]
+        norm = np.sqrt(norm)
+        if norm < 1e-12:
+            for r in range(3):
+                u[r, j] = v[r, j]
+        else:
+            for r in range(3):
+                u[r, j] /= norm
+    dot = u[0, 0] * u[0, 1] + u[1, 0] * u[1, 1] + u[2, 0] * u[2, 1]
+    norm = 0.0
+    for r in range(3):
+        u[r, 1] -= dot * u[r, 0]
+        norm += u[r, 1] * u[r, 1]
+    norm = np.sqrt(norm)
+    for r in range(3):
+        u[r, 1] /= norm
+    u[0, 2] = u[1, 0] * u[2, 1] - u[2, 0] * u[1, 1]
+    u[1, 2] = u[2, 0] * u[0, 1] - u[0, 0] * u[2, 1]
+    u[2, 2] = u[0, 0] * u[1, 1] - u[1, 0] * u[0, 1]
+    if det_f < 0.0:
+        stretch2 = -stretch2           # inverted: the smallest stretch passes through zero
+    clamped0 = max(stretch0, STRETCH_CLAMP)
+    clamped1 = max(stretch1, STRETCH_CLAMP)
+    clamped2 = max(stretch2, STRETCH_CLAMP)
+    p0, p1, p2 = _principal_stress(clamped0, clamped1, clamped2, lam, mu)
+    half_trace = 0.5 * (clamped0 * clamped0 + clamped1 * clamped1 + clamped2 * clamped2 - 3.0)
+    slope_floor = mu
+    slope0 = max(lam * half_trace + mu * (clamped0 * clamped0 - 1.0) + (lam + 2.0 * mu) * clamped0 * clamped0, slope_floor)
+    slope1 = max(lam * half_trace + mu * (clamped1 * clamped1 - 1.0) + (lam + 2.0 * mu) * clamped1 * clamped1, slope_floor)
+    slope2 = max(lam * half_trace + mu * (clamped2 * clamped2 - 1.0) + (lam + 2.0 * mu) * clamped2 * clamped2, slope_floor)
+    p0 += slope0 * (stretch0 - clamped0)
+    p1 += slope1 * (stretch1 - clamped1)
+    p2 += slope2 * (stretch2 - clamped2)
+    for r in range(3):
+        for c in range(3):
+            out[r, c] = u[r, 0] * p0 * v[c, 0] + u[r, 1] * p1 * v[c, 1] + u[r, 2] * p2 * v[c, 2]
+    return True
+
+
 @njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False)
 def element_forces(tetrahedra, shape_gradients, volume_lambda, volume_mu,
                    displacement, velocity,
                    geometric, physical, viscous, threshold_squared,
                    law_kind, law_params, edge_gram, mean_ratio_scale,
                    viscous_lambda, viscous_mu,
-                   chunk_bounds, buffers, nonlinear_counts):
+                   chunk_bounds, buffers, nonlinear_counts,
+                   safeguard, safeguard_scratch, safeguard_counts):
     """Accumulate the internal elastic (+ viscous) forces into the per-chunk ``buffers``.
 
     The node forces are the sum over chunks (``reduce_buffers``, or fused into the solver's
@@ -72,12 +213,19 @@ def element_forces(tetrahedra, shape_gradients, volume_lambda, volume_mu,
     deformed sum of squared edge lengths is tr(F^T F G). mean_ratio_scale (m,): 12 (3 V)^(2/3)
     divided by the rest mean ratio, so q/q_rest = scale |det F|^(2/3) / tr(F^T F G).
     nonlinear_counts (n_chunks,): elements that took the non-linear path, per chunk.
+    safeguard: apply the inversion safeguard on the St Venant-Kirchhoff path to elements whose
+    smallest principal stretch may be below STRETCH_CLAMP (Gershgorin bound on F^T F) or whose
+    det F <= 0; safeguard_scratch (n_chunks, 6, 3, 3); safeguard_counts (n_chunks,) how many
+    elements it changed.
     """
+    clamp_squared = STRETCH_CLAMP * STRETCH_CLAMP
     n_chunks = chunk_bounds.shape[0] - 1
     any_nonlinear = geometric or physical
     for c in prange(n_chunks):
         buf = buffers[c]
+        scratch = safeguard_scratch[c]
         n_nonlinear = 0
+        n_safeguarded = 0
         for e in range(chunk_bounds[c], chunk_bounds[c + 1]):
             i0 = tetrahedra[e, 0]
             i1 = tetrahedra[e, 1]
@@ -173,6 +321,7 @@ def element_forces(tetrahedra, shape_gradients, volume_lambda, volume_mu,
                     s01 = 2.0 * mu * e01
                     s02 = 2.0 * mu * e02
                     s12 = 2.0 * mu * e12
+                    v00 = v11 = v22 = v01 = v02 = v12 = 0.0
                     if viscous:
                         # dE/dt = sym(F^T dF/dt)
                         q00 = f00 * r00 + h10 * r10 + h20 * r20
@@ -183,12 +332,18 @@ def element_forces(tetrahedra, shape_gradients, volume_lambda, volume_mu,
                         q12 = 0.5 * (h01 * r02 + f11 * r12 + h21 * r22 + h02 * r01 + h12 * r11 + f22 * r21)
                         tr_q = viscous_lambda[e] * (q00 + q11 + q22)
                         two_mu_v = 2.0 * viscous_mu[e]
-                        s00 += tr_q + two_mu_v * q00
-                        s11 += tr_q + two_mu_v * q11
-                        s22 += tr_q + two_mu_v * q22
-                        s01 += two_mu_v * q01
-                        s02 += two_mu_v * q02
-                        s12 += two_mu_v * q12
+                        v00 = tr_q + two_mu_v * q00
+                        v11 = tr_q + two_mu_v * q11
+                        v22 = tr_q + two_mu_v * q22
+                        v01 = two_mu_v * q01
+                        v02 = two_mu_v * q02
+                        v12 = two_mu_v * q12
+                        s00 += v00
+                        s11 += v11
+                        s22 += v22
+                        s01 += v01
+                        s02 += v02
+                        s12 += v12
                     # P = F S (not symmetric)
                     p00 = f00 * s00 + h01 * s01 + h02 * s02
                     p01 = f00 * s01 + h01 * s11 + h02 * s12
@@ -199,6 +354,41 @@ def element_forces(tetrahedra, shape_gradients, volume_lambda, volume_mu,
                     p20 = h20 * s00 + h21 * s01 + f22 * s02
                     p21 = h20 * s01 + h21 * s11 + f22 * s12
                     p22 = h20 * s02 + h21 * s12 + f22 * s22
+                    if safeguard:
+                        # Gershgorin lower bound on the eigenvalues of C = I + 2E, and det F
+                        c00 = 1.0 + 2.0 * e00
+                        c11 = 1.0 + 2.0 * e11
+                        c22 = 1.0 + 2.0 * e22
+                        a01 = abs(2.0 * e01)
+                        a02 = abs(2.0 * e02)
+                        a12 = abs(2.0 * e12)
+                        lower = min(c00 - a01 - a02, min(c11 - a01 - a12, c22 - a02 - a12))
+                        det_g = (f00 * (f11 * f22 - h12 * h21) - h01 * (h10 * f22 - h12 * h20)
+                                 + h02 * (h10 * h21 - f11 * h20))
+                        if lower < clamp_squared or det_g <= 0.0:
+                            fm = scratch[4]
+                            fm[0, 0] = f00
+                            fm[0, 1] = h01
+                            fm[0, 2] = h02
+                            fm[1, 0] = h10
+                            fm[1, 1] = f11
+                            fm[1, 2] = h12
+                            fm[2, 0] = h20
+                            fm[2, 1] = h21
+                            fm[2, 2] = f22
+                            pm = scratch[5]
+                            if safeguarded_piola(fm, lam, mu, scratch[:4], pm):
+                                n_safeguarded += 1
+                                # elastic part from the safeguard, viscous part F S_v as before
+                                p00 = pm[0, 0] + f00 * v00 + h01 * v01 + h02 * v02
+                                p01 = pm[0, 1] + f00 * v01 + h01 * v11 + h02 * v12
+                                p02 = pm[0, 2] + f00 * v02 + h01 * v12 + h02 * v22
+                                p10 = pm[1, 0] + h10 * v00 + f11 * v01 + h12 * v02
+                                p11 = pm[1, 1] + h10 * v01 + f11 * v11 + h12 * v12
+                                p12 = pm[1, 2] + h10 * v02 + f11 * v12 + h12 * v22
+                                p20 = pm[2, 0] + h20 * v00 + h21 * v01 + f22 * v02
+                                p21 = pm[2, 1] + h20 * v01 + h21 * v11 + f22 * v12
+                                p22 = pm[2, 2] + h20 * v02 + h21 * v12 + f22 * v22
                 else:
                     nonlinear = False  # physical only: linear stress law with corrected coefficients
             if not nonlinear:
@@ -244,6 +434,7 @@ def element_forces(tetrahedra, shape_gradients, volume_lambda, volume_mu,
             buf[i3, 1] += f3y
             buf[i3, 2] += f3z
         nonlinear_counts[c] = n_nonlinear
+        safeguard_counts[c] = n_safeguarded
 
 
 @njit(cache=True, inline='always')

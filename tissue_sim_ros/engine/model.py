@@ -62,13 +62,17 @@ class TensorMassModel:
     viscosity: Kelvin-Voigt Viscosity (None: elastic only).
     nonlinearity_threshold: elements whose displacement gradient norm |H|_F is below it take
     the linear path (0: every element is non-linear, the full model exactly).
+    inversion_safeguard: with the geometric model, continue the principal stresses linearly below
+    a stretch of forces.STRETCH_CLAMP and treat inverted elements as reflected (Irving et al.
+    2004), so strong compression pushes back instead of collapsing; the count of elements it
+    changed in the last evaluation is ``safeguarded_count``.
 
     ``internal_forces(u, v)`` returns the internal force (n, 3) in newtons; for the linear model
     it is -K u, and the paper's vertex/edge-tensor form ``edge_form_forces(u)`` equals it.
     """
 
     def __init__(self, mesh: TetMesh, material, *, geometric=False, physical=None, viscosity=None,
-                 nonlinearity_threshold=0.0, n_threads=None):
+                 nonlinearity_threshold=0.0, inversion_safeguard=True, n_threads=None):
         if not isinstance(mesh, TetMesh):
             raise TypeError(f'mesh: expected a TetMesh, got {type(mesh).__name__}')
         self.mesh = mesh
@@ -78,6 +82,7 @@ class TensorMassModel:
         self._element_data(self.tetrahedra, self.element_material)
         self._options_linear()
         self._set_options(geometric, physical, viscosity, nonlinearity_threshold)
+        self.inversion_safeguard = bool(inversion_safeguard)
         self._n_threads = n_threads or numba.get_num_threads()
         self._allocate(self._n_threads)
         self._assemble_tensors()
@@ -140,6 +145,8 @@ class TensorMassModel:
             self.tetrahedra, n, n_chunks)
         self._buffers = np.zeros((len(self.chunk_bounds) - 1, n, 3))
         self._nonlinear_counts = np.zeros(len(self.chunk_bounds) - 1, dtype=np.int64)
+        self._safeguard_counts = np.zeros(len(self.chunk_bounds) - 1, dtype=np.int64)
+        self._safeguard_scratch = np.zeros((len(self.chunk_bounds) - 1, 6, 3, 3))
         self._zero_velocity = np.zeros((n, 3))
 
     def _assemble_tensors(self):
@@ -251,7 +258,13 @@ class TensorMassModel:
             self.geometric, self.physical, self.viscous and velocity is not None,
             self.threshold_squared, self.law_kind, self.law_params, self.edge_gram,
             self.mean_ratio_scale, self.viscous_lambda, self.viscous_mu,
-            self.chunk_bounds, self._buffers, self._nonlinear_counts)
+            self.chunk_bounds, self._buffers, self._nonlinear_counts,
+            self.inversion_safeguard and self.geometric, self._safeguard_scratch, self._safeguard_counts)
+
+    @property
+    def safeguarded_count(self):
+        """Elements whose stress the inversion safeguard changed in the last force evaluation."""
+        return int(self._safeguard_counts.sum())
 
     @property
     def force_buffers(self):
@@ -266,7 +279,8 @@ class TensorMassModel:
             self.tetrahedra, self.shape_gradients, self.volume_lambda, self.volume_mu,
             displacement, self._zero_velocity, False, False, False, 0.0, self.law_kind,
             self.law_params, self.edge_gram, self.mean_ratio_scale, self.viscous_lambda,
-            self.viscous_mu, self.chunk_bounds, self._buffers, self._nonlinear_counts)
+            self.viscous_mu, self.chunk_bounds, self._buffers, self._nonlinear_counts,
+            False, self._safeguard_scratch, self._safeguard_counts)
         forces.reduce_buffers(self._buffers, self.chunk_node_lo, self.chunk_node_hi, out)
         return out
 

@@ -205,6 +205,8 @@ class Simulation:
         self.input_work = 0.0
         self.kinetic_energy = 0.0
         self.reference_energy = None   # measured at the first step, after any initial state is set
+        self.safeguarded_elements = 0
+        self.max_safeguarded_elements = 0
 
     # -- stepping -------------------------------------------------------------------------------
     def step(self, n_steps=1):
@@ -246,13 +248,15 @@ class Simulation:
         at 0.9 dt_crit: the discrete modes' kinetic/strain split), so the allowed growth is
         widened by that factor; a run above the limit grows exponentially and crosses it fast.
         """
+        self.safeguarded_elements = self.model.safeguarded_count   # reported, see TensorMassModel
+        self.max_safeguarded_elements = max(self.max_safeguarded_elements, self.safeguarded_elements)
         total = self.kinetic_energy + strain
         budget = self.reference_energy + max(self.input_work, 0.0)
         swing = 1.0 / max(1.0 - (self.dt / self.critical_time_step()) ** 2, 0.05)
         if not math.isfinite(total) or total > self.energy_growth_factor * swing * budget + self.energy_floor:
             self._diverged(f'energy grew without input: kinetic + strain energy {total:.4g} J against '
                            f'{budget:.4g} J initial plus work put in')
-        if inverted and not self.allow_inverted:
+        if inverted and not self.allow_inverted and not (self.model.geometric and self.model.inversion_safeguard):
             self._diverged(f'{inverted} inverted elements (det F <= 0)')
 
     def _diverged(self, reason):
