@@ -57,3 +57,21 @@ def test_simulation_follows_removal(model):
 def test_bad_removal_named(model):
     with pytest.raises(ValueError, match='elements'):
         model.remove_elements([10**6])
+
+
+def test_adding_an_element_with_new_edges_equals_a_fresh_model(liver):
+    """A tetrahedron glued on a face brings three edges the model has never seen."""
+    positions = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], dtype=float) * 0.01
+    first = np.array([[0, 1, 2, 3]])
+    second = np.array([[1, 2, 3, 4]])
+    mesh = ts.make_mesh(positions, first)
+    model = ts.TensorMassModel(mesh, liver)
+    both = ts.make_mesh(positions, np.concatenate([first, second]))
+    second = both.tetrahedra[1:]                      # oriented as make_mesh fixed it
+    model.add_elements(second)
+    fresh = ts.TensorMassModel(both, liver)
+    assert len(model.edges) == len(fresh.edges) == 9
+    u = np.random.default_rng(1).normal(scale=1e-3, size=(5, 3))
+    expected = fresh.internal_forces(u)
+    assert np.abs(model.edge_form_forces(u) - expected).max() < 1e-12 * np.abs(expected).max()
+    assert np.abs(model.internal_forces(u) - expected).max() < 1e-12 * np.abs(expected).max()

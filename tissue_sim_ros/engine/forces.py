@@ -194,6 +194,26 @@ def safeguarded_piola(f, lam, mu, scratch, out):
     return True
 
 
+@njit(cache=True, inline='always')
+def element_gradient(field, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z):
+    """Gradient of a nodal field over one tetrahedron, row-major 3x3 as nine scalars:
+    G = sum_k w_k a_k^T = sum_{k=1..3} (w_k - w_0) a_k^T (FORMULAS.md; a_0 = -(a_1 + a_2 + a_3))."""
+    d1x = field[i1, 0] - field[i0, 0]
+    d1y = field[i1, 1] - field[i0, 1]
+    d1z = field[i1, 2] - field[i0, 2]
+    d2x = field[i2, 0] - field[i0, 0]
+    d2y = field[i2, 1] - field[i0, 1]
+    d2z = field[i2, 2] - field[i0, 2]
+    d3x = field[i3, 0] - field[i0, 0]
+    d3y = field[i3, 1] - field[i0, 1]
+    d3z = field[i3, 2] - field[i0, 2]
+    return (d1x * a1x + d2x * a2x + d3x * a3x, d1x * a1y + d2x * a2y + d3x * a3y,
+            d1x * a1z + d2x * a2z + d3x * a3z, d1y * a1x + d2y * a2x + d3y * a3x,
+            d1y * a1y + d2y * a2y + d3y * a3y, d1y * a1z + d2y * a2z + d3y * a3z,
+            d1z * a1x + d2z * a2x + d3z * a3x, d1z * a1y + d2z * a2y + d3z * a3y,
+            d1z * a1z + d2z * a2z + d3z * a3z)
+
+
 @njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False)
 def element_forces(tetrahedra, shape_gradients, volume_lambda, volume_mu,
                    displacement, velocity,
@@ -241,46 +261,14 @@ def element_forces(tetrahedra, shape_gradients, volume_lambda, volume_mu,
             a3y = shape_gradients[e, 2, 1]
             a3z = shape_gradients[e, 2, 2]
             # H = sum_k u_k a_k^T = sum_{k=1..3} (u_k - u_0) a_k^T
-            d1x = displacement[i1, 0] - displacement[i0, 0]
-            d1y = displacement[i1, 1] - displacement[i0, 1]
-            d1z = displacement[i1, 2] - displacement[i0, 2]
-            d2x = displacement[i2, 0] - displacement[i0, 0]
-            d2y = displacement[i2, 1] - displacement[i0, 1]
-            d2z = displacement[i2, 2] - displacement[i0, 2]
-            d3x = displacement[i3, 0] - displacement[i0, 0]
-            d3y = displacement[i3, 1] - displacement[i0, 1]
-            d3z = displacement[i3, 2] - displacement[i0, 2]
-            h00 = d1x * a1x + d2x * a2x + d3x * a3x
-            h01 = d1x * a1y + d2x * a2y + d3x * a3y
-            h02 = d1x * a1z + d2x * a2z + d3x * a3z
-            h10 = d1y * a1x + d2y * a2x + d3y * a3x
-            h11 = d1y * a1y + d2y * a2y + d3y * a3y
-            h12 = d1y * a1z + d2y * a2z + d3y * a3z
-            h20 = d1z * a1x + d2z * a2x + d3z * a3x
-            h21 = d1z * a1y + d2z * a2y + d3z * a3y
-            h22 = d1z * a1z + d2z * a2z + d3z * a3z
+            h00, h01, h02, h10, h11, h12, h20, h21, h22 = element_gradient(
+                displacement, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
 
             # rate of the displacement gradient, for Kelvin-Voigt viscosity
             r00 = r01 = r02 = r10 = r11 = r12 = r20 = r21 = r22 = 0.0
             if viscous:
-                d1x = velocity[i1, 0] - velocity[i0, 0]
-                d1y = velocity[i1, 1] - velocity[i0, 1]
-                d1z = velocity[i1, 2] - velocity[i0, 2]
-                d2x = velocity[i2, 0] - velocity[i0, 0]
-                d2y = velocity[i2, 1] - velocity[i0, 1]
-                d2z = velocity[i2, 2] - velocity[i0, 2]
-                d3x = velocity[i3, 0] - velocity[i0, 0]
-                d3y = velocity[i3, 1] - velocity[i0, 1]
-                d3z = velocity[i3, 2] - velocity[i0, 2]
-                r00 = d1x * a1x + d2x * a2x + d3x * a3x
-                r01 = d1x * a1y + d2x * a2y + d3x * a3y
-                r02 = d1x * a1z + d2x * a2z + d3x * a3z
-                r10 = d1y * a1x + d2y * a2x + d3y * a3x
-                r11 = d1y * a1y + d2y * a2y + d3y * a3y
-                r12 = d1y * a1z + d2y * a2z + d3y * a3z
-                r20 = d1z * a1x + d2z * a2x + d3z * a3x
-                r21 = d1z * a1y + d2z * a2y + d3z * a3y
-                r22 = d1z * a1z + d2z * a2z + d3z * a3z
+                r00, r01, r02, r10, r11, r12, r20, r21, r22 = element_gradient(
+                    velocity, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
 
             lam = volume_lambda[e]
             mu = volume_mu[e]
@@ -522,6 +510,25 @@ def accumulate_tensors(tetrahedra, shape_gradients, volume_lambda, volume_mu, el
                             edge_mu[edge, r, s] += vm * (a[kk, r] * a[jj, s] + (dot if r == s else 0.0))
 
 
+@njit(cache=True, inline='always')
+def _edge_tensor_times(edge_lambda, edge_mu, edge, transpose, vx, vy, vz):
+    """(K_e v) or (K_e^T v) for the edge tensor K_e = lambda part + mu part, as three scalars."""
+    out0 = 0.0
+    out1 = 0.0
+    out2 = 0.0
+    for s in range(3):
+        value = vx if s == 0 else (vy if s == 1 else vz)
+        if transpose:
+            out0 += (edge_lambda[edge, s, 0] + edge_mu[edge, s, 0]) * value
+            out1 += (edge_lambda[edge, s, 1] + edge_mu[edge, s, 1]) * value
+            out2 += (edge_lambda[edge, s, 2] + edge_mu[edge, s, 2]) * value
+        else:
+            out0 += (edge_lambda[edge, 0, s] + edge_mu[edge, 0, s]) * value
+            out1 += (edge_lambda[edge, 1, s] + edge_mu[edge, 1, s]) * value
+            out2 += (edge_lambda[edge, 2, s] + edge_mu[edge, 2, s]) * value
+    return out0, out1, out2
+
+
 @njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False)
 def edge_forces(vertex_lambda, vertex_mu, edge_lambda, edge_mu, edges,
                 adjacency_ptr, adjacency_edge, displacement, out):
@@ -531,54 +538,17 @@ def edge_forces(vertex_lambda, vertex_mu, edge_lambda, edge_mu, edges,
     contributes K_pq u_q to p and K_pq^T u_p to q.
     """
     for p in prange(out.shape[0]):
-        ux = displacement[p, 0]
-        uy = displacement[p, 1]
-        uz = displacement[p, 2]
-        fx = 0.0
-        fy = 0.0
-        fz = 0.0
-        for r in range(3):
-            kr0 = vertex_lambda[p, r, 0] + vertex_mu[p, r, 0]
-            kr1 = vertex_lambda[p, r, 1] + vertex_mu[p, r, 1]
-            kr2 = vertex_lambda[p, r, 2] + vertex_mu[p, r, 2]
-            value = kr0 * ux + kr1 * uy + kr2 * uz
-            if r == 0:
-                fx -= value
-            elif r == 1:
-                fy -= value
-            else:
-                fz -= value
+        fx, fy, fz = _edge_tensor_times(vertex_lambda, vertex_mu, p, False, displacement[p, 0],
+                                        displacement[p, 1], displacement[p, 2])
         for slot in range(adjacency_ptr[p], adjacency_ptr[p + 1]):
             edge = adjacency_edge[slot]
-            if edges[edge, 0] == p:
-                q = edges[edge, 1]
-                vx = displacement[q, 0]
-                vy = displacement[q, 1]
-                vz = displacement[q, 2]
-                fx -= ((edge_lambda[edge, 0, 0] + edge_mu[edge, 0, 0]) * vx
-                       + (edge_lambda[edge, 0, 1] + edge_mu[edge, 0, 1]) * vy
-                       + (edge_lambda[edge, 0, 2] + edge_mu[edge, 0, 2]) * vz)
-                fy -= ((edge_lambda[edge, 1, 0] + edge_mu[edge, 1, 0]) * vx
-                       + (edge_lambda[edge, 1, 1] + edge_mu[edge, 1, 1]) * vy
-                       + (edge_lambda[edge, 1, 2] + edge_mu[edge, 1, 2]) * vz)
-                fz -= ((edge_lambda[edge, 2, 0] + edge_mu[edge, 2, 0]) * vx
-                       + (edge_lambda[edge, 2, 1] + edge_mu[edge, 2, 1]) * vy
-                       + (edge_lambda[edge, 2, 2] + edge_mu[edge, 2, 2]) * vz)
-            else:
-                q = edges[edge, 0]
-                vx = displacement[q, 0]
-                vy = displacement[q, 1]
-                vz = displacement[q, 2]
-                # K_qp u_q with K_qp = K_pq^T, the stored tensor transposed
-                fx -= ((edge_lambda[edge, 0, 0] + edge_mu[edge, 0, 0]) * vx
-                       + (edge_lambda[edge, 1, 0] + edge_mu[edge, 1, 0]) * vy
-                       + (edge_lambda[edge, 2, 0] + edge_mu[edge, 2, 0]) * vz)
-                fy -= ((edge_lambda[edge, 0, 1] + edge_mu[edge, 0, 1]) * vx
-                       + (edge_lambda[edge, 1, 1] + edge_mu[edge, 1, 1]) * vy
-                       + (edge_lambda[edge, 2, 1] + edge_mu[edge, 2, 1]) * vz)
-                fz -= ((edge_lambda[edge, 0, 2] + edge_mu[edge, 0, 2]) * vx
-                       + (edge_lambda[edge, 1, 2] + edge_mu[edge, 1, 2]) * vy
-                       + (edge_lambda[edge, 2, 2] + edge_mu[edge, 2, 2]) * vz)
-        out[p, 0] = fx
-        out[p, 1] = fy
-        out[p, 2] = fz
+            transpose = edges[edge, 0] != p
+            q = edges[edge, 0] if transpose else edges[edge, 1]
+            gx, gy, gz = _edge_tensor_times(edge_lambda, edge_mu, edge, transpose, displacement[q, 0],
+                                            displacement[q, 1], displacement[q, 2])
+            fx += gx
+            fy += gy
+            fz += gz
+        out[p, 0] = -fx
+        out[p, 1] = -fy
+        out[p, 2] = -fz

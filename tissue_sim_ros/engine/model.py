@@ -79,7 +79,8 @@ class TensorMassModel:
         self.materials, self.element_material = _per_element_material(mesh, material)
         self.element_tags = np.asarray(mesh.element_tags)
         self.tetrahedra = np.ascontiguousarray(mesh.tetrahedra, dtype=np.int32)  # halves index traffic
-        self._element_data(self.tetrahedra, self.element_material)
+        for name, values in self._element_data(self.tetrahedra, self.element_material).items():
+            setattr(self, name, values)
         self._options_linear()
         self._set_options(geometric, physical, viscosity, nonlinearity_threshold)
         self.inversion_safeguard = bool(inversion_safeguard)
@@ -90,15 +91,19 @@ class TensorMassModel:
         self.internal_forces(np.zeros((mesh.n_nodes, 3)))   # compile (or load) the kernels now, not on the step loop
 
     def _element_data(self, tetrahedra, material_index):
-        """Per-element arrays for ``tetrahedra``, set on self (used at start and on topology change)."""
+        """The per-element arrays of ``tetrahedra`` (at start, and for elements added later)."""
         positions = self.mesh.rest_positions
-        self.shape_gradients, self.volumes, self.edge_gram = element_geometry(positions, tetrahedra)
+        shape_gradients, volumes, edge_gram = element_geometry(positions, tetrahedra)
         materials = self.materials
-        self.volume_lambda = self.volumes * np.array([m.lame_lambda for m in materials])[material_index]
-        self.volume_mu = self.volumes * np.array([m.lame_mu for m in materials])[material_index]
-        rest_quality = mean_ratio(positions, tetrahedra)
-        self.mean_ratio_scale = 12.0 * (3.0 * self.volumes) ** (2.0 / 3.0) / rest_quality
-        self.element_mass = self.volumes * np.array([m.density for m in materials])[material_index]
+        return {
+            'shape_gradients': shape_gradients,
+            'volumes': volumes,
+            'edge_gram': edge_gram,
+            'volume_lambda': volumes * np.array([m.lame_lambda for m in materials])[material_index],
+            'volume_mu': volumes * np.array([m.lame_mu for m in materials])[material_index],
+            'mean_ratio_scale': 12.0 * (3.0 * volumes) ** (2.0 / 3.0) / mean_ratio(positions, tetrahedra),
+            'element_mass': volumes * np.array([m.density for m in materials])[material_index],
+        }
 
     # -- configuration --------------------------------------------------------------------
     def _options_linear(self):
@@ -165,10 +170,15 @@ class TensorMassModel:
                                   self.volume_mu, self.element_edges,
                                   np.arange(self.mesh.n_elements), 1.0, self.vertex_lambda,
                                   self.vertex_mu, self.edge_lambda, self.edge_mu)
+        self._build_adjacency()
+
+    def _build_adjacency(self):
+        """CSR list of the edges at each vertex, for the vertex/edge-tensor force loop."""
         ends = self.edges.ravel()
         order = np.argsort(ends, kind='stable')
         self.adjacency_edge = (order // 2).astype(np.int64)
-        self.adjacency_ptr = np.concatenate([[0], np.cumsum(np.bincount(ends, minlength=n))]).astype(np.int64)
+        self.adjacency_ptr = np.concatenate(
+            [[0], np.cumsum(np.bincount(ends, minlength=self.mesh.n_nodes))]).astype(np.int64)
 
     # -- topology change ------------------------------------------------------------------
     def remove_elements(self, elements):
@@ -201,43 +211,46 @@ class TensorMassModel:
         new = np.ascontiguousarray(np.asarray(tetrahedra).reshape(-1, 4), dtype=np.int32)
         material_index = np.zeros(len(new), dtype=np.int64) if material_index is None else np.asarray(material_index)
         tags = np.zeros(len(new), dtype=self.element_tags.dtype) if tags is None else np.asarray(tags)
-        check = make_mesh(self.mesh.rest_positions, new, fix_orientation=False)   # refuses bad elements
-        saved = {name: getattr(self, name) for name in ('shape_gradients', 'volumes', 'edge_gram',
-                                                         'volume_lambda', 'volume_mu',
-                                                         'mean_ratio_scale', 'element_mass')}
-        self._element_data(check.tetrahedra.astype(np.int32), material_index)
-        added = {name: getattr(self, name) for name in saved}
+        make_mesh(self.mesh.rest_positions, new, fix_orientation=False)   # refuses bad elements
+        added = self._element_data(new, material_index)
         pairs = np.sort(np.stack([new[:, [j, k]] for j, k in _LOCAL_EDGES], axis=1), axis=2).reshape(-1, 2)
-        known = {tuple(e): i for i, e in enumerate(self.edges.tolist())}
-        fresh = [tuple(p) for p in np.unique(pairs, axis=0).tolist() if tuple(p) not in known]
-        if fresh:
-            for p in fresh:
-                known[p] = len(known)
-            self.edges = np.concatenate([self.edges, np.array(fresh, dtype=np.int64)])
-            zeros = np.zeros((len(fresh), 3, 3))
-            self.edge_lambda = np.concatenate([self.edge_lambda, zeros])
-            self.edge_mu = np.concatenate([self.edge_mu, zeros])
-        new_edges = np.array([known[tuple(p)] for p in pairs.tolist()], dtype=np.int64).reshape(-1, 6)
+        new_edges = self._edge_indices(pairs).reshape(-1, 6)
         forces.accumulate_tensors(new, added['shape_gradients'], added['volume_lambda'],
                                   added['volume_mu'], new_edges, np.arange(len(new)), 1.0,
                                   self.vertex_lambda, self.vertex_mu, self.edge_lambda, self.edge_mu)
-        for name in saved:
-            setattr(self, name, np.concatenate([saved[name], added[name]]))
+        for name, values in added.items():
+            setattr(self, name, np.concatenate([getattr(self, name), values]))
         self.tetrahedra = np.ascontiguousarray(np.concatenate([self.tetrahedra, new]))
         self.element_material = np.concatenate([self.element_material, material_index])
         self.element_tags = np.concatenate([self.element_tags, tags])
         self.element_edges = np.concatenate([self.element_edges, new_edges])
         self._topology_changed()
 
+    def _edge_indices(self, pairs):
+        """Global edge index of each sorted node pair (k, 2); pairs not yet known are appended
+        with zero tensors. Vectorised: edges are keyed p * n + q and found by binary search."""
+        n = self.mesh.n_nodes
+        keys = self.edges[:, 0] * n + self.edges[:, 1]
+        wanted = pairs[:, 0].astype(np.int64) * n + pairs[:, 1]
+        order = np.argsort(keys)
+        position = np.minimum(np.searchsorted(keys[order], wanted), len(keys) - 1)
+        found = keys[order][position] == wanted
+        fresh_keys, fresh_of = np.unique(wanted[~found], return_inverse=True)
+        index = np.empty(len(pairs), dtype=np.int64)
+        index[found] = order[position[found]]
+        index[~found] = len(keys) + fresh_of
+        if fresh_keys.size:
+            self.edges = np.concatenate([self.edges, np.stack([fresh_keys // n, fresh_keys % n], axis=1)])
+            zeros = np.zeros((fresh_keys.size, 3, 3))
+            self.edge_lambda = np.concatenate([self.edge_lambda, zeros])
+            self.edge_mu = np.concatenate([self.edge_mu, zeros])
+        return index
+
     def _topology_changed(self):
         self._set_viscous_arrays()
         self.mesh = make_mesh(self.mesh.rest_positions, self.tetrahedra.astype(np.int64),
                               self.element_tags.astype(np.int32), fix_orientation=False)
-        ends = self.edges.ravel()
-        order = np.argsort(ends, kind='stable')
-        self.adjacency_edge = (order // 2).astype(np.int64)
-        self.adjacency_ptr = np.concatenate(
-            [[0], np.cumsum(np.bincount(ends, minlength=self.mesh.n_nodes))]).astype(np.int64)
+        self._build_adjacency()
         self._allocate(self._n_threads)
         self.topology_version += 1
 
@@ -387,25 +400,10 @@ def _strain_energy(tetrahedra, shape_gradients, volume_lambda, volume_mu, displa
     energy = 0.0
     inverted = 0
     for e in prange(tetrahedra.shape[0]):
-        i0 = tetrahedra[e, 0]
-        h00 = h01 = h02 = h10 = h11 = h12 = h20 = h21 = h22 = 0.0
-        for k in range(1, 4):
-            ik = tetrahedra[e, k]
-            dx = displacement[ik, 0] - displacement[i0, 0]
-            dy = displacement[ik, 1] - displacement[i0, 1]
-            dz = displacement[ik, 2] - displacement[i0, 2]
-            ax = shape_gradients[e, k - 1, 0]
-            ay = shape_gradients[e, k - 1, 1]
-            az = shape_gradients[e, k - 1, 2]
-            h00 += dx * ax
-            h01 += dx * ay
-            h02 += dx * az
-            h10 += dy * ax
-            h11 += dy * ay
-            h12 += dy * az
-            h20 += dz * ax
-            h21 += dz * ay
-            h22 += dz * az
+        g = shape_gradients[e]
+        h00, h01, h02, h10, h11, h12, h20, h21, h22 = forces.element_gradient(
+            displacement, tetrahedra[e, 0], tetrahedra[e, 1], tetrahedra[e, 2], tetrahedra[e, 3],
+            g[0, 0], g[0, 1], g[0, 2], g[1, 0], g[1, 1], g[1, 2], g[2, 0], g[2, 1], g[2, 2])
         e00 = h00
         e11 = h11
         e22 = h22
