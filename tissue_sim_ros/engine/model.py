@@ -144,6 +144,16 @@ class TensorMassModel:
             self.viscous_lambda = self.volumes * self.viscosity.lambda_v
             self.viscous_mu = self.volumes * self.viscosity.mu_v
 
+    def viscous_time_constant(self):
+        """Largest Kelvin-Voigt time constant [s], max over elements of lambda_v / lambda and
+        mu_v / mu (0 without viscosity): the viscous matrix is at most this times K."""
+        if not self.viscous:
+            return 0.0
+        ratios = [self.viscous_mu / self.volume_mu]
+        if self.viscosity.lambda_v > 0:
+            ratios.append(self.viscous_lambda / np.maximum(self.volume_lambda, 1e-300))
+        return float(max(r.max() for r in ratios))
+
     def _allocate(self, n_chunks):
         n = self.mesh.n_nodes
         self.chunk_bounds, self.chunk_node_lo, self.chunk_node_hi = forces.chunk_layout(

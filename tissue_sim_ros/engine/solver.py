@@ -120,12 +120,17 @@ class Simulation:
 
     damping: mass-proportional damping rate [1/s] (gamma_i = damping * m_i), or an (n,) array
     of gamma_i [kg/s]. fixed: nodes fixed on all axes (indices or boolean mask). dt: time step
-    [s]; None picks ``time_step_safety`` times the critical step estimate.
+    [s]; None picks ``time_step_safety`` times the critical step estimate. mass_scaling: factor
+    (>= 1) on every node mass, for quasi-static runs: the critical step grows as its square
+    root, inertial forces grow by it (measure what that costs before relying on it).
     """
 
     def __init__(self, model, *, damping=0.0, fixed=None, dt=None, time_step_safety=0.8,
-                 check_interval=50, energy_growth_factor=2.0, allow_inverted=False):
+                 check_interval=50, energy_growth_factor=2.0, allow_inverted=False, mass_scaling=1.0):
         self.model = model
+        if not (isinstance(mass_scaling, (int, float)) and math.isfinite(mass_scaling) and mass_scaling >= 1.0):
+            raise ValueError(f'mass_scaling = {mass_scaling!r}: expected a finite factor >= 1')
+        self.mass_scaling = float(mass_scaling)
         n = model.mesh.n_nodes
         self.dof_kind = np.zeros((n, 3), dtype=np.int8)
         self._update_masses()
@@ -170,7 +175,7 @@ class Simulation:
 
     def _update_masses(self):
         """Lumped masses from the model's current elements; nodes left without mass are held."""
-        self.mass = self.model.lumped_masses()
+        self.mass = self.mass_scaling * self.model.lumped_masses()
         massless = self.mass <= 0.0
         self.inverse_mass = np.where(massless, 0.0, 1.0 / np.where(massless, 1.0, self.mass))
         self.dof_kind[massless] = FIXED
@@ -190,9 +195,19 @@ class Simulation:
         self._prescribed.append(_Prescribed(idx, mask, displacement_at))
 
     def critical_time_step(self):
-        """Estimated critical (largest stable) time step [s] of the linearised model, cached."""
+        """Estimated critical (largest stable) time step [s] of the linearised model, cached.
+
+        Elastic limit 2 / omega_max (TensorMassModel.critical_time_step, masses scaled). The
+        Kelvin-Voigt force is explicit too: with C <= tau K (tau the largest ratio lambda_v /
+        lambda, mu_v / mu over the elements), the central-difference limit of a damped mode is
+        dt = (2 / omega) (sqrt(1 + zeta^2) - zeta), zeta = omega tau / 2, smallest at omega_max.
+        """
         if self._critical is None:
-            self._critical = self.model.critical_time_step()
+            elastic = self.model.critical_time_step() * math.sqrt(self.mass_scaling)
+            tau = self.model.viscous_time_constant()
+            omega = 2.0 / elastic
+            zeta = 0.5 * omega * tau
+            self._critical = elastic * (math.sqrt(1.0 + zeta * zeta) - zeta)
         return self._critical
 
     def reset(self):
