@@ -19,6 +19,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*')),
         ('share/' + package_name + '/msg_examples', glob('msg_examples/*')),
+        ('share/' + package_name + '/data/okamura2004_bovine_liver', glob('data/okamura2004_bovine_liver/*')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

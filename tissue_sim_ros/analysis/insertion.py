@@ -1,0 +1,152 @@
+"""A straight needle insertion and retraction on a scene, without ROS; CSV, plot, data comparison.
+
+The needle moves along its initial axis at constant speed by ``travel`` metres (insertion, from
+its start pose), then back (retraction), in ticks of ``tick`` seconds (the node's 50 Hz by
+default). Depth in the CSV and plot is this travel of the tip from its start pose, the abscissa
+of Okamura et al. (2004), whose liver sample was touched about 9 mm after the start.
+"""
+import csv
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+CSV_HEADER = ('time_s', 'depth_m', 'force_x_n', 'force_y_n', 'force_z_n', 'torque_x_nm', 'torque_y_nm',
+              'torque_z_nm', 'axial_force_n', 'phase')
+DATA_DIR = Path(__file__).resolve().parents[2] / 'data' / 'okamura2004_bovine_liver'
+
+
+@dataclass
+class InsertionResult:
+    time: np.ndarray          # (k,) s
+    depth: np.ndarray         # (k,) m, tip travel from the start pose
+    force: np.ndarray         # (k, 3) N, tissue on needle, world frame
+    torque: np.ndarray        # (k, 3) N m, about the needle base origin, world frame
+    axial_force: np.ndarray   # (k,) N, positive when the tissue resists insertion
+    phase: list               # (k,) str
+    retracting: np.ndarray    # (k,) bool, the retraction leg
+    puncture_events: list
+    wall_time: float
+    steps: int
+    time_step: float
+
+    @property
+    def real_time_factor(self):
+        return float(self.time[-1] / self.wall_time) if self.wall_time > 0 else float('inf')
+
+
+def run_insertion(scene, speed, travel, *, tick=0.02, retract=True, progress=None):
+    """Insert the scene's needle by ``travel`` [m] at ``speed`` [m/s] along its axis, then
+    retract it; returns an InsertionResult sampled once per tick. ``progress``: a file to print
+    a progress line to every simulated second (None: quiet)."""
+    if not (speed > 0 and np.isfinite(speed)):
+        raise ValueError(f'speed = {speed!r}: expected a finite speed > 0 m/s')
+    if not (travel > 0 and np.isfinite(travel)):
+        raise ValueError(f'travel = {travel!r}: expected a finite distance > 0 m')
+    start, orientation = scene.needle_pose
+    axis = scene.needle.axis.copy()
+    legs = [(0.0, travel)] + ([(travel, 0.0)] if retract else [])
+    rows = {k: [] for k in ('time', 'depth', 'force', 'torque', 'axial', 'phase', 'retracting')}
+    steps, wall0, next_report = 0, time.perf_counter(), 1.0
+    for begin, end in legs:
+        n_ticks = max(1, int(np.ceil(abs(end - begin) / (speed * tick) - 1e-9)))
+        for k in range(1, n_ticks + 1):
+            depth = begin + (end - begin) * k / n_ticks
+            steps += scene.advance(abs(end - begin) / n_ticks / speed, start + depth * axis, orientation)
+            force, torque = scene.reaction_wrench('world')
+            rows['time'].append(scene.time)
+            rows['depth'].append(depth)
+            rows['force'].append(force)
+            rows['torque'].append(torque)
+            rows['axial'].append(-float(np.dot(force, axis)))
+            rows['phase'].append(scene.phase)
+            rows['retracting'].append(end < begin)
+            if progress is not None and scene.time >= next_report:
+                elapsed = time.perf_counter() - wall0
+                print(f'  t = {scene.time:6.2f} s  depth {depth * 1e3:6.2f} mm  axial {rows["axial"][-1]:7.3f} N  '
+                      f'{scene.phase:<10}  real-time factor {scene.time / elapsed:5.2f}', file=progress, flush=True)
+                next_report += 1.0
+    return InsertionResult(np.array(rows['time']), np.array(rows['depth']), np.array(rows['force']),
+                           np.array(rows['torque']), np.array(rows['axial']), rows['phase'],
+                           np.array(rows['retracting']), list(scene.puncture_events),
+                           time.perf_counter() - wall0, steps, scene.dt)
+
+
+def write_csv(result, path):
+    with open(path, 'w', newline='') as f:
+        writer = csv.writer(f)
+        writer.writerow(CSV_HEADER)
+        for k in range(len(result.time)):
+            writer.writerow([f'{result.time[k]:.6f}', f'{result.depth[k]:.7f}',
+                             *(f'{v:.6g}' for v in result.force[k]), *(f'{v:.6g}' for v in result.torque[k]),
+                             f'{result.axial_force[k]:.6g}', result.phase[k]])
+
+
+def okamura_main_trace():
+    """The longest digitized bovine-liver trace (segment 1 of depth_force_digitized.csv),
+    sorted by depth: (depth [m], axial force [N])."""
+    data = np.loadtxt(DATA_DIR / 'depth_force_digitized.csv', delimiter=',')
+    restarts = np.flatnonzero(np.diff(data[:, 0]) < -0.01) + 1     # the depth jumps back to ~0
+    first = data[:restarts[0]] if len(restarts) else data
+    return first[np.argsort(first[:, 0], kind='stable')].T
+
+
+def pre_puncture_nrmse(result, rupture_depth=0.019, contact_depth=0.009):
+    """RMS of (simulated - measured) axial force over the measured points between contact and
+    capsule rupture, divided by the measured force range there; and the point count."""
+    depth, force = okamura_main_trace()
+    keep = (depth >= contact_depth) & (depth <= rupture_depth)
+    inserting = ~result.retracting
+    simulated = np.interp(depth[keep], result.depth[inserting], result.axial_force[inserting])
+    error = simulated - force[keep]
+    return float(np.sqrt(np.mean(error ** 2)) / np.ptp(force[keep])), int(keep.sum())
+
+
+def plot_insertion(result, path, *, reference=True, title='needle insertion'):
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    inserting = ~result.retracting
+    if reference and DATA_DIR.exists():
+        depth, force = okamura_main_trace()
+        ax.plot(depth * 1e3, force, '.', ms=3, color='0.55', label='bovine liver, ex vivo (Okamura et al. 2004)')
+    ax.plot(result.depth[inserting] * 1e3, result.axial_force[inserting], '-', color='C0', label='simulated, insertion')
+    ax.plot(result.depth[~inserting] * 1e3, result.axial_force[~inserting], '-', color='C3', label='simulated, retraction')
+    for event in result.puncture_events:
+        ax.axvline(np.interp(event['time_s'], result.time, result.depth) * 1e3, color='C2', lw=0.8, ls='--')
+    ax.set_xlabel('needle travel from start [mm]')
+    ax.set_ylabel('axial force on the needle [N]')
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc='upper left', fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(scene_file, speed_mm_s, depth_mm, out, *, tick=0.02, stream=sys.stdout, overrides=None):
+    """The `tissue-sim insert` command: run, print a summary, write insertion.csv and .png."""
+    from tissue_sim_ros.engine.scene import Scene
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    scene = Scene.from_file(scene_file, **(overrides or {}))
+    model = scene.model
+    kind = ('full' if model.geometric and model.physical else 'geometric' if model.geometric
+            else 'physical' if model.physical else 'linear') + ('+visc' if model.viscous else '')
+    print(f'scene {scene_file or "(default liver sample)"}: {scene.mesh.n_elements} tetrahedra, '
+          f'{kind} model, dt = {scene.dt * 1e3:.3f} ms (mass scaling {scene.simulation.mass_scaling:g})',
+          file=stream)
+    result = run_insertion(scene, speed_mm_s * 1e-3, depth_mm * 1e-3, tick=tick, progress=stream)
+    write_csv(result, out / 'insertion.csv')
+    plot_insertion(result, out / 'insertion.png', title=f'insertion at {speed_mm_s:g} mm/s, {kind} model')
+    for event in result.puncture_events:
+        print(f'puncture of {event["region"]} at travel {np.interp(event["time_s"], result.time, result.depth) * 1e3:.2f} mm, '
+              f'axial force {event["axial_force_n"]:.3f} N', file=stream)
+    print(f'peak axial force {result.axial_force.max():.3f} N; simulated {result.time[-1]:.2f} s in '
+          f'{result.wall_time:.2f} s wall: real-time factor {result.real_time_factor:.2f} '
+          f'({result.steps} steps)', file=stream)
+    print(f'wrote {out / "insertion.csv"} and {out / "insertion.png"}', file=stream)
+    return result
