@@ -87,9 +87,3 @@ def test_compress_demo_writes_plot_and_tracks_E_A_strain(tmp_path, capsys):
     final = float(re.search(r'final reaction ([0-9.]+) N', out).group(1))
     # 0.05 x 0.05 block, 0.03 high, E = 5 kPa: E A strain = 0.375 N at 3 %; slow plate, within 3 %
     assert final == pytest.approx(5e3 * 0.05 * 0.05 * 0.03, rel=0.03)
-
-
-def test_node_entry_point_says_it_is_not_there_yet():
-    script = Path(sys.executable).parent / 'tissue_sim_node'
-    result = subprocess.run([str(script)], capture_output=True, text=True, timeout=60)
-    assert result.returncode == 2 and 'not implemented yet' in result.stderr

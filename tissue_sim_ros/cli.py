@@ -26,6 +26,20 @@ def _bench(args):
     bench.run(sizes=args.sizes, models=args.models)
 
 
+def _drive(args):
+    from tissue_sim_ros.ros.drive import run_drive
+    code = run_drive(args.speed_mm_s, args.depth_mm, start_height_mm=args.start_height_mm,
+                     rate_hz=args.rate_hz, hold_s=args.hold_s, scene_file=args.scene_file)
+    if code:
+        sys.exit(code)
+
+
+def _node_bench(args):
+    from tissue_sim_ros.analysis import node_bench
+    node_bench.run(duration_s=args.duration_s, rate_hz=args.rate_hz, scene_file=args.scene_file,
+                   out=args.out)
+
+
 def build_parser():
     from tissue_sim_ros import __version__
     parser = argparse.ArgumentParser(prog='tissue-sim', description='Real-time tensor-mass soft-tissue simulation.')
@@ -43,6 +57,21 @@ def build_parser():
                        help='models to run (default: all): linear, linear+visc, physical, physical+visc, '
                             'geometric, geometric+visc, full, full+visc, full+thr0.02')
     bench.set_defaults(run=_bench)
+    drive = commands.add_parser('drive', help='publish a scripted needle insertion and retraction on needle/pose')
+    drive.add_argument('--speed-mm-s', type=float, required=True, help='needle speed [mm/s]')
+    drive.add_argument('--depth-mm', type=float, required=True, help='tip depth below the entry surface [mm]')
+    drive.add_argument('--start-height-mm', type=float, default=None,
+                       help="tip height above the surface at the start [mm] (default: the scene's)")
+    drive.add_argument('--rate-hz', type=float, default=100.0, help='pose rate [Hz] (default 100)')
+    drive.add_argument('--hold-s', type=float, default=0.5, help='pause at full depth [s] (default 0.5)')
+    drive.add_argument('--scene-file', default=None, help="scene the node runs (default: the packaged one)")
+    drive.set_defaults(run=_drive)
+    node_bench = commands.add_parser('node-bench', help='run the node as a process and print its timing figures')
+    node_bench.add_argument('--duration-s', type=float, default=20.0, help='measured run length [s] (default 20)')
+    node_bench.add_argument('--rate-hz', type=float, default=100.0, help='pose rate [Hz] (default 100)')
+    node_bench.add_argument('--scene-file', default=None, help='scene (default: the packaged one)')
+    node_bench.add_argument('--out', default=None, help='keep the MCAP log and a JSON of the figures here')
+    node_bench.set_defaults(run=_node_bench)
     return parser
 
 

@@ -1,0 +1,744 @@
+"""The tissue_sim node in-process: the node and a client in one process, each spun by its own
+executor thread, talking through DDS on a private domain.
+
+Truths the checks use: receive times taken by the client (rates), the poses the test itself
+published (interpolation, counts), an offline run of an identical scene fed the same poses (the
+wrench values), rosbags reading the MCAP log (counts, payloads), /rosout (log levels).
+"""
+import math
+import os
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+rclpy = pytest.importorskip('rclpy')
+
+from builtin_interfaces.msg import Time as TimeMsg  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
+from rcl_interfaces.msg import Log  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
+from sensor_msgs.msg import PointCloud2  # noqa: E402
+from shape_msgs.msg import Mesh  # noqa: E402
+from std_srvs.srv import SetBool, Trigger  # noqa: E402
+from visualization_msgs.msg import Marker  # noqa: E402
+
+from tissue_sim_ros import SimulationDiverged  # noqa: E402
+from tissue_sim_ros.engine.needle import NeedleInputError, validate_pose  # noqa: E402
+from tissue_sim_ros.ros import conversions as cv  # noqa: E402
+from tissue_sim_ros.ros import node as node_mod  # noqa: E402
+from tissue_sim_ros.ros.pose_input import (BAD_INPUT_KINDS, PoseInput,  # noqa: E402
+                                           PoseInputLimits)
+
+ROOT = Path(__file__).resolve().parents[1]
+DOMAIN_ID = 60 + os.getpid() % 50
+NS = 1_000_000_000
+DOWN = np.array([1.0, 0.0, 0.0, 0.0])  # needle base +z along world -z
+
+
+# --------------------------------------------------------------------------------------------
+# a stand-in scene that follows the engine's Scene contract (replaced by the real one)
+
+class FakeScene:
+    mesh_frame_id = 'world'
+    text = 'fake scene\n'
+    length_m = 0.1
+    stiffness = 200.0  # N/m along z
+
+    def __init__(self, dt=0.001):
+        self.dt = dt
+        g = np.linspace(-0.02, 0.02, 5)
+        x, y, z = np.meshgrid(g, g, np.array([-0.04, -0.02, 0.0]), indexing='ij')
+        self._rest = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+        self._disp = np.zeros_like(self._rest)
+        top = np.flatnonzero(self._rest[:, 2] == 0.0).reshape(5, 5)
+        tris = []
+        for i in range(4):
+            for j in range(4):
+                a, b, c, d = top[i, j], top[i + 1, j], top[i + 1, j + 1], top[i, j + 1]
+                tris += [(a, b, c), (a, c, d)]
+        self._tris = np.array(tris)
+        self.topology_version = 0
+        self.reset()
+
+    def reset(self):
+        self.time = 0.0
+        self._pos = np.array([0.0, 0.0, self.length_m + 0.01])
+        self._q = DOWN.copy()
+        self._disp[:] = 0.0
+        self.puncture_events = []
+        if self.topology_version:
+            self._tris = self._tris_full
+            self.topology_version += 1
+
+    @property
+    def _tip_z(self):
+        return self._pos[2] - self.length_m  # the needle points straight down
+
+    def advance(self, duration, position, orientation):
+        p, q = validate_pose(position, orientation)
+        if np.linalg.norm(p - self._pos) > 0.005:
+            raise NeedleInputError('pose.position', p.tolist(), 'jump over 5 mm')
+        steps = int(round(duration / self.dt))
+        self.time += steps * self.dt
+        self._pos, self._q = p, q
+        depth = max(0.0, -self._tip_z)
+        self._disp[:, 2] = -0.5 * depth * (self._rest[:, 2] == 0.0)
+        if depth > 0.01 and not self.puncture_events:
+            self.puncture_events.append({'time_s': self.time, 'tip_depth_m': depth,
+                                         'axial_force_n': self.stiffness * depth, 'region': 'x'})
+            self._tris_full, self._tris = self._tris, self._tris[2:]
+            self.topology_version += 1
+        return steps
+
+    def reaction_wrench(self, frame='world'):
+        force = np.array([0.0, 0.0, self.stiffness * max(0.0, -self._tip_z)])
+        if frame == 'needle':
+            force = np.array([0.0, 0.0, -force[2]])  # base +z is world -z
+        return force, np.zeros(3)
+
+    @property
+    def phase(self):
+        return 'inserted' if self._tip_z < 0 else 'approach'
+
+    @property
+    def tip_depth(self):
+        return max(0.0, -self._tip_z)
+
+    @property
+    def needle_pose(self):
+        return self._pos.copy(), self._q.copy()
+
+    @property
+    def rest_positions(self):
+        return self._rest
+
+    @property
+    def displacement(self):
+        return self._disp
+
+    def surface_triangles(self):
+        return self._tris
+
+
+def make_scene():
+    return FakeScene()
+
+
+# --------------------------------------------------------------------------------------------
+# harness
+
+
+@pytest.fixture(autouse=True)
+def _private_ros(monkeypatch):
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(DOMAIN_ID))
+
+
+class Harness:
+    """The node and a client node, each with its own executor thread, on a private context."""
+
+    def __init__(self, scene=None, **params):
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx, domain_id=DOMAIN_ID)
+        overrides = [Parameter(k, value=v) for k, v in params.items()]
+        self.scene = scene if scene is not None else make_scene()
+        self.node = node_mod.TissueSimNode(scene=self.scene, context=self.ctx,
+                                           parameter_overrides=overrides)
+        self.client = rclpy.create_node('test_client', context=self.ctx)
+        self.received = {k: [] for k in ('wrench', 'nodes', 'surface', 'marker', 'diag', 'log')}
+        self._lock = threading.Lock()
+        reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        for key, msg_type, topic, qos in (
+                ('wrench', WrenchStamped, 'needle/wrench', reliable),
+                ('nodes', PointCloud2, 'tissue/nodes', reliable),
+                ('surface', Mesh, 'tissue/surface', latched),
+                ('marker', Marker, 'tissue/marker', reliable),
+                ('diag', DiagnosticArray, '/diagnostics', reliable),
+                ('log', Log, '/rosout', QoSProfile(depth=1000))):
+            self.client.create_subscription(msg_type, topic, self._keeper(key), qos)
+        self.pose_pub = self.client.create_publisher(PoseStamped, 'needle/pose', reliable)
+        self.clock_pub = self.client.create_publisher(Clock, '/clock', reliable)
+        self.reset_client = self.client.create_client(Trigger, '/tissue_sim/reset')
+        self.pause_client = self.client.create_client(SetBool, '/tissue_sim/pause')
+        self._stops, self._threads = [], []
+        for n in (self.node, self.client):
+            ex = SingleThreadedExecutor(context=self.ctx)
+            ex.add_node(n)
+            stop = threading.Event()
+            t = threading.Thread(target=self._spin, args=(ex, stop), daemon=True)
+            t.start()
+            self._stops.append(stop)
+            self._threads.append(t)
+        self.published = []  # (stamp_ns, position, frame_id, kind) of every pose sent
+
+    def _keeper(self, key):
+        def keep(msg):
+            with self._lock:
+                self.received[key].append((time.monotonic(), msg))
+        return keep
+
+    @staticmethod
+    def _spin(executor, stop):
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.05)
+
+    def stop_node(self, drain_s=0.3):
+        """Stop the node's executor, close the node (its recording), let the client drain."""
+        self._stops[0].set()
+        self._threads[0].join(timeout=5)
+        self.node.close()
+        time.sleep(drain_s)
+
+    def get(self, key):
+        with self._lock:
+            return list(self.received[key])
+
+    def wait_for(self, key, count, timeout=10.0):
+        deadline = time.monotonic() + timeout
+        while len(self.received[key]) < count:
+            if time.monotonic() > deadline:
+                raise AssertionError(f'{key}: {len(self.received[key])} messages after {timeout} s; '
+                                     f'expected {count}')
+            time.sleep(0.01)
+        return self.get(key)
+
+    def wait_matched(self, timeout=10.0):
+        deadline = time.monotonic() + timeout
+        while self.pose_pub.get_subscription_count() == 0 or not self.received['surface']:
+            assert time.monotonic() < deadline, 'node and client did not discover each other'
+            time.sleep(0.01)
+
+    def now_ns(self):
+        return self.client.get_clock().now().nanoseconds
+
+    def publish_pose(self, position, stamp_ns, orientation=DOWN, frame_id='world', kind='good'):
+        msg = PoseStamped()
+        msg.header.frame_id = frame_id
+        msg.header.stamp = TimeMsg(sec=int(stamp_ns // NS), nanosec=int(stamp_ns % NS))
+        msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(c) for c in position)
+        (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z,
+         msg.pose.orientation.w) = (float(c) for c in orientation)
+        self.pose_pub.publish(msg)
+        self.published.append((stamp_ns, np.array(position, dtype=float), frame_id, kind))
+
+    def call(self, client, request, timeout=5.0):
+        assert client.wait_for_service(timeout_sec=timeout)
+        future = client.call_async(request)
+        deadline = time.monotonic() + timeout
+        while not future.done():
+            assert time.monotonic() < deadline, 'service call timed out'
+            time.sleep(0.005)
+        return future.result()
+
+    def diagnostics_now(self):
+        """Ask the node for diagnostics now (on its executor thread's terms: via the timer
+        callback would wait up to a period; the statuses are computed from counters only)."""
+        before = len(self.received['diag'])
+        self.node.publish_diagnostics()
+        msgs = self.wait_for('diag', before + 1)
+        return diag_values(msgs[-1][1])
+
+    def close(self):
+        for stop, t in zip(self._stops, self._threads):
+            stop.set()
+            t.join(timeout=5)
+        self.node.destroy_node()
+        self.client.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+
+
+def diag_values(msg):
+    """{status name: (level, message, {key: value})} of a DiagnosticArray."""
+    out = {}
+    for st in msg.status:
+        level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
+        out[st.name] = (level, st.message, {kv.key: kv.value for kv in st.values})
+    return out
+
+
+@pytest.fixture
+def harness():
+    made = []
+
+    def make(scene=None, **params):
+        h = Harness(scene, **params)
+        made.append(h)
+        h.wait_matched()
+        return h
+    yield make
+    for h in made:
+        h.close()
+
+
+def straight_descent(start, speed, duration, rate_hz, t0_ns, lead_s=0.05):
+    """(stamps_ns, positions) of a straight descent along -z, stamped lead_s in the future."""
+    n = int(duration * rate_hz) + 1
+    t = np.arange(n) / rate_hz
+    positions = np.array(start)[None, :] + np.outer(speed * t, [0.0, 0.0, -1.0])
+    stamps = t0_ns + int(lead_s * NS) + (t * NS).astype(np.int64)
+    return stamps, positions
+
+
+def publish_at_stamps(h, stamps, positions, lead_s=0.05):
+    """Publish each pose lead_s before its stamp (wall clock = node clock here)."""
+    for s, p in zip(stamps, positions):
+        delay = (s - int(lead_s * NS) - h.now_ns()) / NS
+        if delay > 0:
+            time.sleep(delay)
+        h.publish_pose(p, int(s))
+
+
+# --------------------------------------------------------------------------------------------
+# pose input (pure)
+
+
+def _limits(**kw):
+    return PoseInputLimits(**{'expected_frame_id': 'world', **kw})
+
+
+def test_pose_input_interpolates_between_samples_and_holds_after():
+    pi = PoseInput(_limits(max_jump_m=0.01))
+    q0 = np.array([0.0, 0.0, 0.0, 1.0])
+    half = math.sqrt(0.5)
+    q1 = np.array([0.0, 0.0, math.sin(0.1), math.cos(0.1)])  # 0.2 rad about z
+    assert pi.offer([0, 0, 0], q0, 'world', 1 * NS, 1 * NS) == (None, None)
+    assert pi.offer([0.004, 0, 0], q1, 'world', 1 * NS + 10_000_000, 1 * NS)[0] is None
+    p, q = pi.pose_at(1 * NS + 2_500_000)  # a quarter of the way
+    np.testing.assert_allclose(p, [0.001, 0, 0], atol=1e-15)
+    np.testing.assert_allclose(q, [0, 0, math.sin(0.025), math.cos(0.025)], atol=1e-12)
+    p, q = pi.pose_at(5 * NS)  # after the newest: held
+    np.testing.assert_allclose(p, [0.004, 0, 0])
+    np.testing.assert_allclose(q, q1)
+    assert pi.pose_at(0)[0].tolist() == [0.004, 0, 0]  # older samples were dropped meanwhile
+    assert half  # (keeps flake8 quiet about the helper constant)
+
+
+def test_pose_input_refuses_each_kind_and_names_it():
+    pi = PoseInput(_limits(max_jump_m=0.005, max_future_s=0.5), reference_pose=([0, 0, 0], DOWN))
+    t = 10 * NS
+    cases = [
+        ([np.nan, 0, 0], DOWN, 'world', t, 'non_finite'),
+        ([0, 0, 0], [1.0, 0, 0, np.inf], 'world', t, 'non_finite'),
+        ([0, 0, 0], [1.1, 0, 0, 0], 'world', t, 'non_unit_quaternion'),
+        ([0, 0, 0], DOWN, 'map', t, 'wrong_frame'),
+        ([0, 0, 0], DOWN, 'world', t + 2 * NS, 'future_stamp'),
+        ([0.006, 0, 0], DOWN, 'world', t, 'jump'),  # from the needle (reference)
+        ([0, 0, 0], [0, 0, 0, 1.0], 'world', t, 'jump'),  # 180 degrees
+    ]
+    for p, q, frame, stamp, kind in cases:
+        got, detail = pi.offer(p, q, frame, stamp, t)
+        assert got == kind, (p, q, frame, got, detail)
+        assert detail
+    assert pi.accepted == 0 and pi.newest() is None
+    assert pi.offer([0.001, 0, 0], [1.005, 0, 0, 0], 'world', t, t)[0] is None  # normalised
+    np.testing.assert_allclose(pi.newest()[2], DOWN)
+    assert pi.offer([0, 0, 0], DOWN, 'world', t - 1, t)[0] == 'time_backwards'
+    assert pi.offer([0.001, 0, 0], DOWN, 'world', 0, t + NS)[0] == 'unstamped'
+    assert pi.newest()[0] == t + NS  # stamped with the receipt time
+    expected = {'non_finite': 2, 'non_unit_quaternion': 1, 'wrong_frame': 1, 'future_stamp': 1,
+                'jump': 2, 'time_backwards': 1, 'unstamped': 1, 'flood': 0, 'engine_refused': 0}
+    assert pi.counts == expected
+    assert set(pi.counts) == set(BAD_INPUT_KINDS)
+
+
+def test_pose_input_flood_keeps_latest_and_one_sample_per_slot():
+    pi = PoseInput(_limits(max_rate_hz=250.0))  # 4 ms slots
+    t0 = 3 * NS
+    for k in range(1000):  # 1 kHz for 1 s
+        pi.offer([0, 0, -1e-6 * k], DOWN, 'world', t0 + k * 1_000_000, t0 + k * 1_000_000)
+    # samples open at k = 0, 4, 8, ...: 250 of them; the other 750 replace the newest sample
+    assert pi.counts['flood'] == 750 and pi.accepted == 1000
+    assert pi.newest()[1][2] == pytest.approx(-1e-6 * 999)  # the latest pose is the one held
+    # the last two samples hold k = 995 (slot opened at 992) and k = 999 (slot 996)
+    assert len(pi._samples) == pi.limits.buffer_length  # bounded: the oldest were dropped
+    p, _ = pi.pose_at(t0 + 997_000_000)
+    assert p[2] == pytest.approx(-997e-6, abs=1e-15)
+
+
+def test_pose_input_stale_and_reset():
+    pi = PoseInput(_limits(stale_after_s=0.5))
+    assert pi.pose_at(NS) is None and not pi.stale(NS) and pi.age_s(NS) is None
+    pi.offer([0, 0, 0], DOWN, 'world', NS, NS)
+    assert not pi.stale(NS + 400_000_000) and pi.stale(NS + 600_000_000)
+    pi.reset(([0.0, 0.0, 0.0], DOWN))
+    assert pi.pose_at(2 * NS) is None
+    assert pi.offer([0.0, 0.0, 0.02], DOWN, 'world', 2 * NS, 2 * NS)[0] == 'jump'
+
+
+# --------------------------------------------------------------------------------------------
+# parameters
+
+
+def test_parameter_file_lists_every_parameter_with_its_default():
+    data = yaml.safe_load((ROOT / 'config' / 'tissue_sim.yaml').read_text())
+    flat = {}
+
+    def walk(d, prefix=''):
+        for k, v in d.items():
+            if isinstance(v, dict):
+                walk(v, f'{prefix}{k}.')
+            else:
+                flat[prefix + k] = v
+    walk(data['tissue_sim']['ros__parameters'])
+    declared = {p.name: p.default for p in node_mod.PARAMETERS}
+    assert flat == declared
+    assert all(type(flat[k]) is type(declared[k]) for k in flat)  # 50.0, not 50
+
+
+def test_help_lists_every_parameter():
+    text = node_mod.help_text()
+    for p in node_mod.PARAMETERS:
+        assert f'  {p.name} = ' in text
+
+
+@pytest.mark.parametrize('name, value, words', [
+    ('publish_rate_hz', 0.0, ['publish_rate_hz', '0.0', 'out of range']),
+    ('publish_rate_hz', 50, ['publish_rate_hz', "'50'", 'INTEGER', '50.0']),
+    ('marker_rate_hz', 80.0, ['marker_rate_hz', '80.0', 'at most publish_rate_hz']),
+    ('wrench.frame_id', 'tool0', ['wrench.frame_id', "'tool0'", "'needle'", "'world'"]),
+    ('needle_frame_id', 'world', ['needle_frame_id', "'world'"]),
+    ('on_divergence', 'explode', ['on_divergence', "'explode'", 'reset', 'hold']),
+    ('input.max_jump_m', -1.0, ['input.max_jump_m', '-1.0']),
+    ('recording.compression', 'gzip', ['recording.compression', "'gzip'"]),
+    ('scene_file', '/nonexistent/scene.yaml', ['scene_file', '/nonexistent/scene.yaml']),
+])
+def test_impossible_parameters_are_refused_by_name_and_value(name, value, words):
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=DOMAIN_ID)
+    try:
+        with pytest.raises(node_mod.ConfigError) as err:
+            node_mod.TissueSimNode(scene=make_scene(), context=ctx,
+                                   parameter_overrides=[Parameter(name, value=value)])
+        for word in words:
+            assert word in str(err.value), str(err.value)
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
+def test_unwritable_recording_directory_is_refused(tmp_path):
+    blocker = tmp_path / 'a_file'
+    blocker.write_text('')
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=DOMAIN_ID)
+    try:
+        with pytest.raises(node_mod.ConfigError, match='recording.directory'):
+            node_mod.TissueSimNode(scene=make_scene(), context=ctx, parameter_overrides=[
+                Parameter('recording.directory', value=str(blocker / 'sub'))])
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
+# --------------------------------------------------------------------------------------------
+# the node
+
+
+def offline_wrenches(stamps_ns, pose_stamps, pose_positions, period, frame='needle'):
+    """Run a fresh scene with the poses interpolated (np.interp, clamped) at the given stamps."""
+    scene = make_scene()
+    start = scene.needle_pose[0]
+    out = []
+    for t in stamps_ns:
+        if len(pose_stamps):
+            base = int(pose_stamps[0])  # ns since 1970 do not fit a float64 to the ns
+            p = np.array([np.interp(int(t) - base, np.asarray(pose_stamps) - base,
+                                    pose_positions[:, j]) for j in range(3)])
+        else:
+            p = start
+        scene.advance(period, p, DOWN)
+        out.append(np.concatenate(scene.reaction_wrench(frame)))
+    return np.array(out)
+
+
+def test_rate_values_and_stamps_of_an_insertion(harness):
+    h = harness()
+    start = h.scene.needle_pose[0]
+    stamps, positions = straight_descent(start, 0.01, 5.5, 100.0, h.now_ns())
+    publish_at_stamps(h, stamps, positions)
+    time.sleep(0.1)
+    wrenches = h.get('wrench')
+    times = np.array([w[0] for w in wrenches])
+    # rate from the client's receive times, over 5 s or more
+    window = times[times >= times[-1] - 5.2]
+    assert window[-1] - window[0] >= 5.0
+    rate = (len(window) - 1) / (window[-1] - window[0])
+    assert rate == pytest.approx(50.0, rel=0.02)
+    values = np.array([[w.wrench.force.x, w.wrench.force.y, w.wrench.force.z,
+                        w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z]
+                       for _, w in wrenches])
+    assert np.isfinite(values).all()
+    assert all(w.header.frame_id == 'needle' for _, w in wrenches)
+    wstamps = np.array([cv.stamp_to_ns(w.header.stamp) for _, w in wrenches])
+    assert np.all(np.diff(wstamps) > 0)
+    # the values: an offline scene fed the same poses at the same stamps gives the same wrench
+    n = len(wrenches)
+    expected = offline_wrenches(wstamps, stamps, positions, 1.0 / 50.0)
+    np.testing.assert_allclose(values, expected[:n], rtol=1e-9, atol=1e-12)
+    assert values[:, 2].min() < -0.1  # it really went in (needle frame: the tissue pushes back)
+
+
+def test_bad_inputs_are_counted_and_never_stop_or_poison_the_node(harness):
+    h = harness(**{'input.max_rate_hz': 250.0, 'diagnostics_rate_hz': 0.01})
+    pos = h.scene.needle_pose[0]
+    before = len(h.get('wrench'))
+    t = h.now_ns()
+    sent = {k: 0 for k in BAD_INPUT_KINDS}
+
+    def send(kind, position=pos, orientation=DOWN, frame='world', stamp=None):
+        h.publish_pose(position, t if stamp is None else stamp, orientation, frame, kind)
+        sent[kind] += 1
+
+    h.publish_pose(pos, t)  # a good one: the reference for the checks that need one
+    for _ in range(3):
+        send('non_finite', [np.nan, 0.0, 0.1])
+        send('non_finite', pos, [np.inf, 0.0, 0.0, 1.0])
+        send('non_unit_quaternion', pos, [2.0, 0.0, 0.0, 0.0])
+        send('wrong_frame', frame='map')
+        send('time_backwards', stamp=t - 1_000_000)
+        send('future_stamp', stamp=t + 10 * NS)
+        send('jump', pos + [0.0, 0.0, -0.02])
+    # a 1 kHz flood for 1 s, stamps 1 ms apart from t + 4 ms: 3 of every 4 are coalesced
+    t_flood = t + 4_000_000
+    for k in range(1000):
+        h.publish_pose(pos, t_flood + k * 1_000_000, kind='flood-stream')
+        if k % 50 == 49:
+            time.sleep(0.05)
+    sent['flood'] = 750
+    time.sleep(0.1)  # so that its receipt time is after the flood's last stamp
+    h.publish_pose(pos, 0, kind='unstamped')
+    sent['unstamped'] = 1
+    time.sleep(0.5)
+    d = h.diagnostics_now()
+    level, message, values = d['tissue_sim: input']
+    for kind in BAD_INPUT_KINDS:
+        assert int(values[f'bad_input.{kind}']) == sent[kind], kind
+    assert int(values['poses_received']) == len(h.published)
+    assert level == 1 and 'bad poses' in message  # WARN
+    wrenches = h.get('wrench')[before:]
+    assert len(wrenches) >= 45  # still ticking through all of it (about 1.5 s)
+    vals = np.array([[w.wrench.force.x, w.wrench.force.y, w.wrench.force.z] for _, w in wrenches])
+    assert np.isfinite(vals).all()
+    clouds = [m for _, m in h.get('nodes')]
+    assert all(np.isfinite(cv.point_cloud_arrays(c)[0]).all() for c in clouds[-10:])
+    # logged once per kind: one WARN line per kind on /rosout, whatever the count
+    time.sleep(0.2)
+    lines = [m.msg for _, m in h.get('log') if m.name == 'tissue_sim' and m.level == Log.WARN]
+    for kind in ('non_finite', 'non_unit_quaternion', 'wrong_frame', 'time_backwards',
+                 'future_stamp', 'jump', 'flood', 'unstamped'):
+        assert sum(f'needle/pose: {kind}:' in line for line in lines) == 1, (kind, lines)
+
+
+def test_engine_refusal_holds_the_needle_and_is_counted(harness):
+    h = harness(**{'input.max_jump_m': 0.05})
+    pos = h.scene.needle_pose[0]
+    t = h.now_ns()
+    h.publish_pose(pos + [0.0, 0.0, -0.02], t)  # passes the node's 50 mm, not the engine's 5 mm
+    time.sleep(0.3)
+    d = h.diagnostics_now()
+    assert int(d['tissue_sim: input'][2]['bad_input.engine_refused']) >= 5
+    np.testing.assert_allclose(h.scene.needle_pose[0], pos)  # held where it was
+    w = h.get('wrench')[-1][1]
+    assert w.wrench.force.z == 0.0
+
+
+def test_pause_freezes_and_reset_restores(harness):
+    h = harness()
+    start = h.scene.needle_pose[0]
+    stamps, positions = straight_descent(start, 0.02, 1.2, 100.0, h.now_ns())
+    publish_at_stamps(h, stamps[:60], positions[:60])  # 0.6 s: 12 mm down, tip 2 mm in
+    time.sleep(0.1)
+    response = h.call(h.pause_client, SetBool.Request(data=True))
+    assert response.success and 'paused' in response.message
+    t_sim = h.scene.time
+    n0 = len(h.get('wrench'))
+    publish_at_stamps(h, stamps[60:], positions[60:])  # keep moving: ignored while paused
+    time.sleep(0.2)
+    frozen = h.get('wrench')[n0 + 1:]
+    assert len(frozen) >= 25  # still publishing
+    assert len({w.wrench.force.z for _, w in frozen}) == 1 and frozen[0][1].wrench.force.z < 0
+    assert h.scene.time == t_sim
+    d = h.diagnostics_now()
+    assert d['tissue_sim: engine'][2]['state'] == 'paused'
+    response = h.call(h.pause_client, SetBool.Request(data=False))
+    assert response.success and 'running' in response.message
+    time.sleep(0.2)
+    assert h.scene.time > t_sim + 0.1
+    response = h.call(h.reset_client, Trigger.Request())
+    assert response.success
+    time.sleep(0.15)
+    assert h.scene.time < 0.2  # back to 0, then a few ticks
+    np.testing.assert_allclose(h.scene.needle_pose[0], start)
+    assert h.get('wrench')[-1][1].wrench.force.z == 0.0
+    assert np.abs(cv.point_cloud_arrays(h.get('nodes')[-1][1])[1]).max() == 0.0  # at rest
+
+
+def _diverge_on_call(scene, n_call, *, nan=False):
+    """Make the scene diverge on its n-th advance (or return a NaN wrench from then on)."""
+    real_advance, real_wrench = scene.advance, scene.reaction_wrench
+    calls = {'n': 0}
+
+    def advance(*a):
+        calls['n'] += 1
+        steps = real_advance(*a)
+        if calls['n'] == n_call and not nan:
+            raise SimulationDiverged('injected', calls['n'], scene.time, scene.dt, scene.dt * 1.2)
+        return steps
+
+    def wrench(frame='world'):
+        f, t = real_wrench(frame)
+        if nan and calls['n'] >= n_call:
+            f = f * np.nan
+        return f, t
+    scene.advance, scene.reaction_wrench = advance, wrench
+    return calls
+
+
+@pytest.mark.parametrize('nan', [False, True])
+def test_divergence_resets_and_is_reported_at_error(harness, nan):
+    scene = make_scene()
+    _diverge_on_call(scene, 20, nan=nan)
+    h = harness(scene)
+    time.sleep(0.8)
+    assert h.node.divergences >= 1
+    wrenches = h.get('wrench')
+    vals = np.array([[w.wrench.force.x, w.wrench.force.y, w.wrench.force.z] for _, w in wrenches])
+    assert np.isfinite(vals).all() and len(wrenches) >= 35
+    errors = [m.msg for _, m in h.get('log') if m.level == Log.ERROR and 'diverged' in m.msg]
+    assert errors and 'on_divergence = reset' in errors[0]
+    if not nan:  # reset once at the 20th tick, then it runs on from time 0
+        assert h.node.divergences == 1
+        assert h.scene.time == pytest.approx((h.node.ticks - 20) * 0.02, abs=0.021)
+
+
+def test_divergence_hold_republishes_last_wrench_until_reset(harness):
+    scene = make_scene()
+    calls = _diverge_on_call(scene, 10)
+    h = harness(scene, on_divergence='hold')
+    start = scene.needle_pose[0]
+    stamps, positions = straight_descent(start, 0.05, 0.3, 100.0, h.now_ns())
+    publish_at_stamps(h, stamps, positions)
+    time.sleep(0.4)
+    assert h.node.held and calls['n'] == 10  # no advance since
+    n_nodes = len(h.get('nodes'))
+    time.sleep(0.2)
+    assert len(h.get('nodes')) == n_nodes  # no cloud while held
+    held = h.get('wrench')[-10:]
+    assert len({w.wrench.force.z for _, w in held}) == 1
+    d = h.diagnostics_now()
+    assert d['tissue_sim: engine'][0] == 2  # ERROR
+    assert h.call(h.reset_client, Trigger.Request()).success
+    time.sleep(0.2)
+    assert not h.node.held and calls['n'] > 10 and len(h.get('nodes')) > n_nodes
+
+
+def test_use_sim_time_ticks_on_the_clock_topic(harness):
+    h = harness(use_sim_time=True)
+    time.sleep(0.5)
+    assert h.get('wrench') == []  # no /clock yet: no tick
+    t0 = 100 * NS
+    for k in range(101):  # 0.5 s of simulated time in 5 ms steps, at wall speed
+        h.clock_pub.publish(Clock(clock=TimeMsg(sec=int((t0 + k * 5_000_000) // NS),
+                                                nanosec=int((t0 + k * 5_000_000) % NS))))
+        time.sleep(0.005)
+    time.sleep(0.2)
+    stamps = np.array([cv.stamp_to_ns(w.header.stamp) for _, w in h.get('wrench')])
+    assert 23 <= len(stamps) <= 26  # 0.5 s / 20 ms
+    assert stamps.min() >= t0 and stamps.max() <= t0 + NS // 2
+    np.testing.assert_allclose(np.diff(stamps), 20_000_000, atol=5_000_001)
+    assert h.scene.time == pytest.approx(len(stamps) * 0.02)
+
+
+def test_surface_is_latched_and_follows_topology(harness):
+    h = harness()
+    first = h.get('surface')
+    assert len(first) == 1
+    assert len(first[0][1].vertices) == len(h.scene.rest_positions)
+    assert len(first[0][1].triangles) == len(h.scene.surface_triangles())
+    # a late subscriber still gets it
+    late = []
+    sub = h.client.create_subscription(Mesh, 'tissue/surface', late.append, QoSProfile(
+        depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    deadline = time.monotonic() + 5
+    while not late and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert len(late) == 1 and len(late[0].triangles) == len(first[0][1].triangles)
+    h.client.destroy_subscription(sub)
+    # the fake removes two surface triangles at its puncture: a new Mesh follows
+    start = h.scene.needle_pose[0]
+    stamps, positions = straight_descent(start, 0.05, 0.6, 100.0, h.now_ns())
+    publish_at_stamps(h, stamps, positions)
+    time.sleep(0.35)
+    surfaces = h.get('surface')
+    assert len(surfaces) == 2
+    assert len(surfaces[1][1].triangles) == len(h.scene.surface_triangles()) == \
+        len(first[0][1].triangles) - 2
+    markers = h.get('marker')
+    assert markers and markers[-1][1].type == Marker.TRIANGLE_LIST
+    assert len(markers[-1][1].points) == 3 * len(h.scene.surface_triangles())
+
+
+def test_recording_holds_every_message_in_and_out(harness, tmp_path):
+    from rosbags.highlevel import AnyReader
+    from tissue_sim_ros.io import mcap_log as ml
+    h = harness(**{'recording.directory': str(tmp_path), 'recording.chunk_interval_s': 0.2})
+    path = h.node.recording_path
+    start = h.scene.needle_pose[0]
+    stamps, positions = straight_descent(start, 0.02, 1.0, 100.0, h.now_ns())
+    publish_at_stamps(h, stamps, positions)
+    h.publish_pose([np.nan, 0, 0], h.now_ns(), kind='non_finite')  # bad input is recorded too
+    time.sleep(0.2)
+    h.node.publish_diagnostics()
+    h.stop_node()
+    received = {k: h.get(k) for k in ('wrench', 'nodes', 'surface', 'marker', 'diag')}
+    # the node ticks before the client has discovered it: count from the first message received
+    first = {k: cv.stamp_to_ns(received[k][0][1].header.stamp)
+             for k in ('wrench', 'nodes', 'marker', 'diag')}
+    expected = {'/needle/wrench': len(received['wrench']), '/tissue/nodes': len(received['nodes']),
+                '/tissue/surface': len(received['surface']),
+                '/tissue/marker': len(received['marker']),
+                '/diagnostics': len(received['diag']), '/needle/pose': len(h.published)}
+    key_of = {'/needle/wrench': 'wrench', '/tissue/nodes': 'nodes', '/tissue/marker': 'marker',
+              '/diagnostics': 'diag'}
+    types = {'/needle/wrench': 'geometry_msgs/msg/WrenchStamped',
+             '/tissue/nodes': 'sensor_msgs/msg/PointCloud2', '/tissue/surface': 'shape_msgs/msg/Mesh',
+             '/tissue/marker': 'visualization_msgs/msg/Marker',
+             '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
+             '/needle/pose': 'geometry_msgs/msg/PoseStamped'}
+    with AnyReader([path]) as reader:
+        assert {c.topic: c.msgtype for c in reader.connections} == types
+        counts = {}
+        for c in reader.connections:
+            msgs = [reader.deserialize(raw, c.msgtype) for _, _, raw in
+                    reader.messages(connections=[c])]
+            if c.topic in key_of:
+                msgs = [m for m in msgs if cv.stamp_to_ns(m.header.stamp) >= first[key_of[c.topic]]]
+            counts[c.topic] = len(msgs)
+        assert counts == expected
+        wrench_conn = [c for c in reader.connections if c.topic == '/needle/wrench']
+        recorded = [reader.deserialize(raw, c.msgtype) for c, _, raw in
+                    reader.messages(connections=wrench_conn)]
+        pose_conn = [c for c in reader.connections if c.topic == '/needle/pose']
+        poses = [reader.deserialize(raw, c.msgtype) for c, _, raw in
+                 reader.messages(connections=pose_conn)]
+    got = [(cv.stamp_to_ns(w.header.stamp), w.wrench.force.z) for w in recorded]
+    sent = [(cv.stamp_to_ns(w.header.stamp), w.wrench.force.z) for _, w in received['wrench']]
+    assert got == sent
+    assert [p.pose.position.z for p in poses][:len(stamps)] == positions[:, 2].tolist()
+    assert math.isnan(poses[-1].pose.position.x)  # recorded as received
+    meta = ml.read_metadata(path)
+    assert meta['scene'] == h.scene.text
+    params = yaml.safe_load(meta['parameters'])['tissue_sim']['ros__parameters']
+    assert params['recording']['chunk_interval_s'] == 0.2 and params['publish_rate_hz'] == 50.0
+    import tissue_sim_ros
+    assert meta['package_version'] == tissue_sim_ros.__version__
+    qos = ml.summarize_log(path)['topics']['/tissue/surface']['qos'][0]
+    assert qos['durability'] == 'transient_local' and qos['reliability'] == 'reliable'

@@ -1,0 +1,494 @@
+"""The node as a separate process (its console script), a client in this process.
+
+Each run gets a private ROS_DOMAIN_ID and localhost-only discovery. One scenario run on the
+default scene (a scripted insertion, bad inputs, reset and pause, SIGINT) feeds most tests; a
+second run drives the node with ``tissue-sim drive`` and stops it with SIGTERM. Figures come
+from the client's own receive times and counts; the MCAP logs are read with rosbags and, where
+Node.js and npm are present, the TypeScript @mcap/core reader with CRC checks.
+"""
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+
+from builtin_interfaces.msg import Time as TimeMsg  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from sensor_msgs.msg import PointCloud2  # noqa: E402
+from shape_msgs.msg import Mesh  # noqa: E402
+from std_srvs.srv import SetBool, Trigger  # noqa: E402
+from visualization_msgs.msg import Marker  # noqa: E402
+
+from tissue_sim_ros.io import mcap_log as ml  # noqa: E402
+from tissue_sim_ros.ros import conversions as cv  # noqa: E402
+from tissue_sim_ros.ros.drive import insertion_trajectory, scene_start  # noqa: E402
+from tissue_sim_ros.ros.node import PARAMETERS  # noqa: E402
+from tissue_sim_ros.ros.pose_input import BAD_INPUT_KINDS  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+NS = 1_000_000_000
+TOPIC_TYPES = {
+    '/needle/wrench': 'geometry_msgs/msg/WrenchStamped',
+    '/tissue/nodes': 'sensor_msgs/msg/PointCloud2',
+    '/tissue/surface': 'shape_msgs/msg/Mesh',
+    '/tissue/marker': 'visualization_msgs/msg/Marker',
+    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
+    '/needle/pose': 'geometry_msgs/msg/PoseStamped',
+}
+_DOMAINS = iter(range(110 + os.getpid() % 40 * 2, 232))
+# TISSUE_SIM_TEST_SCENE=path runs these tests on another scene (e.g. a coarse one when the
+# machine is busy); the default is the packaged scene, which is what users run.
+SCENE = os.environ.get('TISSUE_SIM_TEST_SCENE') or None
+
+
+def ros_env(domain_id):
+    env = dict(os.environ)
+    env.update(ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               PYTHONUNBUFFERED='1')
+    return env
+
+
+def start_node(tmp_path, domain_id, *params):
+    args = [str(BIN / 'tissue_sim_node'), '--ros-args', '--params-file',
+            str(ROOT / 'config' / 'tissue_sim.yaml')]
+    if SCENE:
+        args += ['-p', f'scene_file:={SCENE}']
+    for p in params:
+        args += ['-p', p]
+    log = open(tmp_path / f'node_{domain_id}.log', 'w')  # noqa: SIM115
+    proc = subprocess.Popen(args, env=ros_env(domain_id), stdout=log, stderr=subprocess.STDOUT)
+    proc.log_path = tmp_path / f'node_{domain_id}.log'
+    return proc
+
+
+def stop_node(proc, sig, timeout=20):
+    proc.send_signal(sig)
+    try:
+        return proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise
+
+
+class Client:
+    """Subscribes to every output, publishes poses, calls the services; its own context."""
+
+    def __init__(self, domain_id):
+        self._env_before = os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
+        os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'  # read when the context starts
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx, domain_id=domain_id)
+        self.node = rclpy.create_node('test_process_client', context=self.ctx)
+        self.received = {k: [] for k in ('wrench', 'nodes', 'surface', 'marker', 'diag')}
+        self.lock = threading.Lock()
+        reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        for key, msg_type, topic, qos in (
+                ('wrench', WrenchStamped, 'needle/wrench', reliable),
+                ('nodes', PointCloud2, 'tissue/nodes', reliable),
+                ('surface', Mesh, 'tissue/surface', latched),
+                ('marker', Marker, 'tissue/marker', reliable),
+                ('diag', DiagnosticArray, '/diagnostics', reliable)):
+            self.node.create_subscription(msg_type, topic, self._keeper(key), qos)
+        self.pose_pub = self.node.create_publisher(PoseStamped, 'needle/pose', reliable)
+        self.reset_client = self.node.create_client(Trigger, '/tissue_sim/reset')
+        self.pause_client = self.node.create_client(SetBool, '/tissue_sim/pause')
+        self.published = 0
+        self.executor = SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _keeper(self, key):
+        def keep(msg):
+            t = time.monotonic()
+            with self.lock:
+                self.received[key].append((t, msg))
+        return keep
+
+    def _spin(self):
+        while not self.stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def get(self, key):
+        with self.lock:
+            return list(self.received[key])
+
+    def wait_ready(self, proc, timeout=60):
+        deadline = time.monotonic() + timeout
+        while not (self.get('surface') and self.pose_pub.get_subscription_count()):
+            if proc.poll() is not None:
+                raise AssertionError(f'node exited with {proc.returncode}:\n'
+                                     f'{proc.log_path.read_text()[-3000:]}')
+            assert time.monotonic() < deadline, 'the node did not come up'
+            time.sleep(0.02)
+
+    def now_ns(self):
+        return self.node.get_clock().now().nanoseconds
+
+    def pose(self, position, orientation, stamp_ns=None, frame_id='world'):
+        msg = PoseStamped()
+        stamp = self.now_ns() if stamp_ns is None else int(stamp_ns)
+        msg.header.stamp = TimeMsg(sec=stamp // NS, nanosec=stamp % NS)
+        msg.header.frame_id = frame_id
+        msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(c) for c in position)
+        (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z,
+         msg.pose.orientation.w) = (float(c) for c in orientation)
+        self.pose_pub.publish(msg)
+        self.published += 1
+
+    def call(self, client, request, timeout=10.0):
+        assert client.wait_for_service(timeout_sec=timeout)
+        future = client.call_async(request)
+        deadline = time.monotonic() + timeout
+        while not future.done():
+            assert time.monotonic() < deadline, 'service call timed out'
+            time.sleep(0.005)
+        return future.result()
+
+    def next_diagnostics(self, timeout=3.0):
+        """The first /diagnostics message received from now on, as {name: (level, msg, values)}."""
+        n = len(self.get('diag'))
+        deadline = time.monotonic() + timeout
+        while len(self.get('diag')) <= n:
+            assert time.monotonic() < deadline, 'no diagnostics'
+            time.sleep(0.02)
+        return diag_values(self.get('diag')[n][1])
+
+    def close(self):
+        self.stop.set()
+        self.thread.join(timeout=5)
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+        if self._env_before is None:
+            os.environ.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
+        else:
+            os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = self._env_before
+
+
+def diag_values(msg):
+    out = {}
+    for st in msg.status:
+        level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
+        out[st.name] = (level, st.message, {kv.key: kv.value for kv in st.values})
+    return out
+
+
+def wrench_array(items):
+    return np.array([[w.wrench.force.x, w.wrench.force.y, w.wrench.force.z,
+                      w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z] for _, w in items])
+
+
+def play(client, times, positions, orientation):
+    t0 = time.monotonic()
+    for t, p in zip(times, positions):
+        delay = t0 + t - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        client.pose(p, orientation)
+
+
+# --------------------------------------------------------------------------------------------
+# the scenario run (default scene, recording, SIGINT)
+
+
+@pytest.fixture(scope='module')
+def scenario(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp('node_scenario')
+    domain = next(_DOMAINS)
+    t_start = time.monotonic()
+    proc = start_node(tmp, domain, f'recording.directory:={tmp / "logs"}',
+                      'recording.chunk_interval_s:=0.5')
+    client = Client(domain)
+    out = {'tmp': tmp, 'proc': proc}
+    try:
+        client.wait_ready(proc)
+        out['startup_s'] = time.monotonic() - t_start
+        start = scene_start(SCENE)
+        q = start.orientation
+        # A: a scripted insertion at 100 Hz for > 5 s (the rate window)
+        times, positions = insertion_trajectory(start, 0.008, 0.012, 0.3, 100.0)
+        n_a = len(client.get('wrench'))
+        t_a = time.monotonic()
+        play(client, times, positions, q)
+        out['phase_a'] = (n_a, t_a, time.monotonic())
+        time.sleep(0.1)
+        # reset: the needle back at its initial pose, the tissue at rest
+        out['reset_response'] = client.call(client.reset_client, Trigger.Request())
+        time.sleep(0.2)
+        out['after_reset'] = client.get('wrench')[-1][1]
+        # B: every kind of bad input, a known number of times, between good poses
+        p0 = start.initial_position
+        before = client.next_diagnostics()
+        t = client.now_ns()
+        client.pose(p0, q, t)
+        sent = {k: 0 for k in BAD_INPUT_KINDS}
+        for _ in range(3):
+            for kind, args in (('non_finite', ([np.nan, 0, 0.1], q, t)),
+                               ('non_finite', (p0, [np.inf, 0, 0, 1], t)),
+                               ('non_unit_quaternion', (p0, [2.0, 0, 0, 0], t)),
+                               ('wrong_frame', (p0, q, t, 'map')),
+                               ('time_backwards', (p0, q, t - 1_000_000)),
+                               ('future_stamp', (p0, q, t + 10 * NS)),
+                               ('jump', (p0 + [0, 0, -0.02], q, t))):
+                client.pose(*args)
+                sent[kind] += 1
+        n_b = len(client.get('wrench'))
+        t_b = time.monotonic()
+        t_flood = t + 4_000_000
+        for k in range(1000):  # 1 kHz for about 1 s, stamps 1 ms apart: 750 coalesced
+            client.pose(p0, q, t_flood + k * 1_000_000)
+            if k % 50 == 49:
+                time.sleep(0.05)
+        sent['flood'] = 750
+        time.sleep(0.1)
+        client.pose(p0, q, 0)
+        sent['unstamped'] = 1
+        out['phase_b'] = (n_b, t_b, time.monotonic())
+        time.sleep(0.3)
+        after = client.next_diagnostics()
+        out['bad_sent'] = sent
+        out['diag_before_b'], out['diag_after_b'] = before, after
+        # C: pause in the tissue, the pose kept still; the state must freeze
+        c_times, c_positions = insertion_trajectory(start, 0.01, 0.003, 0.0, 100.0)
+        half = int(np.argmax(c_positions[:, 2] <= c_positions[:, 2].min()))  # at full depth
+        play(client, c_times[:half + 1], c_positions[:half + 1], q)
+        time.sleep(0.3)
+        out['pause_response'] = client.call(client.pause_client, SetBool.Request(data=True))
+        n_c = len(client.get('wrench'))
+        d1 = client.next_diagnostics()
+        time.sleep(0.6)
+        d2 = client.next_diagnostics()
+        out['paused'] = (client.get('wrench')[n_c + 1:], d1, d2)
+        out['resume_response'] = client.call(client.pause_client, SetBool.Request(data=False))
+        n_r = len(client.get('wrench'))
+        time.sleep(0.5)
+        out['resumed'] = client.get('wrench')[n_r + 1:]
+        play(client, c_times[half:], c_positions[half:], q)
+        time.sleep(0.2)
+        # stop with SIGINT; the client keeps listening until the process is gone
+        out['published'] = client.published
+        out['rc'] = stop_node(proc, signal.SIGINT)
+        time.sleep(0.5)
+        out['received'] = {k: client.get(k) for k in client.received}
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        client.close()
+    out['log'] = proc.log_path.read_text()
+    logs = sorted((tmp / 'logs').glob('*.mcap'))
+    out['mcap'] = logs[0] if len(logs) == 1 else logs
+    return out
+
+
+def test_sigint_stops_the_node_cleanly_with_one_log(scenario):
+    assert scenario['rc'] == 0, scenario['log'][-3000:]
+    assert isinstance(scenario['mcap'], Path), scenario['mcap']
+    assert 'recording closed' in scenario['log']
+    assert 'Traceback' not in scenario['log']
+
+
+def test_wrench_rate_within_2_percent_over_5_s(scenario):
+    n_a, t_a, t_end = scenario['phase_a']
+    times = np.array([t for t, _ in scenario['received']['wrench']])
+    window = times[(times >= t_a) & (times <= t_end)]
+    assert window[-1] - window[0] >= 5.0
+    rate = (len(window) - 1) / (window[-1] - window[0])
+    assert rate == pytest.approx(50.0, rel=0.02)
+
+
+def test_every_wrench_and_cloud_is_finite(scenario):
+    values = wrench_array(scenario['received']['wrench'])
+    assert len(values) > 300 and np.isfinite(values).all()
+    assert all(w.header.frame_id == 'needle' for _, w in scenario['received']['wrench'])
+    for _, cloud in scenario['received']['nodes'][::25]:
+        positions, displacement = cv.point_cloud_arrays(cloud)
+        assert np.isfinite(positions).all() and np.isfinite(displacement).all()
+
+
+def test_insertion_pushes_back_and_reset_returns_to_rest(scenario):
+    n_a, _, _ = scenario['phase_a']
+    axial = wrench_array(scenario['received']['wrench'][n_a:])[:, 2]
+    assert axial.min() < -0.05  # needle frame: the tissue pushes the needle back along -z
+    assert scenario['reset_response'].success
+    w = scenario['after_reset'].wrench
+    assert (w.force.x, w.force.y, w.force.z) == (0.0, 0.0, 0.0)
+
+
+def test_bad_inputs_counted_and_node_keeps_publishing(scenario):
+    before = scenario['diag_before_b']['tissue_sim: input'][2]
+    after = scenario['diag_after_b']['tissue_sim: input'][2]
+    for kind, n in scenario['bad_sent'].items():
+        assert int(after[f'bad_input.{kind}']) - int(before[f'bad_input.{kind}']) == n, kind
+    n_b, t_b, t_end = scenario['phase_b']
+    times = np.array([t for t, _ in scenario['received']['wrench']])
+    during = times[(times >= t_b) & (times <= t_end)]
+    assert len(during) >= 0.9 * 50 * (t_end - t_b)  # still at rate through the flood
+    assert scenario['diag_after_b']['tissue_sim: engine'][2]['divergences'] == \
+        scenario['diag_before_b']['tissue_sim: engine'][2]['divergences']
+
+
+def test_pause_freezes_the_state_and_resume_continues(scenario):
+    assert scenario['pause_response'].success and scenario['resume_response'].success
+    frozen, d1, d2 = scenario['paused']
+    assert len(frozen) >= 25
+    values = wrench_array(frozen)
+    assert (values == values[0]).all()  # bit for bit
+    assert abs(values[0, 2]) > 0  # and in contact, where the tissue would relax
+    assert d1['tissue_sim: engine'][2]['state'] == 'paused'
+    assert d1['tissue_sim: engine'][2]['simulated_time_s'] == \
+        d2['tissue_sim: engine'][2]['simulated_time_s']
+    resumed = wrench_array(scenario['resumed'])
+    assert len(resumed) >= 20 and not (resumed == resumed[0]).all()
+
+
+_STAMPED = {'/needle/wrench': 'wrench', '/tissue/nodes': 'nodes', '/tissue/marker': 'marker',
+            '/diagnostics': 'diag'}
+
+
+def check_log_against_received(path, received, published_poses):
+    """The log read by rosbags holds exactly what the client received, stamp for stamp.
+
+    The node publishes from its first tick, before the client has discovered it: messages
+    stamped before the first one the client received are in the log but not in the client's
+    lists, so the comparison starts there. The surface (transient local) and the poses (sent
+    after matching) are compared whole. Returns rosbags' count per topic.
+    """
+    from rosbags.highlevel import AnyReader
+    with AnyReader([path]) as reader:
+        assert {c.topic: c.msgtype for c in reader.connections} == TOPIC_TYPES
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        for topic, key in _STAMPED.items():
+            conn = [c for c in reader.connections if c.topic == topic]
+            logged = [cv.stamp_to_ns(reader.deserialize(raw, c.msgtype).header.stamp)
+                      for c, _, raw in reader.messages(connections=conn)]
+            got = [cv.stamp_to_ns(m.header.stamp) for _, m in received[key]]
+            assert got, topic
+            assert [s for s in logged if s >= got[0]] == got, topic
+    assert counts['/tissue/surface'] == len(received['surface'])
+    assert counts['/needle/pose'] == published_poses
+    return counts
+
+
+def test_mcap_holds_every_message_rosbags(scenario):
+    path = scenario['mcap']
+    counts = check_log_against_received(path, scenario['received'], scenario['published'])
+    meta = ml.read_metadata(path)
+    assert 'liver' in meta['scene'] and 'tissue_sim:' in meta['parameters']
+    summary = ml.summarize_log(path)
+    assert summary['statistics']['message_count'] == sum(counts.values())
+
+
+@pytest.fixture(scope='module')
+def mcap_js(tmp_path_factory):
+    node, npm = shutil.which('node'), shutil.which('npm')
+    if not (node and npm):
+        pytest.skip('node and npm are not both on PATH')
+    d = tmp_path_factory.mktemp('mcapjs_node')
+    try:
+        r = subprocess.run([npm, 'install', '--no-audit', '--no-fund', '--loglevel=error',
+                            '@mcap/core', 'fzstd'], cwd=d, capture_output=True, text=True,
+                           timeout=120)
+    except subprocess.TimeoutExpired:
+        pytest.skip('npm install @mcap/core timed out (no registry?)')
+    if r.returncode != 0 or not (d / 'node_modules' / '@mcap' / 'core').is_dir():
+        pytest.skip(f'npm install @mcap/core failed (no registry?): {r.stderr[-300:]}')
+    from test_mcap_log import _JS  # the same reader script as the recorder's tests
+    script = d / 'check.mjs'
+    script.write_text(_JS)
+
+    def run(*paths):
+        res = subprocess.run([node, str(script), *map(str, paths)], capture_output=True,
+                             text=True, timeout=120, cwd=d)
+        assert res.returncode == 0, res.stderr
+        return json.loads(res.stdout)
+    return run
+
+
+def test_mcap_opens_in_the_typescript_reader_with_crcs(scenario, mcap_js):
+    path = scenario['mcap']
+    result = mcap_js(path)[str(path)]
+    assert 'error' not in result['stream'] and 'error' not in result['indexed'], result
+    assert result['stream']['done'] is True and result['stream']['profile'] == 'ros2'
+    from rosbags.highlevel import AnyReader
+    with AnyReader([path]) as reader:
+        expected = {c.topic: c.msgcount for c in reader.connections}
+    assert result['stream']['counts'] == result['indexed']['counts'] == expected
+    assert result['indexed']['statisticsMessageCount'] == sum(expected.values())
+    assert result['indexed']['compression'] == ['zstd']
+
+
+# --------------------------------------------------------------------------------------------
+# tissue-sim drive against the node, stopped with SIGTERM
+
+
+def test_drive_then_sigterm_leaves_a_complete_log(tmp_path):
+    domain = next(_DOMAINS)
+    proc = start_node(tmp_path, domain, f'recording.directory:={tmp_path / "logs"}')
+    client = Client(domain)
+    try:
+        client.wait_ready(proc)
+        drive = subprocess.run(
+            [str(BIN / 'tissue-sim'), 'drive', '--speed-mm-s', '20', '--depth-mm', '4',
+             '--hold-s', '0', '--rate-hz', '100'] + (['--scene-file', SCENE] if SCENE else []),
+            env=ros_env(domain), capture_output=True, text=True, timeout=60)
+        assert drive.returncode == 0, drive.stderr
+        time.sleep(0.3)
+        rc = stop_node(proc, signal.SIGTERM)
+        time.sleep(0.5)
+        received = {k: client.get(k) for k in client.received}
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        client.close()
+    assert rc == 0, proc.log_path.read_text()[-3000:]
+    times, positions = insertion_trajectory(scene_start(SCENE), 0.02, 0.004, 0.0, 100.0)
+    (path,) = sorted((tmp_path / 'logs').glob('*.mcap'))
+    counts = check_log_against_received(path, received, len(times))  # every pose the drive sent
+    from rosbags.highlevel import AnyReader
+    with AnyReader([path]) as reader:
+        conn = [c for c in reader.connections if c.topic == '/needle/pose']
+        poses = [reader.deserialize(raw, c.msgtype) for c, _, raw in
+                 reader.messages(connections=conn)]
+    z = np.array([p.pose.position.z for p in poses])
+    np.testing.assert_allclose(z, positions[:, 2], atol=1e-12)
+    assert ml.summarize_log(path)['statistics']['message_count'] == sum(counts.values())
+
+
+# --------------------------------------------------------------------------------------------
+# the console script's own answers
+
+
+def test_console_script_help_lists_parameters():
+    r = subprocess.run([str(BIN / 'tissue_sim_node'), '--help'], capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 0
+    for p in PARAMETERS:
+        assert p.name in r.stdout
+
+
+@pytest.mark.parametrize('param, words', [
+    ('publish_rate_hz:=0.0', ['publish_rate_hz', '0.0']),
+    ('on_divergence:=explode', ['on_divergence', "'explode'"]),
+])
+def test_console_script_refuses_impossible_values(tmp_path, param, words):
+    r = subprocess.run([str(BIN / 'tissue_sim_node'), '--ros-args', '-p', param],
+                       env=ros_env(next(_DOMAINS)), capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    for word in words:
+        assert word in r.stderr, r.stderr

@@ -1,0 +1,169 @@
+"""``tissue-sim drive``: a scripted straight insertion and retraction on ``needle/pose``.
+
+For trying the node without a robot::
+
+    tissue_sim_node &                         # or with --ros-args --params-file ...
+    tissue-sim drive --speed-mm-s 5 --depth-mm 20
+
+The needle keeps the scene's initial orientation (the default scene: base +z along world -z,
+pointing down) and moves along its axis: from the scene's initial pose (where the node's needle
+is after a start or ``~/reset``) to the start pose (``--start-height-mm``: tip that far above the
+entry surface; default: where the scene puts it), down until the tip is ``--depth-mm`` below the
+entry surface, holds ``--hold-s``, and comes back up to the start pose at the same speed. Poses
+are published at ``--rate-hz`` stamped with the publishing time, then the command waits until
+the node has acknowledged them (reliable QoS) and exits.
+
+The entry surface is the highest rest vertex within one needle diameter of the needle axis
+(the top face for the default block); the start pose is computed from the scene file, which is
+loaded (not stepped) for that.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ['DriveStart', 'insertion_trajectory', 'scene_start', 'run_drive']
+
+
+@dataclass(frozen=True)
+class DriveStart:
+    """Where a scripted insertion begins, from a scene."""
+
+    initial_position: np.ndarray  # needle base at start/reset [m]
+    orientation: np.ndarray  # x y z w
+    axis: np.ndarray  # needle axis (base +z) in the world
+    length_m: float
+    gap_m: float  # tip to entry surface along the axis at the initial pose [m]
+    frame_id: str
+
+
+def _axis(orientation) -> np.ndarray:
+    x, y, z, w = orientation
+    return np.array([2 * (x * z + y * w), 2 * (y * z - x * w), 1 - 2 * (x * x + y * y)])
+
+
+def scene_start(scene_file: str | None = None) -> DriveStart:
+    """The needle's initial pose and its tip's distance to the entry surface in a scene."""
+    from tissue_sim_ros.engine.scene import Scene
+    scene = Scene.from_file(scene_file or None)
+    position, orientation = scene.needle_pose
+    needle = scene.spec['needle']
+    length = float(needle['length_m'])
+    axis = _axis(orientation)
+    tip = position + length * axis
+    rest = scene.rest_positions
+    # vertices within one diameter of the axis line; the entry point is the one the tip meets first
+    rel = rest - tip
+    along = rel @ axis
+    radial = np.linalg.norm(rel - along[:, None] * axis, axis=1)
+    near = radial <= max(float(needle['diameter_m']), 1e-9)
+    if not near.any():
+        near = radial <= radial.min() + 1e-12
+    gap = float(along[near].min())
+    return DriveStart(position, orientation, axis, length, gap, scene.mesh_frame_id)
+
+
+def insertion_trajectory(start: DriveStart, speed_m_s: float, depth_m: float, hold_s: float,
+                         rate_hz: float, start_gap_m: float | None = None):
+    """(times [s] from 0, base positions (k, 3) [m]) of the scripted motion, sampled at rate_hz.
+
+    Waypoints: initial pose -> start pose (tip ``start_gap_m`` above the surface; default the
+    scene's gap) -> tip ``depth_m`` below the surface -> hold -> start pose; straight segments
+    at ``speed_m_s``. The last sample is the start pose.
+    """
+    for name, value, low in (('speed_m_s', speed_m_s, 0.0), ('rate_hz', rate_hz, 0.0)):
+        if not (math.isfinite(value) and value > low):
+            raise ValueError(f'{name}: {value}; expected a finite number > {low}')
+    if not (math.isfinite(depth_m) and depth_m >= 0):
+        raise ValueError(f'depth_m: {depth_m}; expected a finite depth >= 0')
+    if not (math.isfinite(hold_s) and hold_s >= 0):
+        raise ValueError(f'hold_s: {hold_s}; expected a finite time >= 0')
+    gap = start.gap_m if start_gap_m is None else float(start_gap_m)
+    if not (math.isfinite(gap) and gap >= 0):
+        raise ValueError(f'start_gap_m: {start_gap_m}; expected a height >= 0 above the surface')
+    p_init = np.asarray(start.initial_position, dtype=np.float64)
+    p_start = p_init + (start.gap_m - gap) * start.axis
+    p_bottom = p_start + (gap + depth_m) * start.axis
+    waypoints = [(p_init, 0.0), (p_start, None), (p_bottom, None), (p_bottom, hold_s),
+                 (p_start, None)]
+    times = [0.0]
+    points = [p_init]
+    for p, duration in waypoints[1:]:
+        if duration is None:
+            duration = float(np.linalg.norm(p - points[-1])) / speed_m_s
+        times.append(times[-1] + duration)
+        points.append(p)
+    times = np.array(times)
+    points = np.array(points)
+    n = int(math.floor(times[-1] * rate_hz + 1e-9)) + 1
+    t = np.arange(n) / rate_hz
+    if t[-1] < times[-1]:
+        t = np.append(t, times[-1])
+    positions = np.stack([np.interp(t, times, points[:, j]) for j in range(3)], axis=1)
+    return t, positions
+
+
+def run_drive(speed_mm_s: float, depth_mm: float, *, start_height_mm: float | None = None,
+              rate_hz: float = 100.0, hold_s: float = 0.5, scene_file: str | None = None,
+              topic: str = 'needle/pose', frame_id: str | None = None,
+              wait_for_node_s: float = 10.0, args=None) -> int:
+    """Publish the scripted insertion; 0 when every pose was sent and acknowledged."""
+    import rclpy
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.duration import Duration
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rclpy.signals import SignalHandlerOptions
+
+    from tissue_sim_ros.ros.conversions import ns_to_stamp
+
+    start = scene_start(scene_file)
+    t, positions = insertion_trajectory(
+        start, speed_mm_s * 1e-3, depth_mm * 1e-3, hold_s, rate_hz,
+        None if start_height_mm is None else start_height_mm * 1e-3)
+    frame = frame_id or start.frame_id
+    q = [float(c) for c in start.orientation]
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.SIGINT)
+    try:
+        node = rclpy.create_node('tissue_sim_drive')
+        pub = node.create_publisher(PoseStamped, topic, QoSProfile(
+            depth=max(10, int(rate_hz)), reliability=ReliabilityPolicy.RELIABLE))
+        deadline = time.monotonic() + wait_for_node_s
+        while pub.get_subscription_count() == 0:
+            if time.monotonic() > deadline:
+                print(f'tissue-sim drive: nobody subscribes to {pub.topic_name} after '
+                      f'{wait_for_node_s:g} s; is tissue_sim_node running (same ROS_DOMAIN_ID)?',
+                      file=sys.stderr)
+                return 1
+            time.sleep(0.02)
+        print(f'drive: {len(t)} poses on {pub.topic_name} over {t[-1]:.2f} s: down '
+              f'{(np.linalg.norm(positions[0] - positions).max()) * 1e3:.1f} mm at '
+              f'{speed_mm_s:g} mm/s to {depth_mm:g} mm below the surface, hold {hold_s:g} s, back')
+        clock = node.get_clock()
+        t0 = time.monotonic()
+        msg = PoseStamped()
+        msg.header.frame_id = frame
+        msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z, \
+            msg.pose.orientation.w = q
+        for k in range(len(t)):
+            delay = t0 + t[k] - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            msg.header.stamp = ns_to_stamp(clock.now().nanoseconds)
+            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = \
+                (float(c) for c in positions[k])
+            pub.publish(msg)
+        acked = pub.wait_for_all_acked(Duration(seconds=5.0))
+        if not acked:
+            print('tissue-sim drive: the node did not acknowledge every pose within 5 s',
+                  file=sys.stderr)
+            return 1
+        return 0
+    except KeyboardInterrupt:
+        print('tissue-sim drive: interrupted', file=sys.stderr)
+        return 130
+    finally:
+        rclpy.try_shutdown()
