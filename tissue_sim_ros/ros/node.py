@@ -32,8 +32,9 @@ simulation; while paused the node keeps publishing the frozen state.
 Timing: a timer on the node clock (``use_sim_time`` is honoured; with it and nothing on
 ``/clock`` no tick fires) calls :meth:`TissueSimNode.tick` every 1/``publish_rate_hz``. Each tick
 takes the needle pose at the tick time (interpolated between received poses, see
-:mod:`tissue_sim_ros.ros.pose_input`), advances the engine by exactly one period (as many
-substeps as stability needs) and publishes the wrench and the cloud stamped with the tick time.
+:mod:`tissue_sim_ros.ros.pose_input`), advances the engine by one period (as many substeps of
+the engine's fixed dt as bring its time to tick count x period, so the rounding to whole
+substeps never accumulates) and publishes the wrench and the cloud stamped with the tick time.
 A tick whose work takes longer than the period is a deadline overrun; a gap of more than 1.5
 periods between tick starts is a missed tick; both are counted in diagnostics.
 
@@ -381,6 +382,9 @@ class TissueSimNode(Node):
         self.held = False  # diverged with on_divergence = hold
         self.divergences = 0
         self.simulated_s = 0.0  # simulated time advanced since start (resets do not rewind it)
+        # the engine time each tick advances to: the engine steps in multiples of its dt, so
+        # each advance() asks for what brings it to this target, and the rounding never adds up
+        self._sim_target_s = float(scene.time)
         self.ticks = 0
         self.deadline_overruns = 0
         self.missed_ticks = 0
@@ -544,15 +548,17 @@ class TissueSimNode(Node):
             if target is None:
                 target = scene.needle_pose
             step0 = time.perf_counter()
+            self._sim_target_s += self._period_s
+            duration = max(0.0, self._sim_target_s - float(scene.time))
             try:
                 try:
-                    substeps = scene.advance(self._period_s, target[0], target[1])
+                    substeps = scene.advance(duration, target[0], target[1])
                 except self._needle_input_error as exc:
                     self.input.count('engine_refused')
                     self._log_once('engine_refused',
                                    f'the engine refused the needle pose, holding the needle: {exc}')
                     hold = scene.needle_pose
-                    substeps = scene.advance(self._period_s, hold[0], hold[1])
+                    substeps = scene.advance(duration, hold[0], hold[1])
                 force, torque = scene.reaction_wrench(self.config.wrench_frame)
                 force = np.asarray(force, dtype=np.float64)
                 torque = np.asarray(torque, dtype=np.float64)
@@ -616,6 +622,7 @@ class TissueSimNode(Node):
 
     def _reset_scene(self) -> None:
         self.scene.reset()
+        self._sim_target_s = float(self.scene.time)
         self.held = False
         self.input.reset(self.scene.needle_pose)
         force, torque = (np.asarray(a, dtype=np.float64)
@@ -694,6 +701,7 @@ class TissueSimNode(Node):
             'tick_period_deviation_ms_p99': float(np.percentile(deviation, 99)) * 1e3,
             'substeps_last': self._last_substeps,
             'engine_dt_s': float(self.scene.dt),
+            'engine_time_behind_s': self._sim_target_s - sim_now,
             'real_time_factor': rtf,
             'compute_load': step_mean / self._period_s,
             'deadline_overruns': self.deadline_overruns,
