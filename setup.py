@@ -22,6 +22,7 @@ setup(
         ('share/' + package_name + '/data/okamura2004_bovine_liver', glob('data/okamura2004_bovine_liver/*')),
     ],
     install_requires=['setuptools'],
+    extras_require={'test': ['pytest']},  # so that `colcon test` runs pytest, not unittest
     zip_safe=True,
     maintainer='tissue_sim_ros developers',
     maintainer_email='dev@tissue-sim-ros.invalid',

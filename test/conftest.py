@@ -5,6 +5,10 @@ import pytest
 import tissue_sim_ros as ts
 
 
+def pytest_configure(config):
+    config.addinivalue_line('markers', 'slow: takes tens of seconds (deselect with -m "not slow")')
+
+
 @pytest.fixture(scope='session')
 def liver():
     return ts.Material(young_modulus=5e3, poisson_ratio=0.45, density=1060.0)
