@@ -32,11 +32,14 @@ simulation; while paused the node keeps publishing the frozen state.
 Timing: a timer on the node clock (``use_sim_time`` is honoured; with it and nothing on
 ``/clock`` no tick fires) calls :meth:`TissueSimNode.tick` every 1/``publish_rate_hz``. Each tick
 takes the needle pose at the tick time (interpolated between received poses, see
-:mod:`tissue_sim_ros.ros.pose_input`), advances the engine by one period (as many substeps of
-the engine's fixed dt as bring its time to tick count x period, so the rounding to whole
-substeps never accumulates) and publishes the wrench and the cloud stamped with the tick time.
-A tick whose work takes longer than the period is a deadline overrun; a gap of more than 1.5
-periods between tick starts is a missed tick; both are counted in diagnostics.
+:mod:`tissue_sim_ros.ros.pose_input`) and advances the engine to that time: by the node-clock time
+since the previous tick (one period when on time; at most ``MAX_TICK_ADVANCE`` periods, the excess
+of a later tick dropped and counted in diagnostics as ``dropped_time_s``), in as many substeps of
+the engine's fixed dt as bring the engine time to the running total (so the rounding to whole
+substeps never accumulates). The needle therefore moves in the engine at the speed of its poses,
+whatever the timer jitter. The wrench and the cloud are stamped with the tick time. A tick whose
+work takes longer than the period is a deadline overrun; a gap of more than 1.5 periods between
+tick starts is a missed tick; both are counted in diagnostics.
 
 Bad input never stops the node and never reaches a topic as NaN: see ``BAD_INPUT_KINDS`` in
 :mod:`~tissue_sim_ros.ros.pose_input` (each kind logged once, counted in diagnostics). A pose the
@@ -91,6 +94,9 @@ __all__ = ['NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'TissueSimNod
 
 NODE_NAME = 'tissue_sim'
 _NS = 1_000_000_000
+#: A tick advances the engine by the node-clock time since the previous tick, at most this many
+#: periods (a tick late by more drops the excess instead of asking the engine for ever more).
+MAX_TICK_ADVANCE = 2.0
 
 
 # --------------------------------------------------------------------------------------------
@@ -385,6 +391,8 @@ class TissueSimNode(Node):
         # the engine time each tick advances to: the engine steps in multiples of its dt, so
         # each advance() asks for what brings it to this target, and the rounding never adds up
         self._sim_target_s = float(scene.time)
+        self._last_tick_ns: int | None = None  # node clock at the previous tick
+        self.dropped_time_s = 0.0  # time not simulated because a tick came too late
         self.ticks = 0
         self.deadline_overruns = 0
         self.missed_ticks = 0
@@ -548,7 +556,17 @@ class TissueSimNode(Node):
             if target is None:
                 target = scene.needle_pose
             step0 = time.perf_counter()
-            self._sim_target_s += self._period_s
+            # the engine follows the node clock: each tick advances it by the time since the
+            # previous tick (one period on time; at most MAX_TICK_ADVANCE periods after a late
+            # tick, the rest dropped and counted), so the needle moves at the speed of its poses
+            advance_s = self._period_s
+            if self._last_tick_ns is not None:
+                advance_s = max(0.0, (now_ns - self._last_tick_ns) / _NS)
+                limit = MAX_TICK_ADVANCE * self._period_s
+                if advance_s > limit:
+                    self.dropped_time_s += advance_s - limit
+                    advance_s = limit
+            self._sim_target_s += advance_s
             duration = max(0.0, self._sim_target_s - float(scene.time))
             try:
                 try:
@@ -568,7 +586,7 @@ class TissueSimNode(Node):
                         self.ticks, float(scene.time), float(scene.dt), float('nan'))
                 self._last_wrench = (force, torque)
                 self._last_substeps = int(substeps)
-                self.simulated_s += self._period_s
+                self.simulated_s += advance_s
             except SimulationDiverged as exc:
                 self._diverged(exc)
             except self._needle_input_error as exc:  # even holding was refused: skip the tick
@@ -577,6 +595,7 @@ class TissueSimNode(Node):
             step_s = time.perf_counter() - step0
             self.stats['step_s'].add(step_s)
             self.stats['substeps'].add(self._last_substeps)
+        self._last_tick_ns = now_ns  # paused or held: that time is not caught up later
         force, torque = self._last_wrench
         self._publish(self.wrench_pub,
                       cv.wrench_msg(force, torque, self.config.wrench_frame_id, now_ns))
@@ -706,6 +725,7 @@ class TissueSimNode(Node):
             'compute_load': step_mean / self._period_s,
             'deadline_overruns': self.deadline_overruns,
             'missed_ticks': self.missed_ticks,
+            'dropped_time_s': self.dropped_time_s,
             'divergences': self.divergences,
             'stability': 'held after divergence' if self.held else 'stable',
             'phase': str(self.scene.phase),
