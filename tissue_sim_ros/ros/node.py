@@ -20,7 +20,7 @@ Node ``tissue_sim``. Topics (relative names; remap with ``--ros-args -r``), all 
                                                       order as the cloud) and the surface
                                                       triangles; at start and after every
                                                       topology change
-``tissue/marker``    visualization_msgs/msg/Marker    out, ``marker_rate_hz``: deformed surface,
+``tissue/marker``    visualization_msgs/msg/Marker    out, ``marker_rate_hz`` (from a tick): surface,
                                                       TRIANGLE_LIST, decimated for RViz
 ``/diagnostics``     diagnostic_msgs/DiagnosticArray  out, ``diagnostics_rate_hz``
 ==================== ================================ ===================================
@@ -117,8 +117,9 @@ class _Param:
 PARAMETERS = (
     _Param('publish_rate_hz', 50.0, 'tick rate: the engine advances 1/rate per tick and the wrench '
            'and the node cloud are published once per tick', 1.0, 1000.0),
-    _Param('marker_rate_hz', 5.0, 'rate of the RViz surface marker (0 = no marker); at most '
-           'publish_rate_hz', 0.0, 100.0),
+    _Param('marker_rate_hz', 5.0, 'rate of the RViz surface marker (0 = no marker); sent from '
+           'every k-th tick, k = round(publish_rate_hz / marker_rate_hz), after the wrench',
+           0.0, 100.0),
     _Param('marker.max_triangles', 2000, 'the marker keeps every k-th surface triangle so that at '
            'most this many remain (a preview: each point is a Python object)', 1, 1_000_000),
     _Param('diagnostics_rate_hz', 1.0, 'rate of /diagnostics', 0.01, 10.0),
@@ -430,8 +431,10 @@ class TissueSimNode(Node):
             self._start_recording()
         self._publish_surface(self._now_ns())
         self._tick_timer = self.create_timer(self._period_s, self.tick)
-        self._marker_timer = (self.create_timer(1.0 / cfg.marker_rate_hz, self._publish_marker)
-                              if self.marker_pub is not None else None)
+        # the marker (milliseconds of Python objects) goes out from a tick, after its wrench and
+        # cloud: a timer of its own could fire just before a tick and delay it
+        self._marker_every = (max(1, round(cfg.publish_rate_hz / cfg.marker_rate_hz))
+                              if self.marker_pub is not None else 0)
         self._diagnostics_timer = self.create_timer(1.0 / cfg.diagnostics_rate_hz,
                                                     self.publish_diagnostics)
         self.get_logger().info(
@@ -609,6 +612,8 @@ class TissueSimNode(Node):
         for receipt in self._pending_receipts:
             self.stats['latency_s'].add((publish_ns - receipt) / _NS)
         self._pending_receipts.clear()
+        if self._marker_every and self.ticks % self._marker_every == 0:
+            self._publish_marker(now_ns)
         work = time.perf_counter() - wall0
         self.stats['tick_work_s'].add(work)
         self.ticks += 1
@@ -659,11 +664,9 @@ class TissueSimNode(Node):
         self._publish(self.surface_pub, cv.surface_mesh_msg(scene.rest_positions, self._triangles),
                       now_ns)
 
-    def _publish_marker(self) -> None:
+    def _publish_marker(self, now_ns: int) -> None:
         if self.held or self._triangles is None:
             return
-        now_ns = self._now_ns()
-        self._update_deformed()
         self._publish(self.marker_pub, cv.surface_marker_msg(
             self._deformed, self._triangles, self.config.frame_id, now_ns,
             max_triangles=self.config.marker_max_triangles), now_ns)
@@ -777,7 +780,7 @@ class TissueSimNode(Node):
         if self._closed:
             return
         self._closed = True
-        for timer in (getattr(self, '_tick_timer', None), getattr(self, '_marker_timer', None),
+        for timer in (getattr(self, '_tick_timer', None),
                       getattr(self, '_diagnostics_timer', None)):
             if timer is not None:
                 timer.cancel()
