@@ -1,0 +1,62 @@
+"""tissue-sim drive's scripted motion, checked against the scene file's own numbers."""
+import numpy as np
+import pytest
+import yaml
+from pathlib import Path
+
+from tissue_sim_ros.ros.drive import insertion_trajectory, scene_start
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope='module')
+def start():
+    return scene_start()
+
+
+def test_start_is_the_scenes_initial_pose_and_gap(start):
+    scene = yaml.safe_load((ROOT / 'config' / 'liver_sample.yaml').read_text())
+    needle = scene['needle']
+    top = scene['mesh']['origin_m'][2] + scene['mesh']['size_m'][2]
+    np.testing.assert_allclose(start.initial_position, needle['initial_position_m'])
+    np.testing.assert_allclose(start.orientation, needle['initial_orientation_xyzw'])
+    np.testing.assert_allclose(start.axis, [0, 0, -1], atol=1e-15)  # pointing down
+    # pointing down from above the block: the tip is (base z - length) - top above its top face
+    assert start.gap_m == pytest.approx(needle['initial_position_m'][2] - needle['length_m'] - top)
+    assert start.frame_id == 'world'
+
+
+def test_trajectory_goes_down_to_the_depth_and_back_at_the_speed(start):
+    speed, depth, hold, rate = 0.005, 0.02, 0.5, 100.0
+    t, p = insertion_trajectory(start, speed, depth, hold, rate)
+    z0 = start.initial_position[2]
+    bottom = z0 - (start.gap_m + depth)
+    assert p[:, 2].min() == pytest.approx(bottom)
+    np.testing.assert_allclose(p[0], start.initial_position)
+    np.testing.assert_allclose(p[-1], start.initial_position)
+    np.testing.assert_allclose(p[:, :2], 0.0)
+    v = np.abs(np.diff(p[:, 2])) / np.diff(t)
+    assert v.max() == pytest.approx(speed, rel=1e-9)
+    total = 2 * (start.gap_m + depth) / speed + hold
+    assert t[-1] == pytest.approx(total)
+    assert np.all(np.diff(t) <= 1 / rate + 1e-12)
+    at_bottom = t[np.isclose(p[:, 2], bottom, atol=1e-12)]
+    assert at_bottom[-1] - at_bottom[0] == pytest.approx(hold, abs=1 / rate)
+
+
+def test_start_height_moves_the_start_pose_first(start):
+    t, p = insertion_trajectory(start, 0.01, 0.003, 0.0, 100.0, start_gap_m=0.002)
+    z0 = start.initial_position[2]
+    start_z = z0 - (start.gap_m - 0.002)  # tip 2 mm above the surface
+    assert p[:, 2].min() == pytest.approx(start_z - 0.005)
+    assert p[-1, 2] == pytest.approx(start_z)  # back to the start pose, not the initial one
+
+
+@pytest.mark.parametrize('kw, name', [
+    ({'speed_m_s': 0.0}, 'speed_m_s'), ({'depth_m': -1.0}, 'depth_m'),
+    ({'hold_s': float('nan')}, 'hold_s'), ({'rate_hz': -5.0}, 'rate_hz'),
+    ({'start_gap_m': -0.001}, 'start_gap_m')])
+def test_impossible_drives_are_refused_by_name(start, kw, name):
+    args = {'speed_m_s': 0.005, 'depth_m': 0.01, 'hold_s': 0.0, 'rate_hz': 100.0, **kw}
+    with pytest.raises(ValueError, match=name):
+        insertion_trajectory(start, **args)
