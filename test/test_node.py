@@ -250,7 +250,6 @@ def _limits(**kw):
 def test_pose_input_interpolates_between_samples_and_holds_after():
     pi = PoseInput(_limits(max_jump_m=0.01))
     q0 = np.array([0.0, 0.0, 0.0, 1.0])
-    half = math.sqrt(0.5)
     q1 = np.array([0.0, 0.0, math.sin(0.1), math.cos(0.1)])  # 0.2 rad about z
     assert pi.offer([0, 0, 0], q0, 'world', 1 * NS, 1 * NS) == (None, None)
     assert pi.offer([0.004, 0, 0], q1, 'world', 1 * NS + 10_000_000, 1 * NS)[0] is None
@@ -261,7 +260,6 @@ def test_pose_input_interpolates_between_samples_and_holds_after():
     np.testing.assert_allclose(p, [0.004, 0, 0])
     np.testing.assert_allclose(q, q1)
     assert pi.pose_at(0)[0].tolist() == [0.004, 0, 0]  # older samples were dropped meanwhile
-    assert half  # (keeps flake8 quiet about the helper constant)
 
 
 def test_pose_input_refuses_each_kind_and_names_it():

@@ -86,9 +86,9 @@ from shape_msgs.msg import Mesh
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker
 
-from tissue_sim_ros import SimulationDiverged, __version__
+from tissue_sim_ros import SimulationDiverged
 from tissue_sim_ros.ros import conversions as cv
-from tissue_sim_ros.ros.pose_input import BAD_INPUT_KINDS, PoseInput, PoseInputLimits
+from tissue_sim_ros.ros.pose_input import PoseInput, PoseInputLimits
 
 __all__ = ['NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'TissueSimNode', 'main']
 
