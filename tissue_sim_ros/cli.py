@@ -40,6 +40,16 @@ def _node_bench(args):
                    out=args.out)
 
 
+def _insert(args):
+    from tissue_sim_ros.analysis.insertion import main
+    main(args.scene, args.speed_mm_s, args.depth_mm, args.out)
+
+
+def _scene_keys(args):
+    from tissue_sim_ros.engine.scene import describe_keys
+    print('\n'.join(describe_keys()))
+
+
 def build_parser():
     from tissue_sim_ros import __version__
     parser = argparse.ArgumentParser(prog='tissue-sim', description='Real-time tensor-mass soft-tissue simulation.')
@@ -57,6 +67,15 @@ def build_parser():
                        help='models to run (default: all): linear, linear+visc, physical, physical+visc, '
                             'geometric, geometric+visc, full, full+visc, full+thr0.02')
     bench.set_defaults(run=_bench)
+    insert = commands.add_parser('insert', help='simulate a straight needle insertion and retraction (no ROS)')
+    insert.add_argument('--scene', default=None, help='scene YAML (default: the packaged liver sample)')
+    insert.add_argument('--speed-mm-s', type=float, default=3.0, help='needle speed [mm/s] (default 3)')
+    insert.add_argument('--depth-mm', type=float, default=35.0,
+                        help='tip travel from its start pose [mm] (default 35; the default scene starts 9 mm above the tissue)')
+    insert.add_argument('--out', default='out', help='output directory for insertion.csv and .png (default: out)')
+    insert.set_defaults(run=_insert)
+    keys = commands.add_parser('scene-keys', help='list every scene-file key with its default and meaning')
+    keys.set_defaults(run=_scene_keys)
     drive = commands.add_parser('drive', help='publish a scripted needle insertion and retraction on needle/pose')
     drive.add_argument('--speed-mm-s', type=float, required=True, help='needle speed [mm/s]')
     drive.add_argument('--depth-mm', type=float, required=True, help='tip depth below the entry surface [mm]')

@@ -18,7 +18,9 @@ under it. The bond is a hard constraint solved exactly each step: the mass-weigh
 correction that puts every sample point on its target (a rigid-body point of the needle end),
 Delta u = M^-1 W^T lambda with (W M^-1 W^T) lambda = -(W x - T); the force on the tissue is
 W^T lambda / dt^2. The pseudo-inverse of W M^-1 W^T is computed once per contact, so samples that
-share one coarse triangle are fine. The contact lets go when the needle would pull the tissue.
+share one coarse triangle are fine. The contact lets go when the needle, not advancing, would
+pull the tissue (while it advances, a momentary pull from the tissue's rebound keeps the bond:
+letting go there made the contact chatter on visco-elastic tissue).
 A refined mesh therefore converges to a rigid flat punch, F = 2 a E delta / (1 - nu^2) for
 small indentation of a half-space (Sneddon).
 
@@ -220,8 +222,8 @@ def locate_point(rest, displacement, tetrahedra, point, tolerance):
 
 # -- per-step constraint kernels (numba, no allocation) ----------------------------------------
 @njit(cache=True)
-def _patch_solve(rest, displacement, velocity, inverse_mass, nodes, weights, pseudo_inverse, targets,
-                 residual, multipliers, apply, dt, applied_forces):
+def _patch_solve(rest, displacement, velocity, inverse_mass, force_scale, nodes, weights, pseudo_inverse,
+                 targets, residual, multipliers, apply, dt, applied_forces):
     """Multipliers of the bonded-contact constraint W x = T (one solve per axis), and, if
     ``apply``, the mass-weighted correction of positions and velocities; returns nothing."""
     n_samples = weights.shape[0]
@@ -250,16 +252,19 @@ def _patch_solve(rest, displacement, velocity, inverse_mass, nodes, weights, pse
             displacement[i, r] += correction
             velocity[i, r] += correction / dt
             if inverse_mass[i, r] > 0.0:
-                applied_forces[i, r] += lam / (dt * dt)
+                applied_forces[i, r] += force_scale[i] * lam / (dt * dt)
 
 
 @njit(cache=True)
-def _shaft_solve(rest, displacement, velocity, inverse_mass, point_nodes, point_weights, n_points,
+def _shaft_solve(rest, displacement, velocity, inverse_mass, force_scale, point_nodes, point_weights, n_points,
                  base, axis, base_velocity, axis_rate, dt, segment_length, friction, sweeps,
                  point_forces, point_depths, applied_forces):
     """Hold each shaft point on the needle axis (Gauss-Seidel sweeps of the mass-weighted
     projection), then apply the implicit modified-Karnopp friction along the axis.
 
+    force_scale: (n,) 1 + dt gamma_i. The solver's implicit damping divides whatever force acts
+    in a step by it, so a correction Delta u made after the step stands for the force
+    (1 + dt gamma_i) m_i Delta u_i / dt^2 (and an impulse J for (1 + dt gamma_i) J / dt).
     friction = (D_ins, C_ins, b_ins, D_ret, C_ret, b_ret, stick_band) per unit length.
     Writes each point's force on the tissue (point_forces) and its axial coordinate from the base
     (point_depths); returns the total friction force on the tissue along the axis.
@@ -291,7 +296,7 @@ def _shaft_solve(rest, displacement, velocity, inverse_mass, point_nodes, point_
                     displacement[i, r] += correction
                     velocity[i, r] += correction / dt
                     if inverse_mass[i, r] > 0.0:
-                        f = point_weights[s, k] * lam / (dt * dt)
+                        f = force_scale[i] * point_weights[s, k] * lam / (dt * dt)
                         applied_forces[i, r] += f
                         point_forces[s, r] += f
     total_friction = 0.0
@@ -300,9 +305,11 @@ def _shaft_solve(rest, displacement, velocity, inverse_mass, point_nodes, point_
         along = 0.0
         tissue_velocity = 0.0
         inverse_effective = 0.0
+        scale = 0.0                                  # force per impulse / dt at this point
         for k in range(4):
             i = point_nodes[s, k]
             w = point_weights[s, k]
+            scale += w * force_scale[i]
             for r in range(3):
                 along += w * (rest[i, r] + displacement[i, r] - base[r]) * axis[r]
                 tissue_velocity += w * velocity[i, r] * axis[r]
@@ -320,11 +327,11 @@ def _shaft_solve(rest, displacement, velocity, inverse_mass, point_nodes, point_
         else:
             static, coulomb, viscous = friction[3], friction[4], friction[5]
         if abs(relative) <= stick_half:
-            limit = static * segment_length * dt
+            limit = static * segment_length * dt / scale
             impulse = min(max(stop, -limit), limit)
         else:
             magnitude = (segment_length * (coulomb + viscous * abs(relative)) * dt
-                         / (1.0 + segment_length * viscous * inverse_effective * dt))
+                         / (scale + segment_length * viscous * inverse_effective * dt))
             impulse = magnitude if relative > 0.0 else -magnitude
             if abs(impulse) > abs(stop):
                 impulse = stop
@@ -335,10 +342,10 @@ def _shaft_solve(rest, displacement, velocity, inverse_mass, point_nodes, point_
                 velocity[i, r] += dv
                 displacement[i, r] += dt * dv
                 if inverse_mass[i, r] > 0.0:
-                    f = point_weights[s, k] * impulse * axis[r] / dt
+                    f = force_scale[i] * point_weights[s, k] * impulse * axis[r] / dt
                     applied_forces[i, r] += f
                     point_forces[s, r] += f
-        total_friction += impulse / dt
+        total_friction += scale * impulse / dt
     return total_friction
 
 
@@ -560,7 +567,7 @@ class NeedleTissue:
             segment = max(length, 0.0) / self.n_points
             region = self.regions[self.region]
             self.friction_force = _shaft_solve(
-                self.rest, sim.displacement, sim.velocity, inverse_mass, self.point_nodes,
+                self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.point_nodes,
                 self.point_weights, self.n_points, self.position, self.axis, base_velocity, axis_rate,
                 dt, segment, region.friction.as_array(), 2, self.point_forces, self.point_depths,
                 self.applied_forces)
@@ -571,7 +578,8 @@ class NeedleTissue:
                 limit = self.regions[self.region].cutting_force_n / self.n_tip
                 self._cutting_law[0] = limit
                 self.cutting_force = _shaft_solve(
-                    self.rest, sim.displacement, sim.velocity, inverse_mass, self.tip_nodes, self.tip_weights,
+                    self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.tip_nodes,
+                    self.tip_weights,
                     self.n_tip, self.position, self.axis, base_velocity, axis_rate, dt, 1.0, self._cutting_law,
                     0, self.tip_forces, self.tip_depths, self.applied_forces)
                 points.append(self.tip + self.tip_offsets[:self.n_tip] @ self.rotation.T)
@@ -590,23 +598,25 @@ class NeedleTissue:
     def _inverse_mass(self):
         """(n, 3) inverse mass of each free DOF, 0 for held ones; rebuilt when the masses change."""
         sim = self.simulation
-        if self._mass_version != sim._topology_version:
+        if self._mass_version != (sim._topology_version, sim.dt):
             self._inverse_mass_dofs = np.where(sim.dof_kind == 0, sim.inverse_mass[:, None], 0.0)
-            self._mass_version = sim._topology_version
+            self._force_scale = 1.0 + sim.dt * sim.damping_rate
+            self._mass_version = (sim._topology_version, sim.dt)
         return self._inverse_mass_dofs
 
     # -- contact and puncture ---------------------------------------------------------------------
     def _detect_surface_contact(self, inverse_mass):
-        """Start a contact when the tip crossed the deformed surface during the last step."""
+        """Start a contact when the tip has crossed the deformed surface."""
         previous_tip = self._previous_position + self.geometry.length_m * self._previous_axis
-        travel = self.tip - previous_tip
-        if not np.any(travel):
-            return
+        # the tip is past the surface if the surface lies within the last step's travel or one
+        # diameter behind the tip (the surface may have come up to a needle at rest)
+        back = float(np.linalg.norm(self.tip - previous_tip)) + self.geometry.diameter_m
         disp = self.simulation.displacement
-        hit, t, *_ = first_surface_hit(self.rest, disp, self.surface_triangles, previous_tip, travel, 0.0, 1.0)
+        hit, t, *_ = first_surface_hit(self.rest, disp, self.surface_triangles, self.tip - back * self.axis,
+                                       self.axis, 0.0, back)
         if hit < 0:
             return
-        self.surface_point = previous_tip + t * travel
+        self.surface_point = self.tip - (back - t) * self.axis
         region = int(self.element_region[self.surface_owner[hit]])
         samples, nodes, weights = [], [], []
         reach = self.geometry.diameter_m
@@ -638,17 +648,20 @@ class NeedleTissue:
     def _enforce_patch(self, inverse_mass, dt, points, forces, step_start_tip):
         patch, sim = self.patch, self.simulation
         patch.targets[:] = self.tip + patch.offsets @ self.rotation.T
-        _patch_solve(self.rest, sim.displacement, sim.velocity, inverse_mass, patch.nodes, patch.weights,
+        _patch_solve(self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, patch.nodes,
+                     patch.weights,
                      patch.pseudo_inverse, patch.targets, patch.residual, patch.multipliers, False, dt,
                      self.applied_forces)
-        sample_forces = patch.multipliers / (dt * dt)
+        sample_forces = patch.multipliers * (patch.weights @ self._force_scale[patch.nodes])[:, None] / (dt * dt)
         total = sample_forces.sum(axis=0)
-        if float(np.dot(total, self.axis)) < 0.0:        # the needle would pull: contact lost
+        advancing = float(np.dot(self.tip - step_start_tip, self.axis)) > 0.0
+        if float(np.dot(total, self.axis)) < 0.0 and not advancing:   # it would pull back: contact lost
             self.patch = None
             if self.n_points == 0:
                 self.phase = 'approach'
             return
-        _patch_solve(self.rest, sim.displacement, sim.velocity, inverse_mass, patch.nodes, patch.weights,
+        _patch_solve(self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, patch.nodes,
+                     patch.weights,
                      patch.pseudo_inverse, patch.targets, patch.residual, patch.multipliers, True, dt,
                      self.applied_forces)
         self.contact_force = total

@@ -1,0 +1,262 @@
+"""Needle-tissue interaction: Newton's third law, work and energy, speed (in)dependence, mesh
+convergence, puncture criteria, friction and cutting, layers, sideways loads, bad input."""
+import math
+
+import numpy as np
+import pytest
+
+from tissue_sim_ros.analysis.insertion import run_insertion
+from tissue_sim_ros.engine.needle import NeedleInputError, rotation_matrix, validate_pose
+from tissue_sim_ros.engine.scene import Scene, SceneError
+
+DOWN = [1.0, 0.0, 0.0, 0.0]          # needle axis (+z of its frame) along world -z
+E, NU = 16000.0, 0.45
+
+
+def small_scene(*, fine=0.002, region=None, regions=None, model=None, solver=None, mesh=None, gap=0.0005):
+    """A 30 x 30 x 20 mm sample (top at z = 0), needle tip ``gap`` above the centre."""
+    spec = {'mesh': {'size_m': [0.03, 0.03, 0.02], 'origin_m': [-0.015, -0.015, -0.02], 'divisions': [6, 6, 4],
+                     'fine_size_m': fine, 'focus_radius_m': 0.002, 'grade_z': True, **(mesh or {})},
+            'model': {'geometric': False, 'physical': {'law': 'none'}, 'viscosity_mu_pa_s': 0.0, **(model or {})},
+            'needle': {'initial_position_m': [0.0, 0.0, 0.15 + gap], 'length_m': 0.15,
+                       'initial_orientation_xyzw': DOWN},
+            'solver': {'mass_scaling': 400.0, 'damping_per_s': 50.0, **(solver or {})},
+            'regions': regions or [{'name': 'tissue', 'young_modulus_pa': E, 'poisson_ratio': NU,
+                                    'membrane': {'criterion': 'force', 'rupture_force_n': 100.0}, **(region or {})}]}
+    return Scene(spec)
+
+
+def push(scene, travel, speed, *, tick=0.02):
+    """Move the needle down by ``travel`` at ``speed``; yields after each tick."""
+    p, q = scene.needle_pose
+    n = max(1, math.ceil(travel / (speed * tick)))
+    for k in range(1, n + 1):
+        scene.advance(travel / n / speed, p + np.array([0.0, 0.0, -travel * k / n]), q)
+        yield
+
+
+def axial(scene):
+    return -float(np.dot(scene.reaction_wrench()[0], scene.needle.axis))
+
+
+def test_wrench_is_minus_the_force_on_the_tissue_from_momentum_balance_every_step():
+    """Undamped, so m (v+ - v) / dt = f_int + f_ext + f_needle exactly (symplectic Euler): the
+    needle's force on the free nodes is read off the momentum change, independently of the
+    needle code, and must equal minus the wrench; the torque equals sum (r - p) x f."""
+    scene = small_scene(solver={'damping_per_s': 0.0}, region={'cutting_force_n': 0.3, 'membrane': {
+        'criterion': 'force', 'rupture_force_n': 0.05}, 'friction': {'insertion_coulomb_n_per_m': 5.0}})
+    sim, needle = scene.simulation, scene.needle
+    p0, q = scene.needle_pose
+    free = sim.dof_kind == 0
+    checked = 0
+    for k in range(1, 500):
+        target = p0 + np.array([0.0, 0.0, -3e-3 * k * sim.dt]) + (np.array([2e-4 * sim.dt * k, 0, 0]) if k > 300 else 0)
+        needle.set_pose(target, q)
+        v_before = sim.velocity.copy()
+        sim.step(1)
+        needle.after_step(sim.dt)
+        momentum_rate = sim.mass[:, None] * (sim.velocity - v_before) / sim.dt
+        needle_on_nodes = np.where(free, momentum_rate - sim.internal_force - sim.external_forces, 0.0)
+        force, torque = needle.reaction_wrench('world')
+        scale = max(1e-3, float(np.abs(force).max()))
+        assert np.allclose(needle_on_nodes.sum(axis=0), -force, atol=1e-9 * scale), k
+        r = needle.application_points - needle.position
+        assert np.allclose(np.cross(r, -needle.application_forces).sum(axis=0), torque, atol=1e-12)
+        assert np.allclose(needle.application_forces.sum(axis=0), needle_on_nodes.sum(axis=0), atol=1e-9 * scale)
+        checked += bool(np.any(force))
+    assert needle.puncture_events and checked > 300
+    f_needle, t_needle = needle.reaction_wrench('needle')
+    R = rotation_matrix(needle.orientation)
+    assert np.allclose(R @ f_needle, needle.reaction_wrench('world')[0])
+    assert np.allclose(R @ t_needle, needle.reaction_wrench('world')[1])
+
+
+def test_slow_indentation_work_equals_strain_energy():
+    """Quasi-static and linear: the work the needle does, integral of F d(delta), is stored as
+    strain energy (damping takes what is left); checked to 3 %."""
+    scene = small_scene()
+    work, last = 0.0, 0.0
+    for _ in push(scene, 0.0035, 1e-3):
+        depth = scene.tip_depth
+        work += axial(scene) * (depth - last)
+        last = depth
+    strain = scene.model.strain_energy(scene.displacement)[0]
+    print(f'work {work:.6g} J, strain energy {strain:.6g} J')
+    assert strain == pytest.approx(work, rel=0.03)
+
+
+def test_without_viscosity_the_curve_does_not_depend_on_speed_in_the_slow_limit():
+    curves = []
+    for speed in (0.5e-3, 1e-3):
+        scene = small_scene(model={'geometric': True})
+        forces = [(scene.tip_depth, axial(scene)) for _ in push(scene, 0.0045, speed)]
+        d, f = np.array(forces).T
+        curves.append(np.interp([0.001, 0.002, 0.003, 0.004], d, f))
+    print('forces at 1..4 mm, 0.5 and 1 mm/s:', np.round(curves, 4))
+    assert np.allclose(curves[0], curves[1], rtol=0.02)
+
+
+@pytest.mark.xfail(strict=True, reason='open: with Kelvin-Voigt viscosity the needle contact force comes out '
+                   'lower at 10 mm/s than at 2 mm/s (0.333 vs 0.374 N at 4 mm), although a prescribed plate on '
+                   'the same material pushes harder when faster; the coupling of the bonded contact with the '
+                   'explicit viscous force is being investigated')
+def test_with_viscosity_faster_insertion_pushes_harder_at_every_depth():
+    """Seed Figure 3b. Masses scaled by 25 only: at 10 mm/s the default 400x scaling's inertia
+    (the contact impact bounces) masks the viscous force."""
+    forces = {}
+    for speed in (2e-3, 10e-3):
+        scene = small_scene(model={'geometric': True, 'viscosity_mu_pa_s': 50.0}, solver={'mass_scaling': 25.0})
+        rows = [(scene.tip_depth, axial(scene)) for _ in push(scene, 0.0055, speed, tick=0.01)]
+        forces[speed] = np.array(rows).T
+    depths = np.linspace(0.0005, 0.005, 10)
+    slow = np.interp(depths, *forces[2e-3])
+    fast = np.interp(depths, *forces[10e-3])
+    print('2 mm/s', np.round(slow, 4), '\n10 mm/s', np.round(fast, 4))
+    assert np.all(fast > slow)
+
+
+def test_pre_puncture_force_approaches_the_flat_punch_solution_as_the_mesh_is_refined():
+    """Three resolutions of the zone under the needle (2, 1.4, 1 mm cells): the force at 4.5 mm
+    approaches Sneddon's rigid flat punch 2 a E delta / (1 - nu^2) from above, the error
+    shrinking at each level. nu = 0.3 keeps linear-tetrahedron locking (nu = 0.45) out of the
+    contact question. The issue's goal (< 10 % change between the two finest) is not met yet:
+    measured 12 %, printed here."""
+    depth, values = 0.0045, []
+    for fine in (0.002, 0.0014, 0.001):
+        scene = small_scene(fine=fine, model={'geometric': True}, mesh={'focus_radius_m': 0.006, 'growth': 1.25},
+                            region={'poisson_ratio': 0.3})
+        for _ in push(scene, depth, 3e-3):
+            pass
+        values.append(axial(scene))
+    sneddon = 2 * 1.2e-3 * E / (1 - 0.3 ** 2) * depth
+    errors = np.array(values) / sneddon - 1
+    print(f'force at 4.5 mm: {np.round(values, 4)} N, flat punch {sneddon:.4f} N, errors {np.round(errors, 3)}, '
+          f'change between the two finest {abs(values[2] - values[1]) / values[2]:.1%}')
+    assert np.all(np.diff(errors) < 0) and np.all(errors > 0)
+    assert errors[-1] < 0.15
+
+
+def test_force_criterion_punctures_within_one_step_of_the_threshold():
+    threshold = 0.12
+    scene = small_scene(region={'membrane': {'criterion': 'force', 'rupture_force_n': threshold}})
+    sim, needle = scene.simulation, scene.needle
+    p0, q = scene.needle_pose
+    history = []
+    for k in range(1, 4000):
+        needle.set_pose(p0 + np.array([0.0, 0.0, -3e-3 * k * sim.dt]), q)
+        sim.step(1)
+        needle.after_step(sim.dt)
+        history.append(float(np.dot(needle.contact_force, needle.axis)))
+        if needle.puncture_events:
+            break
+    assert needle.puncture_events, 'no puncture'
+    assert history[-1] >= threshold > history[-2]
+    assert needle.phase == 'inserted'
+
+
+def test_energy_criterion_ruptures_earlier_when_faster_on_viscoelastic_tissue():
+    ruptures = {}
+    for speed in (2e-3, 10e-3):
+        scene = small_scene(model={'geometric': True, 'viscosity_mu_pa_s': 200.0,
+                                   'physical': {'law': 'exponential', 'mu_amplitude': 1.0, 'mu_rate': 4.0}},
+                            region={'membrane': {'criterion': 'energy', 'toughness_j_per_m2': 60.0}})
+        for _ in push(scene, 0.008, speed, tick=0.01):
+            if scene.puncture_events:
+                break
+        assert scene.puncture_events, f'no rupture at {speed} m/s'
+        ruptures[speed] = scene.puncture_events[0]
+    print({s: (round(e['axial_force_n'], 4), round(e['tip_depth_m'] * 1e3, 3)) for s, e in ruptures.items()})
+    # the viscous work makes the faster insertion rupture earlier ...
+    assert ruptures[10e-3]['tip_depth_m'] < 0.9 * ruptures[2e-3]['tip_depth_m']
+    # ... but not yet at a lower force: with Kelvin-Voigt viscosity the viscous force grows with
+    # the elastic one, which leaves the rupture force unchanged to first order; measured +8 %.
+    # The issue's "rupture force falls with speed" is open (see the issue note).
+    assert ruptures[10e-3]['axial_force_n'] < 1.15 * ruptures[2e-3]['axial_force_n']
+
+
+def test_stiff_tissue_force_is_cutting_plus_karnopp_friction_and_retraction_pulls():
+    friction = {'insertion_static_n_per_m': 18.45, 'insertion_coulomb_n_per_m': 10.57,
+                'insertion_viscous_n_s_per_m2': 212.31, 'retraction_static_n_per_m': 18.23,
+                'retraction_coulomb_n_per_m': 11.96, 'retraction_viscous_n_s_per_m2': 239.08}
+    cutting, speed = 0.94, 3e-3
+    scene = small_scene(fine=0.003, regions=[{'name': 'stiff', 'young_modulus_pa': 2e9, 'poisson_ratio': 0.3,
+                                              'membrane': {'criterion': 'force', 'rupture_force_n': 0.5},
+                                              'cutting_force_n': cutting, 'friction': friction}],
+                        solver={'mass_scaling': 1e6})   # a rigid-like tissue: huge masses keep dt usable
+    for _ in push(scene, 0.0105, speed, tick=0.01):
+        pass
+    assert scene.phase == 'inserted'
+    inserted = scene.tip_depth
+    expected = cutting + inserted * (10.57 + 212.31 * speed)
+    print(f'inserted {inserted * 1e3:.3f} mm: axial {axial(scene):.5f} N, cutting + friction {expected:.5f} N')
+    assert axial(scene) == pytest.approx(expected, rel=0.02)
+    p, q = scene.needle_pose
+    scene.advance(0.01, p + np.array([0.0, 0.0, speed * 0.01]), q)
+    scene.advance(0.01, p + np.array([0.0, 0.0, 2 * speed * 0.01]), q)
+    assert scene.phase == 'retracting'
+    expected_back = -scene.tip_depth * (11.96 + 239.08 * speed)
+    print(f'retracting: axial {axial(scene):.5f} N, friction law {expected_back:.5f} N')
+    assert axial(scene) == pytest.approx(expected_back, rel=0.02)
+
+
+def test_sideways_motion_gives_a_lateral_force_and_a_consistent_torque():
+    scene = small_scene(region={'membrane': {'criterion': 'force', 'rupture_force_n': 0.05}})
+    for _ in push(scene, 0.008, 3e-3):
+        pass
+    p, q = scene.needle_pose
+    for k in range(1, 21):
+        scene.advance(0.02, p + np.array([1e-3 * k / 20, 0.0, 0.0]), q)
+    force, torque = scene.reaction_wrench('world')
+    needle = scene.needle
+    assert force[0] < -1e-3 and abs(force[0]) > 5 * abs(force[1])     # pushes back against +x
+    lever = np.linalg.norm(torque) / np.linalg.norm(force[:2])
+    entry = needle.geometry.length_m - scene.tip_depth
+    print(f'lateral force {force[0]:.4f} N, torque {torque}, lever {lever * 1e3:.2f} mm')
+    assert entry - 1e-3 <= lever <= needle.geometry.length_m + 1e-3      # acts along the inserted part
+    assert abs(np.dot(torque, needle.axis)) < 1e-6 * np.linalg.norm(torque)
+    assert np.dot(np.cross(needle.axis, force), torque) > 0           # lever arm along the axis, from the base
+
+
+def test_two_layers_give_two_punctures():
+    regions = [{'name': 'muscle', 'young_modulus_pa': 30000.0, 'poisson_ratio': NU,
+                'membrane': {'criterion': 'force', 'rupture_force_n': 0.3}, 'cutting_force_n': 0.1},
+               {'name': 'skin', 'select': {'above_z_m': -0.004}, 'young_modulus_pa': 60000.0, 'poisson_ratio': NU,
+                'membrane': {'criterion': 'force', 'rupture_force_n': 0.2}, 'cutting_force_n': 0.1}]
+    scene = small_scene(regions=regions, model={'geometric': True})
+    for _ in push(scene, 0.015, 5e-3):
+        pass
+    names = [e['region'] for e in scene.puncture_events]
+    print(scene.puncture_events)
+    assert names == ['skin', 'muscle']
+
+
+def test_bad_poses_are_refused_by_name_and_state_is_unchanged():
+    scene = small_scene()
+    p, q = scene.needle_pose
+    for position, orientation, field in (([np.nan, 0, 0.2], DOWN, 'pose.position'),
+                                         ([0, np.inf, 0.2], DOWN, 'pose.position'),
+                                         (p, [1.0, 0.0, 0.0, np.nan], 'pose.orientation'),
+                                         (p, [1.2, 0.0, 0.0, 0.0], 'pose.orientation'),
+                                         (p + [0.0, 0.0, -0.02], DOWN, 'pose.position')):
+        with pytest.raises(NeedleInputError) as err:
+            scene.advance(0.02, position, orientation)
+        assert err.value.field == field and field in str(err.value)
+    assert scene.time == 0.0 and np.array_equal(scene.needle_pose[0], p)
+    position, orientation = validate_pose(p, [1.005, 0.0, 0.0, 0.0])          # close to unit: normalised
+    assert np.linalg.norm(orientation) == pytest.approx(1.0, abs=1e-15)
+
+
+def test_needle_starting_inside_the_tissue_is_refused():
+    with pytest.raises(SceneError, match='starts inside the tissue'):
+        small_scene(gap=-0.003)
+
+
+def test_scene_keys_unknown_and_impossible_values_are_named():
+    with pytest.raises(SceneError, match='unknown scene key model.geometrik'):
+        Scene.from_file(model={'geometrik': True})
+    with pytest.raises(SceneError, match='poisson_ratio'):
+        small_scene(region={'poisson_ratio': 0.5})
+    with pytest.raises(SceneError, match=r'solver.mass_scaling = -1'):
+        small_scene(solver={'mass_scaling': -1})
+    with pytest.raises(SceneError, match=r'regions\[0\].membrane.criterion'):
+        small_scene(region={'membrane': {'criterion': 'strength'}})
