@@ -408,7 +408,7 @@ class TissueSimNode(Node):
         self.stats = {name: _Ring(window) for name in
                       ('tick_work_s', 'step_s', 'tick_interval_s', 'latency_s', 'substeps')}
         self._window = {'ticks': 0, 'step_s': 0.0, 'step_max_s': 0.0, 'overruns': 0,
-                        'wall0': time.perf_counter(), 'sim0': 0.0,
+                        'wall0': time.perf_counter(), 'sim0': 0.0, 'clock0': None,
                         'bad0': self.input.bad_total}
 
         # publishers and subscription (names resolved: that is what the recording shows)
@@ -701,14 +701,16 @@ class TissueSimNode(Node):
         wall = time.perf_counter()
         elapsed = max(wall - w['wall0'], 1e-9)
         sim_now = float(self.scene.time)
-        rtf = (self.simulated_s - w['sim0']) / elapsed
+        # engine time per node-clock time (with use_sim_time, per simulated /clock time)
+        clock_elapsed = elapsed if w['clock0'] is None else (now_ns - w['clock0']) / _NS
+        rtf = (self.simulated_s - w['sim0']) / clock_elapsed if clock_elapsed > 0 else float('nan')
         ticks = max(w['ticks'], 1)
         step_mean = w['step_s'] / ticks
         intervals = self.stats['tick_interval_s'].array()
         deviation = np.abs(intervals - self._period_s) if intervals.size else np.zeros(1)
         if self.held:
             level, state = 'ERROR', 'diverged, held until ~/reset'
-        elif w['overruns'] or (w['ticks'] and not self.paused and rtf < 0.95):
+        elif w['overruns'] or (w['ticks'] and not self.paused and not rtf >= 0.95):
             level, state = 'WARN', f'{w["overruns"]} deadline overruns in the last {elapsed:.3g} s'
         else:
             level, state = 'OK', 'paused' if self.paused else 'running'
@@ -771,6 +773,7 @@ class TissueSimNode(Node):
                       cv.diagnostic_array_msg(now_ns, self.diagnostics_statuses(now_ns)), now_ns)
         self._window = {'ticks': 0, 'step_s': 0.0, 'step_max_s': 0.0, 'overruns': 0,
                         'wall0': time.perf_counter(), 'sim0': self.simulated_s,
+                        'clock0': self._now_ns(),
                         'bad0': self.input.bad_total}
 
     # -- shutdown ---------------------------------------------------------------------------
