@@ -3,4 +3,4 @@
 set -euo pipefail
 cd "$(dirname "$0")"
 source scripts/bootstrap.sh
-exec "$(dirname "$VENV_PYTHON")/tissue-sim" compress --out out "$@"
+exec "$(dirname "$VENV_PYTHON")/tissue-sim" demo --out out "$@"

@@ -260,3 +260,26 @@ def test_scene_keys_unknown_and_impossible_values_are_named():
         small_scene(solver={'mass_scaling': -1})
     with pytest.raises(SceneError, match=r'regions\[0\].membrane.criterion'):
         small_scene(region={'membrane': {'criterion': 'strength'}})
+
+
+def test_insert_command_writes_the_csv_and_plot(tmp_path):
+    import csv
+
+    import yaml
+
+    from tissue_sim_ros import cli
+    from tissue_sim_ros.analysis.insertion import CSV_HEADER
+    spec = small_scene(region={'membrane': {'criterion': 'force', 'rupture_force_n': 0.1},
+                               'cutting_force_n': 0.2}).spec
+    scene_file = tmp_path / 'scene.yaml'
+    scene_file.write_text(yaml.safe_dump(spec))
+    cli.main(['insert', '--scene', str(scene_file), '--speed-mm-s', '10', '--depth-mm', '4',
+              '--out', str(tmp_path)])
+    with open(tmp_path / 'insertion.csv') as f:
+        rows = list(csv.reader(f))
+    assert tuple(rows[0]) == CSV_HEADER
+    phases = [r[-1] for r in rows[1:]]
+    assert {'approach', 'contact', 'inserted', 'retracting'} <= set(phases)
+    values = np.array([[float(v) for v in r[:-1]] for r in rows[1:]])
+    assert np.all(np.isfinite(values)) and values[:, 1].max() == pytest.approx(0.004)
+    assert (tmp_path / 'insertion.png').stat().st_size > 10_000

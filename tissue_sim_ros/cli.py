@@ -45,6 +45,11 @@ def _insert(args):
     main(args.scene, args.speed_mm_s, args.depth_mm, args.out)
 
 
+def _demo(args):
+    from tissue_sim_ros.analysis.demo import run
+    run(args.out, args.speed_mm_s, args.depth_mm)
+
+
 def _scene_keys(args):
     from tissue_sim_ros.engine.scene import describe_keys
     print('\n'.join(describe_keys()))
@@ -74,6 +79,11 @@ def build_parser():
                         help='tip travel from its start pose [mm] (default 35; the default scene starts 9 mm above the tissue)')
     insert.add_argument('--out', default='out', help='output directory for insertion.csv and .png (default: out)')
     insert.set_defaults(run=_insert)
+    demo = commands.add_parser('demo', help='the main job: node + scripted insertion + MCAP read back, summary and plot')
+    demo.add_argument('--out', default='out', help='output directory (default: out)')
+    demo.add_argument('--speed-mm-s', type=float, default=5.0, help='needle speed [mm/s] (default 5)')
+    demo.add_argument('--depth-mm', type=float, default=15.0, help='depth below the surface [mm] (default 15)')
+    demo.set_defaults(run=_demo)
     keys = commands.add_parser('scene-keys', help='list every scene-file key with its default and meaning')
     keys.set_defaults(run=_scene_keys)
     drive = commands.add_parser('drive', help='publish a scripted needle insertion and retraction on needle/pose')
