@@ -39,6 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tissue_sim_ros.engine.needle import slerp  # one slerp for the engine and the node
+
 __all__ = ['BAD_INPUT_KINDS', 'PoseInput', 'PoseInputLimits', 'slerp']
 
 #: Every kind of bad input the node counts, in the order diagnostics list them. The last one is
@@ -48,18 +50,6 @@ BAD_INPUT_KINDS = ('non_finite', 'non_unit_quaternion', 'wrong_frame', 'time_bac
                    'future_stamp', 'jump', 'flood', 'unstamped', 'engine_refused')
 
 _NS = 1_000_000_000
-
-
-def slerp(q0: np.ndarray, q1: np.ndarray, s: float) -> np.ndarray:
-    """Shortest-arc spherical interpolation of unit quaternions (x, y, z, w), s in [0, 1]."""
-    d = float(np.dot(q0, q1))
-    if d < 0.0:
-        q1, d = -q1, -d
-    if d > 0.9995:  # nearly parallel: normalised lerp (sin theta ~ 0)
-        q = q0 + s * (q1 - q0)
-        return q / np.linalg.norm(q)
-    theta = math.acos(min(1.0, d))
-    return (math.sin((1.0 - s) * theta) * q0 + math.sin(s * theta) * q1) / math.sin(theta)
 
 
 def rotation_angle(q0: np.ndarray, q1: np.ndarray) -> float:
