@@ -86,6 +86,7 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
     start = scene_start(scene_file)
     times, positions = insertion_trajectory(start, speed_mm_s * 1e-3, depth_mm * 1e-3, 0.5,
                                             rate_hz)
+    earlier_logs = set(log_dir.glob('*.mcap'))
     node_log = open(log_dir / 'node.log', 'w')  # noqa: SIM115
     t_launch = time.monotonic()
     proc = subprocess.Popen(_node_command(params), env=env, stdout=node_log,
@@ -169,7 +170,10 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
         else:
             os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = previous_range
 
-    (path,) = sorted(log_dir.glob('*.mcap'))
+    new_logs = sorted(set(log_dir.glob('*.mcap')) - earlier_logs)
+    if len(new_logs) != 1:
+        raise RuntimeError(f'expected one new MCAP log in {log_dir}, found {new_logs}')
+    path = new_logs[0]
     period_ns = 1e9 / publish_rate_hz
     pose_receipt, pose_stamp, wrench_tick, wrench_publish = [], [], [], []
     for m in ml.read_log(path, topics=['/needle/pose', '/needle/wrench']):
