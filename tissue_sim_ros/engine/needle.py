@@ -502,6 +502,7 @@ class NeedleTissue:
         self.wrench_force = np.zeros(3)    # world frame, on the needle, about the base origin
         self.wrench_torque = np.zeros(3)
         self.applied_forces[:] = 0.0
+        self._forces_applied = False
         self.application_points = np.zeros((0, 3))
         self.application_forces = np.zeros((0, 3))
         self._mass_version = None
@@ -549,7 +550,8 @@ class NeedleTissue:
     def after_step(self, dt):
         """Contact, shaft constraints and friction after the tissue's step; puncture; wrench."""
         sim = self.simulation
-        self.applied_forces[:] = 0.0
+        if self._forces_applied:
+            self.applied_forces[:] = 0.0
         self.contact_force = np.zeros(3)
         self.friction_force = 0.0
         self.cutting_force = 0.0
@@ -587,7 +589,9 @@ class NeedleTissue:
             self._release_passed_points()
             if self.patch is None and self.n_points:
                 self._grow_shaft(inverse_mass)
-        sim.input_work += float(np.sum(self.applied_forces * sim.velocity)) * dt
+        self._forces_applied = bool(points)
+        if points:                       # work of the needle's forces, for the energy watchdog
+            sim.input_work += float(np.vdot(self.applied_forces, sim.velocity)) * dt
         self._update_phase(dt)
         self.application_points = np.concatenate(points) if points else np.zeros((0, 3))
         self.application_forces = np.concatenate(forces) if forces else np.zeros((0, 3))
