@@ -412,7 +412,8 @@ class TissueSimNode(Node):
         self._last_tick_wall: float | None = None
         window = int(math.ceil(cfg.publish_rate_hz * 10))
         self.stats = {name: _Ring(window) for name in
-                      ('tick_work_s', 'step_s', 'tick_interval_s', 'latency_s', 'substeps')}
+                      ('tick_work_s', 'step_s', 'tick_interval_s', 'latency_s', 'substeps',
+                       'advance_s')}
         self._window = {'ticks': 0, 'step_s': 0.0, 'step_max_s': 0.0, 'overruns': 0,
                         'wall0': time.perf_counter(), 'sim0': 0.0, 'clock0': None,
                         'bad0': self.input.bad_total}
@@ -577,6 +578,7 @@ class TissueSimNode(Node):
                     self.dropped_time_s += advance_s - limit
                     advance_s = limit
             self._sim_target_s += advance_s
+            self.stats['advance_s'].add(advance_s)
             duration = max(0.0, self._sim_target_s - float(scene.time))
             try:
                 try:
