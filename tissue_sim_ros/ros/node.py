@@ -378,6 +378,15 @@ class TissueSimNode(Node):
         super().__init__(node_name, **node_kwargs)
         self._recorder = None
         self._closed = False
+        try:
+            self._set_up(scene)
+        except BaseException:
+            # a half-built node left to the garbage collector takes its logger's /rosout
+            # registration with it whenever it is collected, even from a later node of that name
+            self.destroy_node()
+            raise
+
+    def _set_up(self, scene) -> None:
         values = declare_parameters(self)
         if scene is None:
             scene = self._load_scene(values['scene_file'])
