@@ -1,4 +1,9 @@
-"""Shared fixtures: small meshes and a liver-like material."""
+"""Shared fixtures: small meshes, a liver-like material, the TypeScript MCAP reader, the node's
+output subscriptions."""
+import json
+import shutil
+import subprocess
+
 import numpy as np
 import pytest
 
@@ -36,3 +41,55 @@ def static_solve(model, constrained_dofs, prescribed_values):
     rhs = -stiffness[free][:, constrained_dofs] @ u[constrained_dofs]
     u[free] = scipy.sparse.linalg.spsolve(stiffness[free][:, free].tocsc(), rhs)
     return u.reshape(-1, 3)
+
+
+@pytest.fixture(scope='session')
+def mcap_js(tmp_path_factory):
+    """The TypeScript @mcap/core reader with CRC checks (test_mcap_log._JS), installed once per
+    run with npm: run(*paths) -> its JSON verdict per file. Skipped without node/npm/registry."""
+    node, npm = shutil.which('node'), shutil.which('npm')
+    if not (node and npm):
+        pytest.skip('node and npm are not both on PATH')
+    d = tmp_path_factory.mktemp('mcapjs')
+    try:
+        r = subprocess.run([npm, 'install', '--no-audit', '--no-fund', '--loglevel=error',
+                            '@mcap/core', 'fzstd'], cwd=d, capture_output=True, text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        pytest.skip('npm install @mcap/core timed out (no registry?)')
+    if r.returncode != 0 or not (d / 'node_modules' / '@mcap' / 'core').is_dir():
+        pytest.skip(f'npm install @mcap/core failed (no registry?): {r.stderr[-300:]}')
+    from test_mcap_log import _JS
+    script = d / 'check.mjs'
+    script.write_text(_JS)
+
+    def run(*paths):
+        res = subprocess.run([node, str(script), *map(str, paths)], capture_output=True,
+                             text=True, timeout=120, cwd=d)
+        assert res.returncode == 0, res.stderr
+        return json.loads(res.stdout)
+    return run
+
+
+def subscribe_node_outputs(client, keeper, *, rosout=False):
+    """Subscribe ``client`` to every output of tissue_sim with the QoS the node offers; keeper(key)
+    gives each topic's callback ('wrench', 'nodes', 'surface', 'marker', 'diag', 'log')."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import WrenchStamped
+    from rcl_interfaces.msg import Log
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+    from shape_msgs.msg import Mesh
+    from visualization_msgs.msg import Marker
+    reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    topics = [('wrench', WrenchStamped, 'needle/wrench', reliable),
+              ('nodes', PointCloud2, 'tissue/nodes', reliable),
+              ('surface', Mesh, 'tissue/surface', latched),
+              ('marker', Marker, 'tissue/marker', reliable),
+              ('diag', DiagnosticArray, '/diagnostics', reliable)]
+    if rosout:
+        topics.append(('log', Log, '/rosout', QoSProfile(depth=1000)))
+    for key, msg_type, topic, qos in topics:
+        client.create_subscription(msg_type, topic, keeper(key), qos)
+    return reliable

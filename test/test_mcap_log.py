@@ -5,7 +5,6 @@ decoder), the ``mcap`` package's reader (records, summary, metadata), and, where
 are present, the TypeScript ``@mcap/core`` reader used by Foxglove/Lichtblick, with CRC checks.
 """
 import datetime as dt
-import json
 import os
 import re
 import shutil
@@ -620,31 +619,6 @@ for (const file of process.argv.slice(2)) {
 }
 console.log(JSON.stringify(results));
 '''
-
-
-@pytest.fixture(scope='module')
-def mcap_js(tmp_path_factory):
-    node, npm = shutil.which('node'), shutil.which('npm')
-    if not (node and npm):
-        pytest.skip('node and npm are not both on PATH')
-    d = tmp_path_factory.mktemp('mcapjs')
-    try:
-        r = subprocess.run([npm, 'install', '--no-audit', '--no-fund', '--loglevel=error',
-                            '@mcap/core', 'fzstd'], cwd=d, capture_output=True, text=True,
-                           timeout=90)
-    except subprocess.TimeoutExpired:
-        pytest.skip('npm install @mcap/core timed out')
-    if r.returncode != 0 or not (d / 'node_modules' / '@mcap' / 'core').is_dir():
-        pytest.skip(f'npm install @mcap/core failed: {r.stderr[-300:]}')
-    script = d / 'check.mjs'
-    script.write_text(_JS)
-
-    def run(*paths):
-        out = subprocess.run([node, str(script), *map(str, paths)], capture_output=True,
-                             text=True, timeout=60, cwd=d)
-        assert out.returncode == 0, out.stderr
-        return json.loads(out.stdout)
-    return run
 
 
 def test_typescript_reader_validates_the_file(recorded, mcap_js, tmp_path):

@@ -5,7 +5,6 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.analysis.insertion import run_insertion
 from tissue_sim_ros.engine.needle import NeedleInputError, rotation_matrix, validate_pose
 from tissue_sim_ros.engine.scene import Scene, SceneError
 
@@ -33,6 +32,12 @@ def push(scene, travel, speed, *, tick=0.02):
     for k in range(1, n + 1):
         scene.advance(travel / n / speed, p + np.array([0.0, 0.0, -travel * k / n]), q)
         yield
+
+
+def drive_down(scene, travel, speed, *, tick=0.02):
+    """push() to the end, when only the final state matters."""
+    for _ in push(scene, travel, speed, tick=tick):
+        continue
 
 
 def axial(scene):
@@ -125,8 +130,7 @@ def test_pre_puncture_force_approaches_the_flat_punch_solution_as_the_mesh_is_re
     for fine in (0.002, 0.0014, 0.001):
         scene = small_scene(fine=fine, model={'geometric': True}, mesh={'focus_radius_m': 0.006, 'growth': 1.25},
                             region={'poisson_ratio': 0.3})
-        for _ in push(scene, depth, 3e-3):
-            pass
+        drive_down(scene, depth, 3e-3)
         values.append(axial(scene))
     sneddon = 2 * 1.2e-3 * E / (1 - 0.3 ** 2) * depth
     errors = np.array(values) / sneddon - 1
@@ -183,8 +187,7 @@ def test_stiff_tissue_force_is_cutting_plus_karnopp_friction_and_retraction_pull
                                               'membrane': {'criterion': 'force', 'rupture_force_n': 0.5},
                                               'cutting_force_n': cutting, 'friction': friction}],
                         solver={'mass_scaling': 1e6})   # a rigid-like tissue: huge masses keep dt usable
-    for _ in push(scene, 0.0105, speed, tick=0.01):
-        pass
+    drive_down(scene, 0.0105, speed, tick=0.01)
     assert scene.phase == 'inserted'
     inserted = scene.tip_depth
     expected = cutting + inserted * (10.57 + 212.31 * speed)
@@ -201,8 +204,7 @@ def test_stiff_tissue_force_is_cutting_plus_karnopp_friction_and_retraction_pull
 
 def test_sideways_motion_gives_a_lateral_force_and_a_consistent_torque():
     scene = small_scene(region={'membrane': {'criterion': 'force', 'rupture_force_n': 0.05}})
-    for _ in push(scene, 0.008, 3e-3):
-        pass
+    drive_down(scene, 0.008, 3e-3)
     p, q = scene.needle_pose
     for k in range(1, 21):
         scene.advance(0.02, p + np.array([1e-3 * k / 20, 0.0, 0.0]), q)
@@ -223,8 +225,7 @@ def test_two_layers_give_two_punctures():
                {'name': 'skin', 'select': {'above_z_m': -0.004}, 'young_modulus_pa': 60000.0, 'poisson_ratio': NU,
                 'membrane': {'criterion': 'force', 'rupture_force_n': 0.2}, 'cutting_force_n': 0.1}]
     scene = small_scene(regions=regions, model={'geometric': True})
-    for _ in push(scene, 0.015, 5e-3):
-        pass
+    drive_down(scene, 0.015, 5e-3)
     names = [e['region'] for e in scene.puncture_events]
     print(scene.puncture_events)
     assert names == ['skin', 'muscle']

@@ -18,18 +18,17 @@ import yaml
 rclpy = pytest.importorskip('rclpy')
 
 from builtin_interfaces.msg import Time as TimeMsg  # noqa: E402
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
+from geometry_msgs.msg import PoseStamped  # noqa: E402
 from rcl_interfaces.msg import Log  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
-from sensor_msgs.msg import PointCloud2  # noqa: E402
 from shape_msgs.msg import Mesh  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 from visualization_msgs.msg import Marker  # noqa: E402
 
+from conftest import subscribe_node_outputs  # noqa: E402
 from tissue_sim_ros import SimulationDiverged  # noqa: E402
 from tissue_sim_ros.ros import conversions as cv  # noqa: E402
 from tissue_sim_ros.ros import node as node_mod  # noqa: E402
@@ -86,17 +85,7 @@ class Harness:
         self.client = rclpy.create_node('test_client', context=self.ctx)
         self.received = {k: [] for k in ('wrench', 'nodes', 'surface', 'marker', 'diag', 'log')}
         self._lock = threading.Lock()
-        reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        for key, msg_type, topic, qos in (
-                ('wrench', WrenchStamped, 'needle/wrench', reliable),
-                ('nodes', PointCloud2, 'tissue/nodes', reliable),
-                ('surface', Mesh, 'tissue/surface', latched),
-                ('marker', Marker, 'tissue/marker', reliable),
-                ('diag', DiagnosticArray, '/diagnostics', reliable),
-                ('log', Log, '/rosout', QoSProfile(depth=1000))):
-            self.client.create_subscription(msg_type, topic, self._keeper(key), qos)
+        reliable = subscribe_node_outputs(self.client, self._keeper, rosout=True)
         self.pose_pub = self.client.create_publisher(PoseStamped, 'needle/pose', reliable)
         self.clock_pub = self.client.create_publisher(Clock, '/clock', reliable)
         self.reset_client = self.client.create_client(Trigger, '/tissue_sim/reset')

@@ -12,9 +12,7 @@ measure the engine, not the node; `tissue-sim node-bench` reports the default sc
 Figures come from the client's own receive times and counts; the MCAP logs are read with rosbags
 and, where Node.js and npm are present, the TypeScript @mcap/core reader with CRC checks.
 """
-import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -28,15 +26,11 @@ import pytest
 rclpy = pytest.importorskip('rclpy')
 
 from builtin_interfaces.msg import Time as TimeMsg  # noqa: E402
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
+from geometry_msgs.msg import PoseStamped  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from sensor_msgs.msg import PointCloud2  # noqa: E402
-from shape_msgs.msg import Mesh  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
-from visualization_msgs.msg import Marker  # noqa: E402
 
+from conftest import subscribe_node_outputs  # noqa: E402
 from tissue_sim_ros.io import mcap_log as ml  # noqa: E402
 from tissue_sim_ros.ros import conversions as cv  # noqa: E402
 from tissue_sim_ros.ros.drive import insertion_trajectory, scene_start  # noqa: E402
@@ -111,16 +105,7 @@ class Client:
         self.node = rclpy.create_node('test_process_client', context=self.ctx)
         self.received = {k: [] for k in ('wrench', 'nodes', 'surface', 'marker', 'diag')}
         self.lock = threading.Lock()
-        reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        for key, msg_type, topic, qos in (
-                ('wrench', WrenchStamped, 'needle/wrench', reliable),
-                ('nodes', PointCloud2, 'tissue/nodes', reliable),
-                ('surface', Mesh, 'tissue/surface', latched),
-                ('marker', Marker, 'tissue/marker', reliable),
-                ('diag', DiagnosticArray, '/diagnostics', reliable)):
-            self.node.create_subscription(msg_type, topic, self._keeper(key), qos)
+        reliable = subscribe_node_outputs(self.node, self._keeper)
         self.pose_pub = self.node.create_publisher(PoseStamped, 'needle/pose', reliable)
         self.reset_client = self.node.create_client(Trigger, '/tissue_sim/reset')
         self.pause_client = self.node.create_client(SetBool, '/tissue_sim/pause')
@@ -410,32 +395,6 @@ def test_mcap_holds_every_message_rosbags(scenario):
     assert 'tissue_sim:' in meta['parameters']
     summary = ml.summarize_log(path)
     assert summary['statistics']['message_count'] == sum(counts.values())
-
-
-@pytest.fixture(scope='module')
-def mcap_js(tmp_path_factory):
-    node, npm = shutil.which('node'), shutil.which('npm')
-    if not (node and npm):
-        pytest.skip('node and npm are not both on PATH')
-    d = tmp_path_factory.mktemp('mcapjs_node')
-    try:
-        r = subprocess.run([npm, 'install', '--no-audit', '--no-fund', '--loglevel=error',
-                            '@mcap/core', 'fzstd'], cwd=d, capture_output=True, text=True,
-                           timeout=120)
-    except subprocess.TimeoutExpired:
-        pytest.skip('npm install @mcap/core timed out (no registry?)')
-    if r.returncode != 0 or not (d / 'node_modules' / '@mcap' / 'core').is_dir():
-        pytest.skip(f'npm install @mcap/core failed (no registry?): {r.stderr[-300:]}')
-    from test_mcap_log import _JS  # the same reader script as the recorder's tests
-    script = d / 'check.mjs'
-    script.write_text(_JS)
-
-    def run(*paths):
-        res = subprocess.run([node, str(script), *map(str, paths)], capture_output=True,
-                             text=True, timeout=120, cwd=d)
-        assert res.returncode == 0, res.stderr
-        return json.loads(res.stdout)
-    return run
 
 
 def test_mcap_opens_in_the_typescript_reader_with_crcs(scenario, mcap_js):

@@ -380,8 +380,9 @@ def _close_open_recorders() -> None:  # interpreter exit (also after KeyboardInt
     for recorder in list(_open_recorders):
         try:
             recorder.close()
-        except Exception:  # noqa: BLE001  (nothing to report to at exit)
-            pass
+        except Exception as exc:  # noqa: BLE001  (no logger left at exit: say it on stderr)
+            print(f'tissue_sim_ros: could not close the MCAP log {recorder.path}: {exc}; '
+                  f'tissue_sim_ros.io.mcap_log.recover_truncated() can repair it', file=sys.stderr)
 
 
 @dataclass
@@ -799,8 +800,8 @@ _TORN_ERRORS: tuple[type[BaseException], ...] = (McapError, struct.error, ValueE
 try:
     import zstandard as _zstd
     _TORN_ERRORS += (_zstd.ZstdError,)
-except ImportError:  # pragma: no cover
-    pass
+except ImportError:  # pragma: no cover  (zstandard comes with mcap's zstd support; without it
+    _zstd = None     # no zstd chunk can be read, so there is no zstd error to expect)
 
 
 def _check_complete(reader, path) -> None:

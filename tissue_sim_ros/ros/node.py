@@ -846,8 +846,8 @@ def main(argv=None) -> int:
         try:
             while not stop.is_set() and rclpy.ok():
                 executor.spin_once(timeout_sec=0.1)
-        except ExternalShutdownException:
-            pass
+        except ExternalShutdownException:   # rclpy shut down from outside: close cleanly below
+            return 0
         return 0
     finally:
         if node is not None:
