@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tissue_sim_ros.engine.needle import slerp  # one slerp for the engine and the node
+from tissue_sim_ros.engine.needle import QUATERNION_NORM_TOLERANCE, slerp  # shared with the engine
 
 __all__ = ['BAD_INPUT_KINDS', 'PoseInput', 'PoseInputLimits', 'slerp']
 
@@ -67,7 +67,7 @@ class PoseInputLimits:
     stale_after_s: float = 0.5
     max_future_s: float = 0.5
     max_rate_hz: float = 250.0
-    unit_quaternion_tolerance: float = 0.01
+    unit_quaternion_tolerance: float = QUATERNION_NORM_TOLERANCE
     buffer_length: int = 64
 
 
