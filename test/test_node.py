@@ -570,6 +570,30 @@ def test_divergence_resets_and_is_reported_at_error(harness, nan):
         assert h.scene.time == pytest.approx((h.node.ticks - 20) * 0.02, abs=0.021 + h.scene.dt)
 
 
+def test_displacement_too_large_for_float32_is_a_divergence_not_a_crash(harness):
+    """A blow-up still finite in float64 (1e39 m) would be inf in the float32 cloud: the node
+    treats it as a divergence (reset), keeps publishing, and no cloud carries inf or NaN."""
+    scene = make_scene()
+    real_advance = scene.advance
+    calls = {'n': 0}
+
+    def advance(*a):
+        calls['n'] += 1
+        steps = real_advance(*a)
+        if calls['n'] == 15:
+            scene.displacement[0, 0] = 1e39
+        return steps
+    scene.advance = advance
+    h = harness(scene)
+    time.sleep(0.8)
+    assert h.node.divergences == 1
+    clouds = h.get('nodes')
+    assert len(clouds) >= 30
+    for _, cloud in clouds:
+        positions, displacement = cv.point_cloud_arrays(cloud)
+        assert np.isfinite(positions).all() and np.isfinite(displacement).all()
+
+
 def test_divergence_hold_republishes_last_wrench_until_reset(harness):
     scene = make_scene()
     calls = _diverge_on_call(scene, 10)

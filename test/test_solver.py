@@ -104,6 +104,17 @@ def test_watchdog_reports_non_finite(small_model):
     assert caught.value.step == 1
 
 
+def test_watchdog_catches_a_finite_blow_up_at_once(small_model):
+    """A displacement of more than 100 body sizes is reported at the step it appears, not at the
+    next energy check (a blow-up can pass 1e38 m, inf in float32, between two checks)."""
+    sim = ts.Simulation(small_model, fixed=_bottom(small_model.mesh), check_interval=50)
+    free = int(np.flatnonzero(sim.dof_kind[:, 0] == 0)[0])
+    sim.displacement[free, 0] = 1e3 * sim.displacement_limit
+    with pytest.raises(ts.SimulationDiverged, match='100 body sizes') as caught:
+        sim.step(10)
+    assert caught.value.step == 1
+
+
 def test_watchdog_reports_inverted_elements(small_model):
     sim = ts.Simulation(small_model, fixed=_bottom(small_model.mesh), check_interval=1)
     top = np.flatnonzero(np.isclose(small_model.mesh.rest_positions[:, 2], 0.03))

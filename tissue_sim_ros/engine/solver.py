@@ -38,9 +38,10 @@ class SimulationDiverged(RuntimeError):
 
 @njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False)
 def _advance_free(displacement, velocity, buffers, chunk_node_lo, chunk_node_hi, force, external,
-                  inverse_mass, damping_rate, dof_kind, dt):
+                  inverse_mass, damping_rate, dof_kind, dt, displacement_limit):
     """Gather each node's force from the element pass's buffers (into ``force``) and advance its
-    free DOFs by symplectic Euler; returns (external work, kinetic energy, non-finite count)."""
+    free DOFs by symplectic Euler; returns (external work, kinetic energy, count of components
+    that are not finite or whose displacement exceeds ``displacement_limit``)."""
     work = 0.0
     kinetic = 0.0
     bad = 0
@@ -57,7 +58,7 @@ def _advance_free(displacement, velocity, buffers, chunk_node_lo, chunk_node_hi,
                 work += external[i, r] * dt * v
                 v_mid = 0.5 * (v + v_old)          # velocity at the time of the forces
                 kinetic += 0.5 * v_mid * v_mid / inv_m
-                if not (abs(displacement[i, r]) < np.inf and abs(v) < np.inf):
+                if not (abs(displacement[i, r]) < displacement_limit and abs(v) < np.inf):
                     bad += 1
     return work, kinetic, bad
 
@@ -155,6 +156,9 @@ class Simulation:
         self.check_interval = int(check_interval)
         self.energy_growth_factor = float(energy_growth_factor)
         self.allow_inverted = allow_inverted
+        # a displacement of 100 body sizes is a blow-up even between two energy checks (a
+        # St Venant-Kirchhoff run can grow from normal to 1e38 m within a few steps)
+        self.displacement_limit = 100.0 * float(np.ptp(model.mesh.rest_positions, axis=0).max())
         total_stiffness = float(np.sum(model.volume_lambda + 2.0 * model.volume_mu))
         self.energy_floor = 1e-12 * total_stiffness   # energy of a strain of 1e-6
         self.displacement = np.zeros((n, 3))
@@ -239,7 +243,8 @@ class Simulation:
             work, kinetic, bad = _advance_free(self.displacement, self.velocity, *model.force_buffers,
                                                self.internal_force,
                                                self.external_forces, self.inverse_mass,
-                                               self.damping_rate, self.dof_kind, dt)
+                                               self.damping_rate, self.dof_kind, dt,
+                                               self.displacement_limit)
             t_next = self.time + dt
             for p in self._prescribed:
                 np.copyto(p.targets, p.displacement_at(t_next))
@@ -252,7 +257,8 @@ class Simulation:
             self.time = t_next
             self.step_count += 1
             if bad:
-                self._diverged(f'{bad} displacement or velocity components became NaN or infinite')
+                self._diverged(f'{bad} displacement or velocity components became NaN or infinite, '
+                               f'or a displacement passed {self.displacement_limit:.3g} m (100 body sizes)')
             if check:
                 self._check_energy(strain, inverted)
 

@@ -94,6 +94,7 @@ from tissue_sim_ros.ros.pose_input import PoseInput, PoseInputLimits
 __all__ = ['NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'TissueSimNode', 'main']
 
 NODE_NAME = 'tissue_sim'
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 _NS = 1_000_000_000
 #: A tick advances the engine by the node-clock time since the previous tick, at most this many
 #: periods (a tick late by more drops the excess instead of asking the engine for ever more).
@@ -604,6 +605,11 @@ class TissueSimNode(Node):
                 if not (np.isfinite(force).all() and np.isfinite(torque).all()):
                     raise SimulationDiverged(
                         f'non-finite reaction wrench {force.tolist()} {torque.tolist()}',
+                        self.ticks, float(scene.time), float(scene.dt), float('nan'))
+                largest = float(np.abs(scene.displacement).max())
+                if not largest < _FLOAT32_MAX:   # the cloud goes out as float32: never inf on a topic
+                    raise SimulationDiverged(
+                        f'displacement {largest:.3g} m does not fit the float32 cloud',
                         self.ticks, float(scene.time), float(scene.dt), float('nan'))
                 self._last_wrench = (force, torque)
                 self._last_substeps = int(substeps)
