@@ -183,7 +183,11 @@ def test_threshold_zero_is_full_model_and_large_threshold_is_linear(jittered_blo
     huge = ts.TensorMassModel(mesh, liver, geometric=True, physical=law, viscosity=viscosity,
                               nonlinearity_threshold=1e9)
     linear = ts.TensorMassModel(mesh, liver, viscosity=viscosity)
-    assert np.array_equal(huge.internal_forces(u, v), linear.internal_forces(u, v))
+    # each model runs its own compiled kernel, so equal to round-off rather than bit for bit
+    expected = linear.internal_forces(u, v)
+    difference = np.abs(huge.internal_forces(u, v) - expected).max() / np.abs(expected).max()
+    print(f'threshold 1e9 vs linear model: {difference:.1e} relative')
+    assert difference < 1e-14
     assert huge.nonlinear_fraction == 0.0
 
 

@@ -2,7 +2,7 @@
 
 Two formulations of the same forces, held equal by the tests:
 
-* ``element_forces``: the element loop used on the hot path. For each tetrahedron the
+* ``element_kernel``: the element loop used on the hot path. For each tetrahedron the
   displacement gradient H = sum_k u_k a_k^T (a_k: shape-function gradients, FORMULAS.md) gives
   the stress, and the force on vertex j is f_j = -V P a_j, where P is
     - linear (Cotin et al., seed section 3/4.1):  sigma = lambda tr(eps) I + 2 mu eps, eps = sym(H)
@@ -22,6 +22,8 @@ Parallel loops are race-free: elements are split into contiguous chunks (spatial
 meshes keep each chunk's nodes local), each chunk accumulates into its own buffer, and a node
 loop reduces the buffers it touches and clears them for the next call. Nothing is allocated.
 """
+import functools
+
 import numpy as np
 from numba import njit, prange
 
@@ -49,8 +51,10 @@ def _law_correction(law_kind, law_params, distortion):
             corr_mu += law_params[1 + order + k] * power
         return corr_lambda, corr_mu
     if law_kind == LAW_EXPONENTIAL:
-        return (law_params[0] * (np.exp(law_params[1] * distortion) - 1.0),
-                law_params[2] * (np.exp(law_params[3] * distortion) - 1.0))
+        # a zero amplitude (a law on one coefficient only) costs no exponential
+        corr_lambda = law_params[0] * (np.exp(law_params[1] * distortion) - 1.0) if law_params[0] != 0.0 else 0.0
+        corr_mu = law_params[2] * (np.exp(law_params[3] * distortion) - 1.0) if law_params[2] != 0.0 else 0.0
+        return corr_lambda, corr_mu
     return 0.0, 0.0
 
 
@@ -214,94 +218,182 @@ def element_gradient(field, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a
             d1z * a1z + d2z * a2z + d3z * a3z)
 
 
-@njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False)
-def element_forces(tetrahedra, shape_gradients, volume_lambda, volume_mu,
-                   displacement, velocity,
-                   geometric, physical, viscous, threshold_squared,
-                   law_kind, law_params, edge_gram, mean_ratio_scale,
-                   viscous_lambda, viscous_mu,
-                   chunk_bounds, buffers, nonlinear_counts,
-                   safeguard, safeguard_scratch, safeguard_counts):
-    """Accumulate the internal elastic (+ viscous) forces into the per-chunk ``buffers``.
+# Elements whose displacement gradient is this small cannot need the inversion safeguard:
+# sigma_min(I + H) >= 1 - |H|_2 >= 1 - |H|_F > STRETCH_CLAMP, and det F > 0.
+SAFEGUARD_FREE_NORM_SQ = (1.0 - STRETCH_CLAMP) ** 2
 
-    The node forces are the sum over chunks (``reduce_buffers``, or fused into the solver's
-    node update through ``take_node_force``).
 
-    shape_gradients (m, 3, 3): rows a_1, a_2, a_3 (a_0 = -(a_1 + a_2 + a_3)).
-    volume_lambda, volume_mu (m,): V lambda and V mu of each element (viscous_*: V lambda_v, V mu_v).
-    edge_gram (m, 6): sum over the six rest edges of e e^T (xx, yy, zz, xy, xz, yz), so the
-    deformed sum of squared edge lengths is tr(F^T F G). mean_ratio_scale (m,): 12 (3 V)^(2/3)
-    divided by the rest mean ratio, so q/q_rest = scale |det F|^(2/3) / tr(F^T F G).
-    nonlinear_counts (n_chunks,): elements that took the non-linear path, per chunk.
-    safeguard: apply the inversion safeguard on the St Venant-Kirchhoff path to elements whose
-    smallest principal stretch may be below STRETCH_CLAMP (Gershgorin bound on F^T F) or whose
-    det F <= 0; safeguard_scratch (n_chunks, 6, 3, 3); safeguard_counts (n_chunks,) how many
-    elements it changed.
+@njit(cache=True, inline='always')
+def _green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22):
+    """Green-Lagrange strain E = (H + H^T + H^T H) / 2 as (e00, e11, e22, e01, e02, e12)."""
+    return (0.5 * (h00 + h00 + h00 * h00 + h10 * h10 + h20 * h20),
+            0.5 * (h11 + h11 + h01 * h01 + h11 * h11 + h21 * h21),
+            0.5 * (h22 + h22 + h02 * h02 + h12 * h12 + h22 * h22),
+            0.5 * (h01 + h10 + h00 * h01 + h10 * h11 + h20 * h21),
+            0.5 * (h02 + h20 + h00 * h02 + h10 * h12 + h20 * h22),
+            0.5 * (h12 + h21 + h01 * h02 + h11 * h12 + h21 * h22))
+
+
+@njit(cache=True, inline='always')
+def _viscous_stress(h00, h01, h02, h10, h11, h12, h20, h21, h22,
+                    r00, r01, r02, r10, r11, r12, r20, r21, r22, lam_v, mu_v):
+    """Kelvin-Voigt second Piola stress on dE/dt = sym(F^T dF/dt), as (v00, v11, v22, v01, v02, v12)."""
+    q00 = (1.0 + h00) * r00 + h10 * r10 + h20 * r20
+    q11 = h01 * r01 + (1.0 + h11) * r11 + h21 * r21
+    q22 = h02 * r02 + h12 * r12 + (1.0 + h22) * r22
+    q01 = 0.5 * ((1.0 + h00) * r01 + h10 * r11 + h20 * r21 + h01 * r00 + (1.0 + h11) * r10 + h21 * r20)
+    q02 = 0.5 * ((1.0 + h00) * r02 + h10 * r12 + h20 * r22 + h02 * r00 + h12 * r10 + (1.0 + h22) * r20)
+    q12 = 0.5 * (h01 * r02 + (1.0 + h11) * r12 + h21 * r22 + h02 * r01 + h12 * r11 + (1.0 + h22) * r21)
+    tr_q = lam_v * (q00 + q11 + q22)
+    return (tr_q + 2.0 * mu_v * q00, tr_q + 2.0 * mu_v * q11, tr_q + 2.0 * mu_v * q22,
+            2.0 * mu_v * q01, 2.0 * mu_v * q02, 2.0 * mu_v * q12)
+
+
+@njit(cache=True, inline='always')
+def _scatter_piola(buf, i0, i1, i2, i3, p00, p01, p02, p10, p11, p12, p20, p21, p22,
+                   a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z):
+    """Add the element's nodal forces f_k = -V P a_k (V folded into P), f_0 = -(f_1 + f_2 + f_3)."""
+    f1x = -(p00 * a1x + p01 * a1y + p02 * a1z)
+    f1y = -(p10 * a1x + p11 * a1y + p12 * a1z)
+    f1z = -(p20 * a1x + p21 * a1y + p22 * a1z)
+    f2x = -(p00 * a2x + p01 * a2y + p02 * a2z)
+    f2y = -(p10 * a2x + p11 * a2y + p12 * a2z)
+    f2z = -(p20 * a2x + p21 * a2y + p22 * a2z)
+    f3x = -(p00 * a3x + p01 * a3y + p02 * a3z)
+    f3y = -(p10 * a3x + p11 * a3y + p12 * a3z)
+    f3z = -(p20 * a3x + p21 * a3y + p22 * a3z)
+    buf[i0, 0] -= f1x + f2x + f3x
+    buf[i0, 1] -= f1y + f2y + f3y
+    buf[i0, 2] -= f1z + f2z + f3z
+    buf[i1, 0] += f1x
+    buf[i1, 1] += f1y
+    buf[i1, 2] += f1z
+    buf[i2, 0] += f2x
+    buf[i2, 1] += f2y
+    buf[i2, 2] += f2z
+    buf[i3, 0] += f3x
+    buf[i3, 1] += f3y
+    buf[i3, 2] += f3z
+
+
+@njit(cache=True, inline='always')
+def _element_nodes(tetrahedra, e):
+    """The element's node indices, unsigned so that indexing skips the negative-index wraparound."""
+    return (np.uint32(tetrahedra[e, 0]), np.uint32(tetrahedra[e, 1]), np.uint32(tetrahedra[e, 2]),
+            np.uint32(tetrahedra[e, 3]))
+
+
+@njit(cache=True, inline='always')
+def _shape_gradients(shape_gradients, e):
+    return (shape_gradients[e, 0, 0], shape_gradients[e, 0, 1], shape_gradients[e, 0, 2],
+            shape_gradients[e, 1, 0], shape_gradients[e, 1, 1], shape_gradients[e, 1, 2],
+            shape_gradients[e, 2, 0], shape_gradients[e, 2, 1], shape_gradients[e, 2, 2])
+
+
+@njit(cache=True, inline='always')
+def _corrected_lame(lam, mu, h00, h01, h02, h10, h11, h12, h20, h21, h22, law_kind, law_params,
+                    g, mean_ratio_scale):
+    """Seed section 4.1: (lambda + dlambda(q), mu + dmu(q)) of one element (V folded in), q its
+    mean ratio relative to rest: q/q_rest = scale |det F|^(2/3) / tr(F^T F G), G = edge Gram matrix."""
+    e00, e11, e22, e01, e02, e12 = _green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
+    det_f = ((1.0 + h00) * ((1.0 + h11) * (1.0 + h22) - h12 * h21) - h01 * (h10 * (1.0 + h22) - h12 * h20)
+             + h02 * (h10 * h21 - (1.0 + h11) * h20))
+    # tr(C G) with C = I + 2E
+    tr_cg = (g[0] * (1.0 + 2.0 * e00) + g[1] * (1.0 + 2.0 * e11) + g[2] * (1.0 + 2.0 * e22)
+             + 4.0 * (g[3] * e01 + g[4] * e02 + g[5] * e12))
+    relative_quality = mean_ratio_scale * np.abs(det_f) ** (2.0 / 3.0) / tr_cg
+    corr_lambda, corr_mu = _law_correction(law_kind, law_params, max(0.0, 1.0 - relative_quality))
+    return lam * (1.0 + corr_lambda), mu * (1.0 + corr_mu)
+
+
+@functools.lru_cache(maxsize=None)
+def element_kernel(geometric, physical, viscous):
+    """The element pass compiled for one model: the three flags are compile-time constants, so
+    each variant holds only its own arithmetic and branches (one source, eight machine codes).
+
+    Call it as ``kernel(tetrahedra, shape_gradients, volume_lambda, volume_mu, displacement,
+    velocity, threshold_squared, law_kind, law_params, edge_gram, mean_ratio_scale,
+    viscous_lambda, viscous_mu, chunk_bounds, buffers, nonlinear_counts, safeguard,
+    safeguard_scratch, safeguard_counts, corrected_lambda, corrected_mu, slow_elements)``.
     """
-    clamp_squared = STRETCH_CLAMP * STRETCH_CLAMP
-    n_chunks = chunk_bounds.shape[0] - 1
-    any_nonlinear = geometric or physical
-    for c in prange(n_chunks):
-        buf = buffers[c]
-        scratch = safeguard_scratch[c]
-        n_nonlinear = 0
-        n_safeguarded = 0
-        for e in range(chunk_bounds[c], chunk_bounds[c + 1]):
-            i0 = tetrahedra[e, 0]
-            i1 = tetrahedra[e, 1]
-            i2 = tetrahedra[e, 2]
-            i3 = tetrahedra[e, 3]
-            a1x = shape_gradients[e, 0, 0]
-            a1y = shape_gradients[e, 0, 1]
-            a1z = shape_gradients[e, 0, 2]
-            a2x = shape_gradients[e, 1, 0]
-            a2y = shape_gradients[e, 1, 1]
-            a2z = shape_gradients[e, 1, 2]
-            a3x = shape_gradients[e, 2, 0]
-            a3y = shape_gradients[e, 2, 1]
-            a3z = shape_gradients[e, 2, 2]
-            # H = sum_k u_k a_k^T = sum_{k=1..3} (u_k - u_0) a_k^T
-            h00, h01, h02, h10, h11, h12, h20, h21, h22 = element_gradient(
-                displacement, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
+    geometric, physical, viscous = bool(geometric), bool(physical), bool(viscous)
 
-            # rate of the displacement gradient, for Kelvin-Voigt viscosity
-            r00 = r01 = r02 = r10 = r11 = r12 = r20 = r21 = r22 = 0.0
-            if viscous:
-                r00, r01, r02, r10, r11, r12, r20, r21, r22 = element_gradient(
-                    velocity, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
+    @njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False)
+    def kernel(tetrahedra, shape_gradients, volume_lambda, volume_mu, displacement, velocity,
+               threshold_squared, law_kind, law_params, edge_gram, mean_ratio_scale,
+               viscous_lambda, viscous_mu, chunk_bounds, buffers, nonlinear_counts,
+               safeguard, safeguard_scratch, safeguard_counts, corrected_lambda, corrected_mu,
+               slow_elements):
+        """Accumulate the internal elastic (+ viscous) forces into the per-chunk ``buffers``.
 
-            lam = volume_lambda[e]
-            mu = volume_mu[e]
-            nonlinear = False
-            if any_nonlinear:
-                norm_sq = (h00 * h00 + h01 * h01 + h02 * h02 + h10 * h10 + h11 * h11
-                           + h12 * h12 + h20 * h20 + h21 * h21 + h22 * h22)
-                nonlinear = norm_sq >= threshold_squared
-            if nonlinear:
-                n_nonlinear += 1
-                f00 = 1.0 + h00
-                f11 = 1.0 + h11
-                f22 = 1.0 + h22
-                # C = F^T F - I = 2 E (Green-Lagrange), symmetric
-                e00 = 0.5 * (h00 + h00 + h00 * h00 + h10 * h10 + h20 * h20)
-                e11 = 0.5 * (h11 + h11 + h01 * h01 + h11 * h11 + h21 * h21)
-                e22 = 0.5 * (h22 + h22 + h02 * h02 + h12 * h12 + h22 * h22)
-                e01 = 0.5 * (h01 + h10 + h00 * h01 + h10 * h11 + h20 * h21)
-                e02 = 0.5 * (h02 + h20 + h00 * h02 + h10 * h12 + h20 * h22)
-                e12 = 0.5 * (h12 + h21 + h01 * h02 + h11 * h12 + h21 * h22)
-                if physical:
-                    det_f = (f00 * (f11 * f22 - h12 * h21) - h01 * (h10 * f22 - h12 * h20)
-                             + h02 * (h10 * h21 - f11 * h20))
-                    g = edge_gram[e]
-                    # tr(C G) with C = I + 2E
-                    tr_cg = (g[0] * (1.0 + 2.0 * e00) + g[1] * (1.0 + 2.0 * e11) + g[2] * (1.0 + 2.0 * e22)
-                             + 4.0 * (g[3] * e01 + g[4] * e02 + g[5] * e12))
-                    relative_quality = mean_ratio_scale[e] * np.abs(det_f) ** (2.0 / 3.0) / tr_cg
-                    distortion = max(0.0, 1.0 - relative_quality)
-                    corr_lambda, corr_mu = _law_correction(law_kind, law_params, distortion)
-                    lam *= 1.0 + corr_lambda
-                    mu *= 1.0 + corr_mu
-                if geometric:
+        The node forces are the sum over chunks (``reduce_buffers``, or fused into the solver's
+        node update through ``take_node_force``).
+
+        shape_gradients (m, 3, 3): rows a_1, a_2, a_3 (a_0 = -(a_1 + a_2 + a_3)).
+        volume_lambda, volume_mu (m,): V lambda and V mu of each element (viscous_*: V lambda_v, V mu_v).
+        edge_gram (m, 6): sum over the six rest edges of e e^T (xx, yy, zz, xy, xz, yz), so the
+        deformed sum of squared edge lengths is tr(F^T F G). mean_ratio_scale (m,): 12 (3 V)^(2/3)
+        divided by the rest mean ratio, so q/q_rest = scale |det F|^(2/3) / tr(F^T F G).
+        nonlinear_counts (n_chunks,): elements that took the non-linear path, per chunk.
+        safeguard: apply the inversion safeguard on the St Venant-Kirchhoff path to elements whose
+        smallest principal stretch may be below STRETCH_CLAMP (|H|_F, then a Gershgorin bound on
+        F^T F) or whose det F <= 0; those are set aside in ``slow_elements`` (m,) and done after the
+        chunk's loop, so the loop itself holds no call. safeguard_scratch (n_chunks, 6, 3, 3);
+        safeguard_counts (n_chunks,) how many elements it changed.
+        corrected_lambda, corrected_mu (m,): the corrected Lamé values, kept for the safeguard pass.
+        """
+        clamp_squared = STRETCH_CLAMP * STRETCH_CLAMP
+        n_chunks = chunk_bounds.shape[0] - 1
+        for c in prange(n_chunks):
+            lo = chunk_bounds[c]
+            hi = chunk_bounds[c + 1]
+            buf = buffers[c]
+            n_nonlinear = 0
+            n_slow = 0
+            for e in range(lo, hi):
+                i0, i1, i2, i3 = _element_nodes(tetrahedra, e)
+                a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z = _shape_gradients(shape_gradients, e)
+                # H = sum_k u_k a_k^T = sum_{k=1..3} (u_k - u_0) a_k^T
+                h00, h01, h02, h10, h11, h12, h20, h21, h22 = element_gradient(
+                    displacement, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
+                # rate of the displacement gradient, for Kelvin-Voigt viscosity
+                r00 = r01 = r02 = r10 = r11 = r12 = r20 = r21 = r22 = 0.0
+                if viscous:
+                    r00, r01, r02, r10, r11, r12, r20, r21, r22 = element_gradient(
+                        velocity, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
+                norm_sq = 0.0
+                nonlinear = False
+                if geometric or physical:
+                    norm_sq = (h00 * h00 + h01 * h01 + h02 * h02 + h10 * h10 + h11 * h11
+                               + h12 * h12 + h20 * h20 + h21 * h21 + h22 * h22)
+                    nonlinear = norm_sq >= threshold_squared
+                lam = volume_lambda[e]
+                mu = volume_mu[e]
+                if physical and nonlinear:
+                    lam, mu = _corrected_lame(lam, mu, h00, h01, h02, h10, h11, h12, h20, h21, h22,
+                                              law_kind, law_params, edge_gram[e], mean_ratio_scale[e])
+                    if geometric and safeguard:
+                        corrected_lambda[e] = lam    # for the safeguard pass
+                        corrected_mu[e] = mu
+                n_nonlinear += nonlinear
+                if geometric and nonlinear:
+                    f00 = 1.0 + h00
+                    f11 = 1.0 + h11
+                    f22 = 1.0 + h22
+                    e00, e11, e22, e01, e02, e12 = _green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
+                    if safeguard and norm_sq >= SAFEGUARD_FREE_NORM_SQ:
+                        # Gershgorin lower bound on the eigenvalues of C = I + 2E, and det F
+                        a01 = abs(2.0 * e01)
+                        a02 = abs(2.0 * e02)
+                        a12 = abs(2.0 * e12)
+                        lower = min(1.0 + 2.0 * e00 - a01 - a02,
+                                    min(1.0 + 2.0 * e11 - a01 - a12, 1.0 + 2.0 * e22 - a02 - a12))
+                        det_f = (f00 * (f11 * f22 - h12 * h21) - h01 * (h10 * f22 - h12 * h20)
+                                 + h02 * (h10 * h21 - f11 * h20))
+                        if lower < clamp_squared or det_f <= 0.0:
+                            slow_elements[lo + n_slow] = e
+                            n_slow += 1
+                            continue
                     tr_e = e00 + e11 + e22
                     s00 = lam * tr_e + 2.0 * mu * e00
                     s11 = lam * tr_e + 2.0 * mu * e11
@@ -309,23 +401,10 @@ def element_forces(tetrahedra, shape_gradients, volume_lambda, volume_mu,
                     s01 = 2.0 * mu * e01
                     s02 = 2.0 * mu * e02
                     s12 = 2.0 * mu * e12
-                    v00 = v11 = v22 = v01 = v02 = v12 = 0.0
                     if viscous:
-                        # dE/dt = sym(F^T dF/dt)
-                        q00 = f00 * r00 + h10 * r10 + h20 * r20
-                        q11 = h01 * r01 + f11 * r11 + h21 * r21
-                        q22 = h02 * r02 + h12 * r12 + f22 * r22
-                        q01 = 0.5 * (f00 * r01 + h10 * r11 + h20 * r21 + h01 * r00 + f11 * r10 + h21 * r20)
-                        q02 = 0.5 * (f00 * r02 + h10 * r12 + h20 * r22 + h02 * r00 + h12 * r10 + f22 * r20)
-                        q12 = 0.5 * (h01 * r02 + f11 * r12 + h21 * r22 + h02 * r01 + h12 * r11 + f22 * r21)
-                        tr_q = viscous_lambda[e] * (q00 + q11 + q22)
-                        two_mu_v = 2.0 * viscous_mu[e]
-                        v00 = tr_q + two_mu_v * q00
-                        v11 = tr_q + two_mu_v * q11
-                        v22 = tr_q + two_mu_v * q22
-                        v01 = two_mu_v * q01
-                        v02 = two_mu_v * q02
-                        v12 = two_mu_v * q12
+                        v00, v11, v22, v01, v02, v12 = _viscous_stress(
+                            h00, h01, h02, h10, h11, h12, h20, h21, h22,
+                            r00, r01, r02, r10, r11, r12, r20, r21, r22, viscous_lambda[e], viscous_mu[e])
                         s00 += v00
                         s11 += v11
                         s22 += v22
@@ -342,87 +421,100 @@ def element_forces(tetrahedra, shape_gradients, volume_lambda, volume_mu,
                     p20 = h20 * s00 + h21 * s01 + f22 * s02
                     p21 = h20 * s01 + h21 * s11 + f22 * s12
                     p22 = h20 * s02 + h21 * s12 + f22 * s22
-                    if safeguard:
-                        # Gershgorin lower bound on the eigenvalues of C = I + 2E, and det F
-                        c00 = 1.0 + 2.0 * e00
-                        c11 = 1.0 + 2.0 * e11
-                        c22 = 1.0 + 2.0 * e22
-                        a01 = abs(2.0 * e01)
-                        a02 = abs(2.0 * e02)
-                        a12 = abs(2.0 * e12)
-                        lower = min(c00 - a01 - a02, min(c11 - a01 - a12, c22 - a02 - a12))
-                        det_g = (f00 * (f11 * f22 - h12 * h21) - h01 * (h10 * f22 - h12 * h20)
-                                 + h02 * (h10 * h21 - f11 * h20))
-                        if lower < clamp_squared or det_g <= 0.0:
-                            fm = scratch[4]
-                            fm[0, 0] = f00
-                            fm[0, 1] = h01
-                            fm[0, 2] = h02
-                            fm[1, 0] = h10
-                            fm[1, 1] = f11
-                            fm[1, 2] = h12
-                            fm[2, 0] = h20
-                            fm[2, 1] = h21
-                            fm[2, 2] = f22
-                            pm = scratch[5]
-                            if safeguarded_piola(fm, lam, mu, scratch[:4], pm):
-                                n_safeguarded += 1
-                                # elastic part from the safeguard, viscous part F S_v as before
-                                p00 = pm[0, 0] + f00 * v00 + h01 * v01 + h02 * v02
-                                p01 = pm[0, 1] + f00 * v01 + h01 * v11 + h02 * v12
-                                p02 = pm[0, 2] + f00 * v02 + h01 * v12 + h02 * v22
-                                p10 = pm[1, 0] + h10 * v00 + f11 * v01 + h12 * v02
-                                p11 = pm[1, 1] + h10 * v01 + f11 * v11 + h12 * v12
-                                p12 = pm[1, 2] + h10 * v02 + f11 * v12 + h12 * v22
-                                p20 = pm[2, 0] + h20 * v00 + h21 * v01 + f22 * v02
-                                p21 = pm[2, 1] + h20 * v01 + h21 * v11 + f22 * v12
-                                p22 = pm[2, 2] + h20 * v02 + h21 * v12 + f22 * v22
                 else:
-                    nonlinear = False  # physical only: linear stress law with corrected coefficients
-            if not nonlinear:
-                tr_h = lam * (h00 + h11 + h22)
-                p00 = tr_h + 2.0 * mu * h00
-                p11 = tr_h + 2.0 * mu * h11
-                p22 = tr_h + 2.0 * mu * h22
-                p01 = mu * (h01 + h10)
-                p02 = mu * (h02 + h20)
-                p12 = mu * (h12 + h21)
-                if viscous:
-                    tr_r = viscous_lambda[e] * (r00 + r11 + r22)
-                    mu_v = viscous_mu[e]
-                    p00 += tr_r + 2.0 * mu_v * r00
-                    p11 += tr_r + 2.0 * mu_v * r11
-                    p22 += tr_r + 2.0 * mu_v * r22
-                    p01 += mu_v * (r01 + r10)
-                    p02 += mu_v * (r02 + r20)
-                    p12 += mu_v * (r12 + r21)
-                p10 = p01
-                p20 = p02
-                p21 = p12
-            # f_k = -V P a_k (V is folded into lambda and mu); f_0 = -(f_1 + f_2 + f_3)
-            f1x = -(p00 * a1x + p01 * a1y + p02 * a1z)
-            f1y = -(p10 * a1x + p11 * a1y + p12 * a1z)
-            f1z = -(p20 * a1x + p21 * a1y + p22 * a1z)
-            f2x = -(p00 * a2x + p01 * a2y + p02 * a2z)
-            f2y = -(p10 * a2x + p11 * a2y + p12 * a2z)
-            f2z = -(p20 * a2x + p21 * a2y + p22 * a2z)
-            f3x = -(p00 * a3x + p01 * a3y + p02 * a3z)
-            f3y = -(p10 * a3x + p11 * a3y + p12 * a3z)
-            f3z = -(p20 * a3x + p21 * a3y + p22 * a3z)
-            buf[i0, 0] -= f1x + f2x + f3x
-            buf[i0, 1] -= f1y + f2y + f3y
-            buf[i0, 2] -= f1z + f2z + f3z
-            buf[i1, 0] += f1x
-            buf[i1, 1] += f1y
-            buf[i1, 2] += f1z
-            buf[i2, 0] += f2x
-            buf[i2, 1] += f2y
-            buf[i2, 2] += f2z
-            buf[i3, 0] += f3x
-            buf[i3, 1] += f3y
-            buf[i3, 2] += f3z
-        nonlinear_counts[c] = n_nonlinear
-        safeguard_counts[c] = n_safeguarded
+                    # small strain (physical only: with the corrected coefficients)
+                    tr_h = lam * (h00 + h11 + h22)
+                    p00 = tr_h + 2.0 * mu * h00
+                    p11 = tr_h + 2.0 * mu * h11
+                    p22 = tr_h + 2.0 * mu * h22
+                    p01 = mu * (h01 + h10)
+                    p02 = mu * (h02 + h20)
+                    p12 = mu * (h12 + h21)
+                    if viscous:
+                        tr_r = viscous_lambda[e] * (r00 + r11 + r22)
+                        mu_v = viscous_mu[e]
+                        p00 += tr_r + 2.0 * mu_v * r00
+                        p11 += tr_r + 2.0 * mu_v * r11
+                        p22 += tr_r + 2.0 * mu_v * r22
+                        p01 += mu_v * (r01 + r10)
+                        p02 += mu_v * (r02 + r20)
+                        p12 += mu_v * (r12 + r21)
+                    p10 = p01
+                    p20 = p02
+                    p21 = p12
+                _scatter_piola(buf, i0, i1, i2, i3, p00, p01, p02, p10, p11, p12, p20, p21, p22,
+                               a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
+            nonlinear_counts[c] = n_nonlinear
+            n_safeguarded = 0
+            if geometric:
+                n_safeguarded = _safeguarded_elements(
+                    slow_elements[lo:lo + n_slow], tetrahedra, shape_gradients, volume_lambda, volume_mu,
+                    displacement, velocity, physical, viscous, corrected_lambda, corrected_mu,
+                    viscous_lambda, viscous_mu, safeguard_scratch[c], buf)
+            safeguard_counts[c] = n_safeguarded
+    return kernel
+
+
+@njit(cache=True, fastmath=FASTMATH, boundscheck=False)
+def _safeguarded_elements(elements, tetrahedra, shape_gradients, volume_lambda, volume_mu,
+                          displacement, velocity, physical, viscous, corrected_lambda, corrected_mu,
+                          viscous_lambda, viscous_mu, scratch, buf):
+    """St Venant-Kirchhoff forces of the elements the force loop set aside, with the inversion
+    safeguard on the elastic stress (the viscous part stays F S_v). Returns how many it changed."""
+    changed = 0
+    fm = scratch[4]
+    pm = scratch[5]
+    for e in elements:
+        i0, i1, i2, i3 = _element_nodes(tetrahedra, e)
+        a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z = _shape_gradients(shape_gradients, e)
+        h00, h01, h02, h10, h11, h12, h20, h21, h22 = element_gradient(
+            displacement, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
+        lam = corrected_lambda[e] if physical else volume_lambda[e]
+        mu = corrected_mu[e] if physical else volume_mu[e]
+        v00 = v11 = v22 = v01 = v02 = v12 = 0.0
+        if viscous:
+            r00, r01, r02, r10, r11, r12, r20, r21, r22 = element_gradient(
+                velocity, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
+            v00, v11, v22, v01, v02, v12 = _viscous_stress(
+                h00, h01, h02, h10, h11, h12, h20, h21, h22,
+                r00, r01, r02, r10, r11, r12, r20, r21, r22, viscous_lambda[e], viscous_mu[e])
+        fm[0, 0] = 1.0 + h00
+        fm[0, 1] = h01
+        fm[0, 2] = h02
+        fm[1, 0] = h10
+        fm[1, 1] = 1.0 + h11
+        fm[1, 2] = h12
+        fm[2, 0] = h20
+        fm[2, 1] = h21
+        fm[2, 2] = 1.0 + h22
+        if safeguarded_piola(fm, lam, mu, scratch[:4], pm):
+            changed += 1
+        else:   # the Gershgorin test was pessimistic: plain P = F S
+            e00, e11, e22, e01, e02, e12 = _green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
+            tr_e = e00 + e11 + e22
+            s = scratch[0]
+            s[0, 0] = lam * tr_e + 2.0 * mu * e00
+            s[1, 1] = lam * tr_e + 2.0 * mu * e11
+            s[2, 2] = lam * tr_e + 2.0 * mu * e22
+            s[0, 1] = s[1, 0] = 2.0 * mu * e01
+            s[0, 2] = s[2, 0] = 2.0 * mu * e02
+            s[1, 2] = s[2, 1] = 2.0 * mu * e12
+            for r in range(3):
+                for k in range(3):
+                    pm[r, k] = fm[r, 0] * s[0, k] + fm[r, 1] * s[1, k] + fm[r, 2] * s[2, k]
+        # add the viscous F S_v
+        _scatter_piola(buf, i0, i1, i2, i3,
+                       pm[0, 0] + fm[0, 0] * v00 + fm[0, 1] * v01 + fm[0, 2] * v02,
+                       pm[0, 1] + fm[0, 0] * v01 + fm[0, 1] * v11 + fm[0, 2] * v12,
+                       pm[0, 2] + fm[0, 0] * v02 + fm[0, 1] * v12 + fm[0, 2] * v22,
+                       pm[1, 0] + fm[1, 0] * v00 + fm[1, 1] * v01 + fm[1, 2] * v02,
+                       pm[1, 1] + fm[1, 0] * v01 + fm[1, 1] * v11 + fm[1, 2] * v12,
+                       pm[1, 2] + fm[1, 0] * v02 + fm[1, 1] * v12 + fm[1, 2] * v22,
+                       pm[2, 0] + fm[2, 0] * v00 + fm[2, 1] * v01 + fm[2, 2] * v02,
+                       pm[2, 1] + fm[2, 0] * v01 + fm[2, 1] * v11 + fm[2, 2] * v12,
+                       pm[2, 2] + fm[2, 0] * v02 + fm[2, 1] * v12 + fm[2, 2] * v22,
+                       a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
+    return changed
 
 
 @njit(cache=True, inline='always')

@@ -162,6 +162,10 @@ class TensorMassModel:
         self._nonlinear_counts = np.zeros(len(self.chunk_bounds) - 1, dtype=np.int64)
         self._safeguard_counts = np.zeros(len(self.chunk_bounds) - 1, dtype=np.int64)
         self._safeguard_scratch = np.zeros((len(self.chunk_bounds) - 1, 6, 3, 3))
+        m = len(self.tetrahedra)
+        self._corrected_lambda = np.zeros(m)
+        self._corrected_mu = np.zeros(m)
+        self._slow_elements = np.zeros(m, dtype=np.int64)
         self._zero_velocity = np.zeros((n, 3))
 
     def _assemble_tensors(self):
@@ -275,14 +279,15 @@ class TensorMassModel:
 
     def accumulate_forces(self, displacement, velocity=None):
         """Run the element pass into the per-chunk buffers (see ``force_buffers``) without reducing."""
-        forces.element_forces(
+        viscous = self.viscous and velocity is not None
+        forces.element_kernel(self.geometric, self.physical, viscous)(
             self.tetrahedra, self.shape_gradients, self.volume_lambda, self.volume_mu,
-            displacement, self._zero_velocity if velocity is None else velocity,
-            self.geometric, self.physical, self.viscous and velocity is not None,
+            displacement, velocity if viscous else self._zero_velocity,
             self.threshold_squared, self.law_kind, self.law_params, self.edge_gram,
             self.mean_ratio_scale, self.viscous_lambda, self.viscous_mu,
             self.chunk_bounds, self._buffers, self._nonlinear_counts,
-            self.inversion_safeguard and self.geometric, self._safeguard_scratch, self._safeguard_counts)
+            self.inversion_safeguard and self.geometric, self._safeguard_scratch, self._safeguard_counts,
+            self._corrected_lambda, self._corrected_mu, self._slow_elements)
 
     @property
     def safeguarded_count(self):
@@ -298,12 +303,12 @@ class TensorMassModel:
         """-K u of the linear (small-strain, elastic) part, whatever the model's options."""
         if out is None:
             out = np.empty((self.mesh.n_nodes, 3))
-        forces.element_forces(
+        forces.element_kernel(False, False, False)(
             self.tetrahedra, self.shape_gradients, self.volume_lambda, self.volume_mu,
-            displacement, self._zero_velocity, False, False, False, 0.0, self.law_kind,
-            self.law_params, self.edge_gram, self.mean_ratio_scale, self.viscous_lambda,
-            self.viscous_mu, self.chunk_bounds, self._buffers, self._nonlinear_counts,
-            False, self._safeguard_scratch, self._safeguard_counts)
+            displacement, self._zero_velocity, 0.0, self.law_kind, self.law_params, self.edge_gram,
+            self.mean_ratio_scale, self.viscous_lambda, self.viscous_mu, self.chunk_bounds,
+            self._buffers, self._nonlinear_counts, False, self._safeguard_scratch,
+            self._safeguard_counts, self._corrected_lambda, self._corrected_mu, self._slow_elements)
         forces.reduce_buffers(self._buffers, self.chunk_node_lo, self.chunk_node_hi, out)
         return out
 
