@@ -23,6 +23,7 @@ from rcl_interfaces.msg import Log  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from rclpy.serialization import deserialize_message  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from shape_msgs.msg import Mesh  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
@@ -684,6 +685,8 @@ def test_recording_holds_every_message_in_and_out(harness, tmp_path):
     publish_at_stamps(h, stamps, positions)
     h.publish_pose([np.nan, 0, 0], h.now_ns(), kind='non_finite')  # bad input is recorded too
     time.sleep(0.2)
+    pause = h.call(h.pause_client, SetBool.Request(data=True))   # service calls are recorded too
+    h.call(h.pause_client, SetBool.Request(data=False))
     h.node.publish_diagnostics()
     h.stop_node()
     received = {k: h.get(k) for k in ('wrench', 'nodes', 'surface', 'marker', 'diag')}
@@ -700,11 +703,29 @@ def test_recording_holds_every_message_in_and_out(harness, tmp_path):
              '/tissue/nodes': 'sensor_msgs/msg/PointCloud2', '/tissue/surface': 'shape_msgs/msg/Mesh',
              '/tissue/marker': 'visualization_msgs/msg/Marker',
              '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
-             '/needle/pose': 'geometry_msgs/msg/PoseStamped'}
+             '/needle/pose': 'geometry_msgs/msg/PoseStamped',
+             '/tissue_sim/reset/_service_event': 'std_srvs/srv/Trigger_Event',
+             '/tissue_sim/pause/_service_event': 'std_srvs/srv/SetBool_Event'}
     with AnyReader([path]) as reader:
         assert {c.topic: c.msgtype for c in reader.connections} == types
+        raw_events = [raw for _, _, raw in reader.messages(
+            connections=[c for c in reader.connections if c.topic == '/tissue_sim/pause/_service_event'])]
+        # rosbags 0.11 files a 'pkg/srv/Type' schema under 'pkg/srv/msg/Type': its decoding of our
+        # schema text must agree with rclpy's of the type itself
+        events = [deserialize_message(raw, SetBool.Event) for raw in raw_events]
+        decoded = [reader.typestore.deserialize_cdr(raw, 'std_srvs/srv/msg/SetBool_Event') for raw in raw_events]
+        assert [(e.info.sequence_number, [r.data for r in e.request], [r.message for r in e.response])
+                for e in decoded] == [(e.info.sequence_number, [r.data for r in e.request],
+                                       [r.message for r in e.response]) for e in events]
+        # request received, response sent; for each of the two calls
+        assert [e.info.event_type for e in events] == [1, 2, 1, 2]
+        assert [e.info.sequence_number for e in events] == [1, 1, 2, 2]
+        assert [r.data for e in events for r in e.request] == [True, False]
+        assert events[1].response[0].message == pause.message and events[1].response[0].success
         counts = {}
         for c in reader.connections:
+            if c.topic.endswith('/_service_event'):
+                continue
             msgs = [reader.deserialize(raw, c.msgtype) for _, _, raw in
                     reader.messages(connections=[c])]
             if c.topic in key_of:

@@ -101,20 +101,22 @@ _TYPE_PART = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
 
 
 def _split_type(type_name: str) -> tuple[str, str]:
-    """('geometry_msgs', 'Wrench') from 'geometry_msgs/msg/Wrench' or 'geometry_msgs/Wrench'."""
+    """('geometry_msgs', 'Wrench') from 'geometry_msgs/msg/Wrench' or 'geometry_msgs/Wrench';
+    ('std_srvs', 'Trigger_Event') from 'std_srvs/srv/Trigger_Event'."""
     parts = str(type_name).split('/')
-    if len(parts) == 3 and parts[1] == 'msg':
+    if len(parts) == 3 and parts[1] in ('msg', 'srv'):
         parts = [parts[0], parts[2]]
     if len(parts) != 2 or not all(_TYPE_PART.match(p) for p in parts):
         raise ValueError(
-            f'type_name: {type_name!r}; expected "pkg/msg/Type" (or "pkg/Type")')
+            f'type_name: {type_name!r}; expected "pkg/msg/Type" (or "pkg/Type", "pkg/srv/Type_Event")')
     return parts[0], parts[1]
 
 
 def schema_name(type_name: str) -> str:
-    """The MCAP schema name of a message type: 'pkg/msg/Type'."""
+    """The MCAP schema name of a type: 'pkg/msg/Type', or 'pkg/srv/Type_Event' (and _Request,
+    _Response) for the messages rosidl generates from a service, as rosbag2 names them."""
     pkg, name = _split_type(type_name)
-    return f'{pkg}/msg/{name}'
+    return f'{pkg}/{"srv" if _service_part(pkg, name) is not None else "msg"}/{name}'
 
 
 def _share_dirs(pkg: str) -> list[Path]:
@@ -189,7 +191,38 @@ def _dependencies(pkg: str, text: str) -> list[tuple[str, str]]:
 
 
 @lru_cache(maxsize=None)
+def _service_part(pkg: str, name: str) -> str | None:
+    """The .msg text of ``<Service>_Request``, ``_Response`` or ``_Event``, as rosidl generates
+    them from ``share/<pkg>/srv/<Service>.srv`` (request above the ``---`` line, response below;
+    a part without fields gets rosidl's placeholder field); None for other names."""
+    suffix = next((s for s in ('_Request', '_Response', '_Event') if name.endswith(s)), None)
+    if suffix is None:
+        return None
+    service = name[:-len(suffix)]
+    path = next((d / pkg / 'srv' / f'{service}.srv' for d in _share_dirs(pkg)
+                 if (d / pkg / 'srv' / f'{service}.srv').is_file()), None)
+    if path is None:
+        return None
+    if suffix == '_Event':
+        return (f'service_msgs/ServiceEventInfo info\n{pkg}/{service}_Request[<=1] request\n'
+                f'{pkg}/{service}_Response[<=1] response\n')
+    request, _, response = _split_service(path.read_text(encoding='utf-8'))
+    text = (request if suffix == '_Request' else response).strip('\n')
+    has_fields = any(line.split('#', 1)[0].strip() for line in text.splitlines())
+    return (text if has_fields else 'uint8 structure_needs_at_least_one_member') + '\n'
+
+
+def _split_service(text: str) -> tuple[str, str, str]:
+    """(request, '---', response) of a .srv file."""
+    parts = re.split(r'^---[ \t]*$', text, maxsplit=1, flags=re.MULTILINE)
+    return parts[0], '---', parts[1] if len(parts) > 1 else ''
+
+
+@lru_cache(maxsize=None)
 def _msg_text(pkg: str, name: str) -> str:
+    service = _service_part(pkg, name)
+    if service is not None:
+        return service
     return msg_file(f'{pkg}/{name}').read_text(encoding='utf-8').rstrip() + '\n'
 
 

@@ -83,6 +83,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.serialization import deserialize_message, serialize_message
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import PointCloud2
+from service_msgs.msg import ServiceEventInfo
 from shape_msgs.msg import Mesh
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import Marker
@@ -441,8 +442,9 @@ class TissueSimNode(Node):
         self.pose_qos = _qos(100, reliability=reliability)  # absorbs a 1 kHz flood during a tick
         self.pose_sub = self.create_subscription(PoseStamped, 'needle/pose', self._on_pose,
                                                  self.pose_qos, raw=True)
-        self.create_service(Trigger, '~/reset', self._on_reset)
-        self.create_service(SetBool, '~/pause', self._on_pause)
+        self.reset_srv = self.create_service(Trigger, '~/reset', self._on_reset)
+        self.pause_srv = self.create_service(SetBool, '~/pause', self._on_pause)
+        self._service_calls = 0
 
         if cfg.recording_directory:
             self._start_recording()
@@ -500,6 +502,30 @@ class TissueSimNode(Node):
                 rec.add_topic(pub.topic_name, type_name, cv.qos_to_dict(qos))
         rec.add_topic(self.pose_sub.topic_name, 'geometry_msgs/msg/PoseStamped',
                       cv.qos_to_dict(self.pose_qos))
+        for srv, type_name in ((self.reset_srv, 'std_srvs/srv/Trigger_Event'),
+                               (self.pause_srv, 'std_srvs/srv/SetBool_Event')):
+            rec.add_topic(self._event_topic(srv), type_name, cv.qos_to_dict(_qos(10)))
+
+    def _event_topic(self, service) -> str:
+        return self.resolve_service_name(service.srv_name) + '/_service_event'
+
+    def _record_call(self, service, srv_type, request, response) -> None:
+        """Record a service call as rosbag2 records service introspection (contents): a
+        REQUEST_RECEIVED event with the request and a RESPONSE_SENT event with the response, on
+        ``<service>/_service_event``."""
+        if self._recorder is None:
+            return
+        self._service_calls += 1
+        now_ns = self._now_ns()
+        for event_type, requests, responses in ((ServiceEventInfo.REQUEST_RECEIVED, [request], []),
+                                                (ServiceEventInfo.RESPONSE_SENT, [], [response])):
+            event = srv_type.Event()
+            event.info.event_type = event_type
+            event.info.stamp = cv.ns_to_stamp(now_ns)
+            event.info.sequence_number = self._service_calls
+            event.request = requests
+            event.response = responses
+            self._recorder.write(self._event_topic(service), serialize_message(event), now_ns)
 
     @property
     def recording_path(self) -> Path | None:
@@ -707,6 +733,7 @@ class TissueSimNode(Node):
         response.message = (f'reset: simulated time {self.scene.time:g} s, needle at '
                             f'{np.round(self.scene.needle_pose[0], 6).tolist()} m; poses farther '
                             f'than input.max_jump_m from it are refused')
+        self._record_call(self.reset_srv, Trigger, request, response)
         return response
 
     def _on_pause(self, request, response):
@@ -716,6 +743,7 @@ class TissueSimNode(Node):
         response.message = (f'{"paused" if self.paused else "running"} at simulated time '
                             f'{self.scene.time:.6g} s' + ('' if was != self.paused else ' (unchanged)'))
         self.get_logger().info(f'~/pause: {response.message}')
+        self._record_call(self.pause_srv, SetBool, request, response)
         return response
 
     # -- diagnostics --------------------------------------------------------------------------
