@@ -101,23 +101,33 @@ def test_without_viscosity_the_curve_does_not_depend_on_speed_in_the_slow_limit(
     assert np.allclose(curves[0], curves[1], rtol=0.02)
 
 
-@pytest.mark.xfail(strict=True, reason='open: with Kelvin-Voigt viscosity the needle contact force comes out '
-                   'lower at 10 mm/s than at 2 mm/s (0.333 vs 0.374 N at 4 mm), although a prescribed plate on '
-                   'the same material pushes harder when faster; the coupling of the bonded contact with the '
-                   'explicit viscous force is being investigated')
-def test_with_viscosity_faster_insertion_pushes_harder_at_every_depth():
-    """Seed Figure 3b. Masses scaled by 25 only: at 10 mm/s the default 400x scaling's inertia
-    (the contact impact bounces) masks the viscous force."""
-    forces = {}
+def test_with_viscosity_faster_insertion_pushes_harder_by_the_viscous_dissipation():
+    """Seed Figure 3b: at 10 mm/s the force is above the 2 mm/s one at every depth before
+    puncture, and by the viscous force. Independent truth, the power balance
+    F v = dW/dt + P_v (no damping, quasi-static): the force difference at equal depth is the
+    difference of P_v / v, P_v = -v . f_visc the power the Kelvin-Voigt stresses dissipate in
+    the whole tissue (from the model's force kernel, not from the contact). Sampled at the end
+    of each 10 ms tick, as the node and tissue-sim insert do (a tick that ended on a clamped
+    step sampled a velocity dip and put the 10 mm/s curve below, up to -0.06 N)."""
+    curves = {}
     for speed in (2e-3, 10e-3):
-        scene = small_scene(model={'geometric': True, 'viscosity_mu_pa_s': 50.0}, solver={'mass_scaling': 25.0})
-        rows = [(scene.tip_depth, axial(scene)) for _ in push(scene, 0.0055, speed, tick=0.01)]
-        forces[speed] = np.array(rows).T
-    depths = np.linspace(0.0005, 0.005, 10)
-    slow = np.interp(depths, *forces[2e-3])
-    fast = np.interp(depths, *forces[10e-3])
-    print('2 mm/s', np.round(slow, 4), '\n10 mm/s', np.round(fast, 4))
+        scene = small_scene(model={'geometric': True, 'viscosity_mu_pa_s': 50.0},
+                            solver={'mass_scaling': 25.0, 'damping_per_s': 0.0})
+        sim, model = scene.simulation, scene.model
+        rows = []
+        for _ in push(scene, 0.0045, speed, tick=0.01):
+            if scene.phase != 'contact':
+                continue
+            viscous = model.internal_forces(sim.displacement, sim.velocity) - model.internal_forces(sim.displacement)
+            rows.append((scene.tip_depth, axial(scene), -float(np.vdot(viscous, sim.velocity)) / speed))
+        curves[speed] = np.array(rows).T
+    depths = np.linspace(0.0005, 0.004, 8)
+    (slow, slow_viscous), (fast, fast_viscous) = (
+        [np.interp(depths, curves[s][0], curves[s][k]) for k in (1, 2)] for s in (2e-3, 10e-3))
+    print('2 mm/s', np.round(slow, 4), '\n10 mm/s', np.round(fast, 4),
+          '\ndifference', np.round(fast - slow, 5), '\nP_v / v difference', np.round(fast_viscous - slow_viscous, 5))
     assert np.all(fast > slow)
+    assert np.allclose(fast - slow, fast_viscous - slow_viscous, rtol=0.05, atol=1e-5)
 
 
 def test_pre_puncture_force_approaches_the_flat_punch_solution_as_the_mesh_is_refined():
@@ -287,14 +297,36 @@ def test_insert_command_writes_the_csv_and_plot(tmp_path):
 
 
 def test_advance_calls_add_up_to_the_time_asked_for():
-    """Whole steps toward a running target: 100 calls of 20 ms end within half a step of 2 s
-    (dropping each call's remainder ran 20.6 ms per call on the default scene)."""
+    """Whole steps toward a running target: 100 calls of 20 ms end within one step before 2 s,
+    never past it (dropping each call's remainder ran 20.6 ms per call on the default scene)."""
     scene = small_scene()
     p, q = scene.needle_pose
     for _ in range(100):
         scene.advance(0.02, p, q)
-    assert abs(scene.time - 2.0) <= 0.5 * scene.dt + 1e-12
+    assert 2.0 - scene.dt < scene.time <= 2.0 + 1e-12
     scene.reset()
     assert scene.time == 0.0
     scene.advance(0.02, p, q)
-    assert abs(scene.time - 0.02) <= 0.5 * scene.dt + 1e-12
+    assert 0.02 - scene.dt < scene.time <= 0.02 + 1e-12
+
+
+def test_advance_moves_the_needle_at_the_commanded_speed_in_every_step():
+    """Calls of 10 ms at 10 mm/s (not a whole number of steps): every step, the last of each call
+    included, moves the needle by v dt, and after each call it lies on the line at the
+    simulation's time. Clamping each call's last step at the target made steps of 0.53 to 1.17 v dt."""
+    scene = small_scene(gap=0.005)
+    sim, needle = scene.simulation, scene.needle
+    p0, q = scene.needle_pose
+    speed, travels = 0.01, []
+    original = needle.after_step
+
+    def record(dt):
+        travels.append(float(np.linalg.norm(needle.position - needle._previous_position)))
+        original(dt)
+
+    needle.after_step = record
+    for k in range(1, 21):
+        scene.advance(0.01, p0 + np.array([0.0, 0.0, -speed * 0.01 * k]), q)
+        assert needle.position[2] == pytest.approx(p0[2] - speed * sim.time, abs=1e-12)
+    assert scene.phase == 'approach' and len(travels) > 20 * 0.01 / sim.dt - 2
+    assert np.allclose(travels, speed * sim.dt, rtol=1e-9)
