@@ -28,8 +28,10 @@ Puncture (the region's membrane). Criterion ``force``: the axial contact force r
 ``rupture_force_n`` (checked every step, so puncture happens within one step of the crossing).
 Criterion ``energy``: the work the needle has done on the tissue since contact reaches
 ``toughness_j_per_m2`` times the needle's cross-section area (fracture-mechanics view of
-Mahvash and Dupont 2010); viscous work counts, so a faster insertion ruptures earlier, and on a
-stiffening tissue at a lower force. At puncture the contact is released and the tissue relaxes.
+Mahvash and Dupont 2010); viscous work counts, so a faster insertion ruptures earlier. With
+F = f(d) + v beta(d), dF_rupture/dv = beta(d) - F'(d) B(d) / F (B the integral of beta): the rupture
+force falls with speed where the curve stiffens faster than the viscous force grows (a stiffening
+law; a flat punch on a linear material is about neutral). At puncture the contact is released and the tissue relaxes.
 
 Inside (phases ``inserted``, ``retracting``). Shaft points are material points created at the
 tip each ``shaft_point_spacing_m`` of advance. Each is held on the needle axis (lateral
