@@ -130,24 +130,48 @@ def test_with_viscosity_faster_insertion_pushes_harder_by_the_viscous_dissipatio
     assert np.allclose(fast - slow, fast_viscous - slow_viscous, rtol=0.05, atol=1e-5)
 
 
-def test_pre_puncture_force_approaches_the_flat_punch_solution_as_the_mesh_is_refined():
-    """Three resolutions of the zone under the needle (2, 1.4, 1 mm cells): the force at 4.5 mm
-    approaches Sneddon's rigid flat punch 2 a E delta / (1 - nu^2) from above, the error
-    shrinking at each level. nu = 0.3 keeps linear-tetrahedron locking (nu = 0.45) out of the
-    contact question. The issue's goal (< 10 % change between the two finest) is not met yet:
-    measured 12 %, printed here."""
-    depth, values = 0.0045, []
-    for fine in (0.002, 0.0014, 0.001):
+def _force_at_depth(scene, depth, speed=3e-3):
+    """Drive the needle (tip 0.5 mm above the surface) until the tip is ``depth`` in; the axial
+    force interpolated at that tip depth."""
+    rows = [(scene.tip_depth, axial(scene)) for _ in push(scene, depth + 0.0006, speed, tick=0.01)]
+    return float(np.interp(depth, *np.array(rows).T))
+
+
+def test_pre_puncture_force_converges_to_the_bonded_flat_punch_as_the_mesh_is_refined():
+    """Linear model, 1 mm deep, cells of 1, 0.7, 0.5 mm under the needle (finer than its radius,
+    so the nodes under the end are bonded): the force converges, changing by < 10 % between the
+    two finest (the issue), to the rigid bonded flat punch on a half-space, Sneddon's
+    2 a E d / (1 - nu^2) times Mossakovskii's no-slip factor (1 - nu) ln(3 - 4 nu) / (1 - 2 nu)
+    (1.029 at nu = 0.3; Borodich and Keer 2004). nu = 0.3 keeps linear-tetrahedron locking out
+    of the contact question; the fixed walls and bottom are 12 and 17 radii away."""
+    depth, nu, values = 0.001, 0.3, []
+    for fine in (0.001, 0.0007, 0.0005):
+        scene = small_scene(fine=fine, mesh={'focus_radius_m': 0.006, 'growth': 1.25}, region={'poisson_ratio': nu})
+        values.append(_force_at_depth(scene, depth))
+    punch = 2 * 1.2e-3 * E / (1 - nu ** 2) * depth * (1 - nu) * math.log(3 - 4 * nu) / (1 - 2 * nu)
+    change = abs(values[2] - values[1]) / values[2]
+    print(f'force at 1 mm: {np.round(values, 5)} N, bonded flat punch {punch:.5f} N, '
+          f'ratios {np.round(np.array(values) / punch, 3)}, change between the two finest {change:.1%}')
+    assert change < 0.10
+    assert abs(values[2] - values[1]) < 0.5 * abs(values[1] - values[0])       # converging
+    assert values[2] == pytest.approx(punch, rel=0.05)
+
+
+def test_pre_puncture_force_with_the_geometric_model_converges_at_large_indentation():
+    """St Venant-Kirchhoff, 2 mm deep (1.7 radii, strains of order 1 at the edge): the force at
+    the same three resolutions changes by < 10 % between the two finest. Time step at 0.5 of the
+    rest-state estimate: the elements squeezed round the punch edge stiffen, and the tangent
+    critical step falls to 0.83 of it at 2 mm and 0.73 at 2.8 mm on the 0.7 mm mesh (the
+    default 0.8 diverged at 3.1 mm, and at 2.2 mm on the 0.5 mm mesh)."""
+    depth, values = 0.002, []
+    for fine in (0.001, 0.0007, 0.0005):
         scene = small_scene(fine=fine, model={'geometric': True}, mesh={'focus_radius_m': 0.006, 'growth': 1.25},
-                            region={'poisson_ratio': 0.3})
-        drive_down(scene, depth, 3e-3)
-        values.append(axial(scene))
-    sneddon = 2 * 1.2e-3 * E / (1 - 0.3 ** 2) * depth
-    errors = np.array(values) / sneddon - 1
-    print(f'force at 4.5 mm: {np.round(values, 4)} N, flat punch {sneddon:.4f} N, errors {np.round(errors, 3)}, '
-          f'change between the two finest {abs(values[2] - values[1]) / values[2]:.1%}')
-    assert np.all(np.diff(errors) < 0) and np.all(errors > 0)
-    assert errors[-1] < 0.15
+                            region={'poisson_ratio': 0.3}, solver={'time_step_safety': 0.5})
+        values.append(_force_at_depth(scene, depth))
+    change = abs(values[2] - values[1]) / values[2]
+    print(f'force at 2 mm: {np.round(values, 5)} N, change between the two finest {change:.1%}')
+    assert change < 0.10
+    assert abs(values[2] - values[1]) < 0.5 * abs(values[1] - values[0])
 
 
 def test_force_criterion_punctures_within_one_step_of_the_threshold():
