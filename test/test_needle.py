@@ -259,6 +259,20 @@ def test_stiff_tissue_force_is_cutting_plus_karnopp_friction_and_retraction_pull
     assert axial(scene) == pytest.approx(expected_back, rel=0.02)
 
 
+def test_a_membrane_is_punctured_once_and_the_needle_stays_in():
+    """10 mm/s on 2 mm cells, a weak capsule (0.1 N) and cutting (0.2 N): one puncture, then
+    'inserted' at every tick. The cutting push carried the first shaft point, a surface node,
+    0.5 mm ahead of the tip; releasing it as 'passed back over' took the needle out and the
+    capsule was punctured again at once (three events, at 0.9, 1.3 and 1.7 mm of travel)."""
+    scene = small_scene(region={'membrane': {'criterion': 'force', 'rupture_force_n': 0.1}, 'cutting_force_n': 0.2})
+    phases = []
+    for _ in push(scene, 0.0045, 10e-3, tick=0.005):
+        if scene.puncture_events:
+            phases.append(scene.phase)
+    assert len(scene.puncture_events) == 1
+    assert phases and set(phases) == {'inserted'}
+
+
 def test_sideways_motion_gives_a_lateral_force_and_a_consistent_torque():
     scene = small_scene(region={'membrane': {'criterion': 'force', 'rupture_force_n': 0.05}})
     drive_down(scene, 0.008, 3e-3)

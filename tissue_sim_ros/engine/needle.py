@@ -883,9 +883,12 @@ class NeedleTissue:
         self.n_tip = n
 
     def _release_passed_points(self):
-        """Shaft points the tip has gone back over leave the needle (retraction)."""
+        """Shaft points the tip has gone back over leave the needle (retraction). Only while it
+        goes back: advancing, the cutting push can carry the first point (a surface node of a
+        coarse element) ahead of the tip, and releasing it took the needle out, so the same
+        membrane was punctured again at once (three times in 1 mm at 10 mm/s on 2 mm cells)."""
         limit = self.geometry.length_m + 0.5 * self.geometry.shaft_point_spacing_m
-        if self.point_depths[:self.n_points].max() <= limit:
+        if float(self._travel @ self.axis) >= 0.0 or self.point_depths[:self.n_points].max() <= limit:
             return
         keep = self.point_depths[:self.n_points] <= limit
         n = int(keep.sum())
