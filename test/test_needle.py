@@ -101,43 +101,77 @@ def test_without_viscosity_the_curve_does_not_depend_on_speed_in_the_slow_limit(
     assert np.allclose(curves[0], curves[1], rtol=0.02)
 
 
-@pytest.mark.xfail(strict=True, reason='open: with Kelvin-Voigt viscosity the needle contact force comes out '
-                   'lower at 10 mm/s than at 2 mm/s (0.333 vs 0.374 N at 4 mm), although a prescribed plate on '
-                   'the same material pushes harder when faster; the coupling of the bonded contact with the '
-                   'explicit viscous force is being investigated')
-def test_with_viscosity_faster_insertion_pushes_harder_at_every_depth():
-    """Seed Figure 3b. Masses scaled by 25 only: at 10 mm/s the default 400x scaling's inertia
-    (the contact impact bounces) masks the viscous force."""
-    forces = {}
+def test_with_viscosity_faster_insertion_pushes_harder_by_the_viscous_dissipation():
+    """Seed Figure 3b: at 10 mm/s the force is above the 2 mm/s one at every depth before
+    puncture, and by the viscous force. Independent truth, the power balance
+    F v = dW/dt + P_v (no damping, quasi-static): the force difference at equal depth is the
+    difference of P_v / v, P_v = -v . f_visc the power the Kelvin-Voigt stresses dissipate in
+    the whole tissue (from the model's force kernel, not from the contact). Sampled at the end
+    of each 10 ms tick, as the node and tissue-sim insert do (a tick that ended on a clamped
+    step sampled a velocity dip and put the 10 mm/s curve below, up to -0.06 N)."""
+    curves = {}
     for speed in (2e-3, 10e-3):
-        scene = small_scene(model={'geometric': True, 'viscosity_mu_pa_s': 50.0}, solver={'mass_scaling': 25.0})
-        rows = [(scene.tip_depth, axial(scene)) for _ in push(scene, 0.0055, speed, tick=0.01)]
-        forces[speed] = np.array(rows).T
-    depths = np.linspace(0.0005, 0.005, 10)
-    slow = np.interp(depths, *forces[2e-3])
-    fast = np.interp(depths, *forces[10e-3])
-    print('2 mm/s', np.round(slow, 4), '\n10 mm/s', np.round(fast, 4))
+        scene = small_scene(model={'geometric': True, 'viscosity_mu_pa_s': 50.0},
+                            solver={'mass_scaling': 25.0, 'damping_per_s': 0.0})
+        sim, model = scene.simulation, scene.model
+        rows = []
+        for _ in push(scene, 0.0045, speed, tick=0.01):
+            if scene.phase != 'contact':
+                continue
+            viscous = model.internal_forces(sim.displacement, sim.velocity) - model.internal_forces(sim.displacement)
+            rows.append((scene.tip_depth, axial(scene), -float(np.vdot(viscous, sim.velocity)) / speed))
+        curves[speed] = np.array(rows).T
+    depths = np.linspace(0.0005, 0.004, 8)
+    (slow, slow_viscous), (fast, fast_viscous) = (
+        [np.interp(depths, curves[s][0], curves[s][k]) for k in (1, 2)] for s in (2e-3, 10e-3))
+    print('2 mm/s', np.round(slow, 4), '\n10 mm/s', np.round(fast, 4),
+          '\ndifference', np.round(fast - slow, 5), '\nP_v / v difference', np.round(fast_viscous - slow_viscous, 5))
     assert np.all(fast > slow)
+    assert np.allclose(fast - slow, fast_viscous - slow_viscous, rtol=0.05, atol=1e-5)
 
 
-def test_pre_puncture_force_approaches_the_flat_punch_solution_as_the_mesh_is_refined():
-    """Three resolutions of the zone under the needle (2, 1.4, 1 mm cells): the force at 4.5 mm
-    approaches Sneddon's rigid flat punch 2 a E delta / (1 - nu^2) from above, the error
-    shrinking at each level. nu = 0.3 keeps linear-tetrahedron locking (nu = 0.45) out of the
-    contact question. The issue's goal (< 10 % change between the two finest) is not met yet:
-    measured 12 %, printed here."""
-    depth, values = 0.0045, []
-    for fine in (0.002, 0.0014, 0.001):
+def _force_at_depth(scene, depth, speed=3e-3):
+    """Drive the needle (tip 0.5 mm above the surface) until the tip is ``depth`` in; the axial
+    force interpolated at that tip depth."""
+    rows = [(scene.tip_depth, axial(scene)) for _ in push(scene, depth + 0.0006, speed, tick=0.01)]
+    return float(np.interp(depth, *np.array(rows).T))
+
+
+def test_pre_puncture_force_converges_to_the_bonded_flat_punch_as_the_mesh_is_refined():
+    """Linear model, 1 mm deep, cells of 1, 0.7, 0.5 mm under the needle (finer than its radius,
+    so the nodes under the end are bonded): the force converges, changing by < 10 % between the
+    two finest (the issue), to the rigid bonded flat punch on a half-space, Sneddon's
+    2 a E d / (1 - nu^2) times Mossakovskii's no-slip factor (1 - nu) ln(3 - 4 nu) / (1 - 2 nu)
+    (1.029 at nu = 0.3; Borodich and Keer 2004). nu = 0.3 keeps linear-tetrahedron locking out
+    of the contact question; the fixed walls and bottom are 12 and 17 radii away."""
+    depth, nu, values = 0.001, 0.3, []
+    for fine in (0.001, 0.0007, 0.0005):
+        scene = small_scene(fine=fine, mesh={'focus_radius_m': 0.006, 'growth': 1.25}, region={'poisson_ratio': nu})
+        values.append(_force_at_depth(scene, depth))
+    punch = 2 * 1.2e-3 * E / (1 - nu ** 2) * depth * (1 - nu) * math.log(3 - 4 * nu) / (1 - 2 * nu)
+    change = abs(values[2] - values[1]) / values[2]
+    print(f'force at 1 mm: {np.round(values, 5)} N, bonded flat punch {punch:.5f} N, '
+          f'ratios {np.round(np.array(values) / punch, 3)}, change between the two finest {change:.1%}')
+    assert change < 0.10
+    assert abs(values[2] - values[1]) < 0.5 * abs(values[1] - values[0])       # converging
+    assert values[2] == pytest.approx(punch, rel=0.05)
+
+
+def test_pre_puncture_force_with_the_geometric_model_converges_at_large_indentation():
+    """St Venant-Kirchhoff, 2 mm deep (1.7 radii, strains of order 1 at the edge): the force at
+    the same three resolutions changes by < 10 % between the two finest. Time step at 0.5 of the
+    rest-state estimate: the elements squeezed round the punch edge stiffen, and the tangent
+    critical step falls to 0.83 of it at 2 mm and 0.73 at 2.8 mm on the 0.7 mm mesh (the
+    default 0.8 diverged at 3.1 mm, and at 2.2 mm on the 0.5 mm mesh)."""
+    depth, values = 0.002, []
+    for fine in (0.001, 0.0007, 0.0005):
         scene = small_scene(fine=fine, model={'geometric': True}, mesh={'focus_radius_m': 0.006, 'growth': 1.25},
-                            region={'poisson_ratio': 0.3})
-        drive_down(scene, depth, 3e-3)
-        values.append(axial(scene))
-    sneddon = 2 * 1.2e-3 * E / (1 - 0.3 ** 2) * depth
-    errors = np.array(values) / sneddon - 1
-    print(f'force at 4.5 mm: {np.round(values, 4)} N, flat punch {sneddon:.4f} N, errors {np.round(errors, 3)}, '
-          f'change between the two finest {abs(values[2] - values[1]) / values[2]:.1%}')
-    assert np.all(np.diff(errors) < 0) and np.all(errors > 0)
-    assert errors[-1] < 0.15
+                            region={'poisson_ratio': 0.3}, solver={'time_step_safety': 0.5})
+        values.append(_force_at_depth(scene, depth))
+    change = abs(values[2] - values[1]) / values[2]
+    print(f'force at 2 mm: {np.round(values, 5)} N, change between the two finest {change:.1%}')
+    assert change < 0.10
+    assert abs(values[2] - values[1]) < 0.5 * abs(values[1] - values[0])
 
 
 def test_force_criterion_punctures_within_one_step_of_the_threshold():
@@ -158,24 +192,47 @@ def test_force_criterion_punctures_within_one_step_of_the_threshold():
     assert needle.phase == 'inserted'
 
 
-def test_energy_criterion_ruptures_earlier_when_faster_on_viscoelastic_tissue():
-    ruptures = {}
+def test_energy_criterion_rupture_force_falls_with_speed_as_the_work_balance_predicts():
+    """Energy criterion (Mahvash and Dupont 2010): rupture when W = integral of F dd since contact
+    reaches G A. With F(d, v) = f(d) + v beta(d) (beta the viscous force per unit speed), W = G A
+    gives dF_r/dv = beta(d) - F'(d) B(d) / F_r, B = integral of beta: the rupture force falls
+    with speed where the curve stiffens faster (n = d F' / F) than the viscous force grows
+    (beta(d) / mean beta). A flat punch on a linear material has n ~ 1 and beta rising, so it
+    rose (+2 %); here a stiffening law (exponential, 1 (e^(8 s) - 1) on mu, viscosity not scaled
+    by it) gives n ~ 1.6 against 1.4 at rupture near 5 mm. Checked against the prediction from
+    the 2 mm/s run alone: its curve plus (10 - 2) mm/s times beta, beta = P_v / v^2 from the
+    model's viscous forces (the power balance of the viscosity test), integrated to G A.
+    No mass-proportional damping, so the speed effect is the tissue's viscosity alone."""
+    toughness, area = 440.0, math.pi * 1.2e-3 ** 2
+    runs = {}
     for speed in (2e-3, 10e-3):
         scene = small_scene(model={'geometric': True, 'viscosity_mu_pa_s': 200.0,
-                                   'physical': {'law': 'exponential', 'mu_amplitude': 1.0, 'mu_rate': 4.0}},
-                            region={'membrane': {'criterion': 'energy', 'toughness_j_per_m2': 60.0}})
+                                   'physical': {'law': 'exponential', 'mu_amplitude': 1.0, 'mu_rate': 8.0}},
+                            solver={'damping_per_s': 0.0},
+                            region={'membrane': {'criterion': 'energy', 'toughness_j_per_m2': toughness}})
+        sim, model = scene.simulation, scene.model
+        rows = []
         for _ in push(scene, 0.008, speed, tick=0.01):
             if scene.puncture_events:
                 break
+            if scene.phase == 'contact':
+                viscous = model.internal_forces(sim.displacement, sim.velocity) - model.internal_forces(sim.displacement)
+                power = -float(np.vdot(viscous, sim.velocity))
+                rows.append((scene.tip_depth, axial(scene), power / speed ** 2, scene.needle.patch.work))
         assert scene.puncture_events, f'no rupture at {speed} m/s'
-        ruptures[speed] = scene.puncture_events[0]
-    print({s: (round(e['axial_force_n'], 4), round(e['tip_depth_m'] * 1e3, 3)) for s, e in ruptures.items()})
-    # the viscous work makes the faster insertion rupture earlier ...
-    assert ruptures[10e-3]['tip_depth_m'] < 0.9 * ruptures[2e-3]['tip_depth_m']
-    # ... but not yet at a lower force: with Kelvin-Voigt viscosity the viscous force grows with
-    # the elastic one, which leaves the rupture force unchanged to first order; measured +8 %.
-    # The issue's "rupture force falls with speed" is open (see the issue note).
-    assert ruptures[10e-3]['axial_force_n'] < 1.15 * ruptures[2e-3]['axial_force_n']
+        event = scene.puncture_events[0]
+        runs[speed] = (event['tip_depth_m'], event['axial_force_n'], np.array(rows).T)
+    (d_slow, f_slow, (depth, force, beta, work)), (d_fast, f_fast, _) = runs[2e-3], runs[10e-3]
+    dv = 10e-3 - 2e-3
+    predicted_work = work + dv * np.concatenate([[0.0], np.cumsum(0.5 * (beta[1:] + beta[:-1]) * np.diff(depth))])
+    d_pred = np.interp(toughness * area, predicted_work, depth)
+    f_pred = np.interp(d_pred, depth, force + dv * beta)
+    print(f'rupture at 2 mm/s {d_slow * 1e3:.3f} mm {f_slow:.4f} N, at 10 mm/s {d_fast * 1e3:.3f} mm {f_fast:.4f} N '
+          f'({f_fast - f_slow:+.4f} N); predicted from the 2 mm/s run {d_pred * 1e3:.3f} mm {f_pred:.4f} N '
+          f'({f_pred - f_slow:+.4f} N)')
+    assert d_fast < d_slow and f_fast < f_slow
+    assert d_fast - d_slow == pytest.approx(d_pred - d_slow, rel=0.3)
+    assert f_fast - f_slow == pytest.approx(f_pred - f_slow, rel=0.3)
 
 
 def test_stiff_tissue_force_is_cutting_plus_karnopp_friction_and_retraction_pulls():
@@ -200,6 +257,20 @@ def test_stiff_tissue_force_is_cutting_plus_karnopp_friction_and_retraction_pull
     expected_back = -scene.tip_depth * (11.96 + 239.08 * speed)
     print(f'retracting: axial {axial(scene):.5f} N, friction law {expected_back:.5f} N')
     assert axial(scene) == pytest.approx(expected_back, rel=0.02)
+
+
+def test_a_membrane_is_punctured_once_and_the_needle_stays_in():
+    """10 mm/s on 2 mm cells, a weak capsule (0.1 N) and cutting (0.2 N): one puncture, then
+    'inserted' at every tick. The cutting push carried the first shaft point, a surface node,
+    0.5 mm ahead of the tip; releasing it as 'passed back over' took the needle out and the
+    capsule was punctured again at once (three events, at 0.9, 1.3 and 1.7 mm of travel)."""
+    scene = small_scene(region={'membrane': {'criterion': 'force', 'rupture_force_n': 0.1}, 'cutting_force_n': 0.2})
+    phases = []
+    for _ in push(scene, 0.0045, 10e-3, tick=0.005):
+        if scene.puncture_events:
+            phases.append(scene.phase)
+    assert len(scene.puncture_events) == 1
+    assert phases and set(phases) == {'inserted'}
 
 
 def test_sideways_motion_gives_a_lateral_force_and_a_consistent_torque():
@@ -287,14 +358,36 @@ def test_insert_command_writes_the_csv_and_plot(tmp_path):
 
 
 def test_advance_calls_add_up_to_the_time_asked_for():
-    """Whole steps toward a running target: 100 calls of 20 ms end within half a step of 2 s
-    (dropping each call's remainder ran 20.6 ms per call on the default scene)."""
+    """Whole steps toward a running target: 100 calls of 20 ms end within one step before 2 s,
+    never past it (dropping each call's remainder ran 20.6 ms per call on the default scene)."""
     scene = small_scene()
     p, q = scene.needle_pose
     for _ in range(100):
         scene.advance(0.02, p, q)
-    assert abs(scene.time - 2.0) <= 0.5 * scene.dt + 1e-12
+    assert 2.0 - scene.dt < scene.time <= 2.0 + 1e-12
     scene.reset()
     assert scene.time == 0.0
     scene.advance(0.02, p, q)
-    assert abs(scene.time - 0.02) <= 0.5 * scene.dt + 1e-12
+    assert 0.02 - scene.dt < scene.time <= 0.02 + 1e-12
+
+
+def test_advance_moves_the_needle_at_the_commanded_speed_in_every_step():
+    """Calls of 10 ms at 10 mm/s (not a whole number of steps): every step, the last of each call
+    included, moves the needle by v dt, and after each call it lies on the line at the
+    simulation's time. Clamping each call's last step at the target made steps of 0.53 to 1.17 v dt."""
+    scene = small_scene(gap=0.005)
+    sim, needle = scene.simulation, scene.needle
+    p0, q = scene.needle_pose
+    speed, travels = 0.01, []
+    original = needle.after_step
+
+    def record(dt):
+        travels.append(float(np.linalg.norm(needle.position - needle._previous_position)))
+        original(dt)
+
+    needle.after_step = record
+    for k in range(1, 21):
+        scene.advance(0.01, p0 + np.array([0.0, 0.0, -speed * 0.01 * k]), q)
+        assert needle.position[2] == pytest.approx(p0[2] - speed * sim.time, abs=1e-12)
+    assert scene.phase == 'approach' and len(travels) > 20 * 0.01 / sim.dt - 2
+    assert np.allclose(travels, speed * sim.dt, rtol=1e-9)
