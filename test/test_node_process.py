@@ -47,6 +47,8 @@ TOPIC_TYPES = {
     '/tissue/marker': 'visualization_msgs/msg/Marker',
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
     '/needle/pose': 'geometry_msgs/msg/PoseStamped',
+    '/tissue_sim/reset/_service_event': 'std_srvs/srv/Trigger_Event',   # channels from the start,
+    '/tissue_sim/pause/_service_event': 'std_srvs/srv/SetBool_Event',   # messages per call
 }
 _DOMAINS = iter(range(110 + os.getpid() % 40 * 2, 232))
 SCENE_OVERRIDE = os.environ.get('TISSUE_SIM_TEST_SCENE') or None
@@ -363,7 +365,7 @@ _STAMPED = {'/needle/wrench': 'wrench', '/tissue/nodes': 'nodes', '/tissue/marke
             '/diagnostics': 'diag'}
 
 
-def check_log_against_received(path, received, published_poses):
+def check_log_against_received(path, received, published_poses, reset_calls=0, pause_calls=0):
     """The log read by rosbags holds exactly what the client received, stamp for stamp.
 
     The node publishes from its first tick, before the client has discovered it: messages
@@ -384,12 +386,16 @@ def check_log_against_received(path, received, published_poses):
             assert [s for s in logged if s >= got[0]] == got, topic
     assert counts['/tissue/surface'] == len(received['surface'])
     assert counts['/needle/pose'] == published_poses
+    # two events per service call: request received, response sent
+    assert counts['/tissue_sim/reset/_service_event'] == 2 * reset_calls
+    assert counts['/tissue_sim/pause/_service_event'] == 2 * pause_calls
     return counts
 
 
 def test_mcap_holds_every_message_rosbags(scenario):
     path = scenario['mcap']
-    counts = check_log_against_received(path, scenario['received'], scenario['published'])
+    counts = check_log_against_received(path, scenario['received'], scenario['published'],
+                                        reset_calls=1, pause_calls=2)   # the scenario's calls
     meta = ml.read_metadata(path)
     assert meta['scene'] == Path(scenario['scene_file']).read_text()
     assert 'tissue_sim:' in meta['parameters']
