@@ -31,6 +31,26 @@ def test_cli_version_and_help():
         assert command in help_text
 
 
+
+def test_cli_reports_a_bad_scene_and_a_divergence_in_one_line(tmp_path, capsys, monkeypatch):
+    """A scene with an unknown key, and a run whose simulation diverges: one error line naming
+    it and exit status 2, no traceback."""
+    from tissue_sim_ros import cli
+    from tissue_sim_ros.analysis import insertion
+    from tissue_sim_ros.engine.solver import SimulationDiverged
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('needle:\n  diameter_mm: 2.4\n')
+    assert cli.main(['insert', '--scene', str(bad), '--out', str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('tissue-sim insert: error:') and 'diameter_mm' in err and 'Traceback' not in err
+
+    def diverge(*args, **kwargs):
+        raise SimulationDiverged('13 inverted elements (det F <= 0)', 2500, 5.83, 0.0023, 0.0029)
+    monkeypatch.setattr(insertion, 'run_insertion', diverge)
+    assert cli.main(['insert', '--out', str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert 'diverged at step 2500' in err and 'model.geometric: true' in err
+
 def test_console_script_prints_version():
     script = Path(sys.executable).parent / 'tissue-sim'
     result = subprocess.run([str(script), '--version'], capture_output=True, text=True, timeout=60)

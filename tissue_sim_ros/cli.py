@@ -105,8 +105,20 @@ def build_parser():
 
 
 def main(argv=None):
+    """Run a command; a bad scene, bad needle input or a diverged simulation is one error line
+    (exit status 2), not a traceback."""
+    from tissue_sim_ros.engine.needle import NeedleInputError
+    from tissue_sim_ros.engine.scene import SceneError
+    from tissue_sim_ros.engine.solver import SimulationDiverged
     args = build_parser().parse_args(argv)
-    args.run(args)
+    try:
+        args.run(args)
+    except (SceneError, NeedleInputError, SimulationDiverged) as exc:
+        print(f'tissue-sim {args.command}: error: {exc}', file=sys.stderr)
+        if isinstance(exc, SimulationDiverged) and 'inverted' in str(exc):
+            print('  (a small-strain model inverts elements at large deformation: '
+                  'model.geometric: true handles it)', file=sys.stderr)
+        return 2
     return 0
 
 
