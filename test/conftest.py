@@ -3,6 +3,7 @@ output subscriptions."""
 import json
 import shutil
 import subprocess
+import time
 
 import numpy as np
 import pytest
@@ -93,3 +94,15 @@ def subscribe_node_outputs(client, keeper, *, rosout=False):
     for key, msg_type, topic, qos in topics:
         client.create_subscription(msg_type, topic, keeper(key), qos)
     return reliable
+
+
+def call_service(client, request, timeout):
+    """Call a service from a client whose node another thread spins; the response (asserts it
+    comes within ``timeout`` seconds)."""
+    assert client.wait_for_service(timeout_sec=timeout)
+    future = client.call_async(request)
+    deadline = time.monotonic() + timeout
+    while not future.done():
+        assert time.monotonic() < deadline, 'service call timed out'
+        time.sleep(0.005)
+    return future.result()

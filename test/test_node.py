@@ -29,7 +29,7 @@ from shape_msgs.msg import Mesh  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 from visualization_msgs.msg import Marker  # noqa: E402
 
-from conftest import subscribe_node_outputs  # noqa: E402
+from conftest import call_service, subscribe_node_outputs  # noqa: E402
 from tissue_sim_ros import SimulationDiverged  # noqa: E402
 from tissue_sim_ros.ros import conversions as cv  # noqa: E402
 from tissue_sim_ros.ros import node as node_mod  # noqa: E402
@@ -163,13 +163,7 @@ class Harness:
         self.published.append((stamp_ns, np.array(position, dtype=float), frame_id, kind))
 
     def call(self, client, request, timeout=5.0):
-        assert client.wait_for_service(timeout_sec=timeout)
-        future = client.call_async(request)
-        deadline = time.monotonic() + timeout
-        while not future.done():
-            assert time.monotonic() < deadline, 'service call timed out'
-            time.sleep(0.005)
-        return future.result()
+        return call_service(client, request, timeout)
 
     def diagnostics_now(self):
         """Ask the node for diagnostics now (on its executor thread's terms: via the timer

@@ -30,7 +30,7 @@ from geometry_msgs.msg import PoseStamped  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
-from conftest import subscribe_node_outputs  # noqa: E402
+from conftest import call_service, subscribe_node_outputs  # noqa: E402
 from tissue_sim_ros.io import mcap_log as ml  # noqa: E402
 from tissue_sim_ros.ros import conversions as cv  # noqa: E402
 from tissue_sim_ros.ros.drive import insertion_trajectory, scene_start  # noqa: E402
@@ -157,13 +157,7 @@ class Client:
         self.published += 1
 
     def call(self, client, request, timeout=10.0):
-        assert client.wait_for_service(timeout_sec=timeout)
-        future = client.call_async(request)
-        deadline = time.monotonic() + timeout
-        while not future.done():
-            assert time.monotonic() < deadline, 'service call timed out'
-            time.sleep(0.005)
-        return future.result()
+        return call_service(client, request, timeout)
 
     def next_diagnostics(self, timeout=3.0):
         """The first /diagnostics message received from now on, as {name: (level, msg, values)}."""

@@ -113,12 +113,13 @@ def _symmetric_eigen(a, vectors):
 
 @njit(cache=True, boundscheck=False)
 def safeguarded_piola(f, lam, mu, scratch, out):
-    """First Piola stress (into ``out``) of F = ``f`` (3x3) with the inversion safeguard.
+    """First Piola stress (into ``out``) of F = ``f`` (3x3) with the inversion safeguard, from
+    the principal stretches: P = U diag(P_i) V^T, which is F S where no stretch is clamped.
 
     scratch: (4, 3, 3) work space, so nothing is allocated.
 
     Returns True when the safeguard changed the stress (a principal stretch below the clamp or an
-    inverted element); otherwise ``out`` is left alone and the caller keeps P = F S.
+    inverted element).
     """
     work = scratch[0]
     vectors = scratch[1]
@@ -142,8 +143,6 @@ def safeguarded_piola(f, lam, mu, scratch, out):
     stretch0 = np.sqrt(max(ev[order0], 0.0))
     stretch1 = np.sqrt(max(ev[order1], 0.0))
     stretch2 = np.sqrt(max(ev[order2], 0.0))
-    if stretch2 >= STRETCH_CLAMP and det_f > 0.0:
-        return False
     for k in range(3):
         v[k, 0] = vectors[k, order0]
         v[k, 1] = vectors[k, order1]
@@ -178,6 +177,7 @@ def safeguarded_piola(f, lam, mu, scratch, out):
     u[0, 2] = u[1, 0] * u[2, 1] - u[2, 0] * u[1, 1]
     u[1, 2] = u[2, 0] * u[0, 1] - u[0, 0] * u[2, 1]
     u[2, 2] = u[0, 0] * u[1, 1] - u[1, 0] * u[0, 1]
+    changed = stretch2 < STRETCH_CLAMP or det_f <= 0.0
     if det_f < 0.0:
         stretch2 = -stretch2           # inverted: the smallest stretch passes through zero
     clamped0 = max(stretch0, STRETCH_CLAMP)
@@ -195,7 +195,7 @@ def safeguarded_piola(f, lam, mu, scratch, out):
     for r in range(3):
         for c in range(3):
             out[r, c] = u[r, 0] * p0 * v[c, 0] + u[r, 1] * p1 * v[c, 1] + u[r, 2] * p2 * v[c, 2]
-    return True
+    return changed
 
 
 @njit(cache=True, inline='always')
@@ -487,21 +487,8 @@ def _safeguarded_elements(elements, tetrahedra, shape_gradients, volume_lambda, 
         fm[2, 0] = h20
         fm[2, 1] = h21
         fm[2, 2] = 1.0 + h22
-        if safeguarded_piola(fm, lam, mu, scratch[:4], pm):
-            changed += 1
-        else:   # the Gershgorin test was pessimistic: plain P = F S
-            e00, e11, e22, e01, e02, e12 = _green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
-            tr_e = e00 + e11 + e22
-            s = scratch[0]
-            s[0, 0] = lam * tr_e + 2.0 * mu * e00
-            s[1, 1] = lam * tr_e + 2.0 * mu * e11
-            s[2, 2] = lam * tr_e + 2.0 * mu * e22
-            s[0, 1] = s[1, 0] = 2.0 * mu * e01
-            s[0, 2] = s[2, 0] = 2.0 * mu * e02
-            s[1, 2] = s[2, 1] = 2.0 * mu * e12
-            for r in range(3):
-                for k in range(3):
-                    pm[r, k] = fm[r, 0] * s[0, k] + fm[r, 1] * s[1, k] + fm[r, 2] * s[2, k]
+        # the force loop's Gershgorin test is pessimistic: unclamped elements come back as F S
+        changed += safeguarded_piola(fm, lam, mu, scratch[:4], pm)
         # add the viscous F S_v
         _scatter_piola(buf, i0, i1, i2, i3,
                        pm[0, 0] + fm[0, 0] * v00 + fm[0, 1] * v01 + fm[0, 2] * v02,
