@@ -88,7 +88,8 @@ class TensorMassModel:
         self._allocate(self._n_threads)
         self._assemble_tensors()
         self.topology_version = 0
-        self.internal_forces(np.zeros((mesh.n_nodes, 3)))   # compile (or load) the kernels now, not on the step loop
+        zeros = np.zeros((mesh.n_nodes, 3))
+        self.internal_forces(zeros, zeros)   # compile (or load) the step's kernel now, not on the step loop
 
     def _element_data(self, tetrahedra, material_index):
         """The per-element arrays of ``tetrahedra`` (at start, and for elements added later)."""
