@@ -435,6 +435,8 @@ def test_drive_then_sigterm_leaves_a_complete_log(tmp_path, scene_file):
         client.close()
     assert rc == 0, proc.log_path.read_text()[-3000:]
     times, positions = insertion_trajectory(scene_start(scene_file), 0.02, 0.004, 0.0, 100.0)
+    travel_mm = np.linalg.norm(positions - positions[0], axis=1).max() * 1e3
+    assert f'down {travel_mm:.1f} mm at 20 mm/s to 4 mm below the surface' in drive.stdout
     (path,) = sorted((tmp_path / 'logs').glob('*.mcap'))
     counts = check_log_against_received(path, received, len(times))  # every pose the drive sent
     from rosbags.highlevel import AnyReader

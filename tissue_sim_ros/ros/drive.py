@@ -140,7 +140,7 @@ def run_drive(speed_mm_s: float, depth_mm: float, *, start_height_mm: float | No
                 return 1
             time.sleep(0.02)
         print(f'drive: {len(t)} poses on {pub.topic_name} over {t[-1]:.2f} s: down '
-              f'{(np.linalg.norm(positions[0] - positions).max()) * 1e3:.1f} mm at '
+              f'{np.linalg.norm(positions - positions[0], axis=1).max() * 1e3:.1f} mm at '
               f'{speed_mm_s:g} mm/s to {depth_mm:g} mm below the surface, hold {hold_s:g} s, back')
         clock = node.get_clock()
         t0 = time.monotonic()
