@@ -106,3 +106,12 @@ def call_service(client, request, timeout):
         assert time.monotonic() < deadline, 'service call timed out'
         time.sleep(0.005)
     return future.result()
+
+
+def diag_values(msg):
+    """{status name: (level, message, {key: value})} of a DiagnosticArray."""
+    out = {}
+    for st in msg.status:
+        level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
+        out[st.name] = (level, st.message, {kv.key: kv.value for kv in st.values})
+    return out

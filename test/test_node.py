@@ -29,7 +29,7 @@ from shape_msgs.msg import Mesh  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 from visualization_msgs.msg import Marker  # noqa: E402
 
-from conftest import call_service, subscribe_node_outputs  # noqa: E402
+from conftest import call_service, diag_values, subscribe_node_outputs  # noqa: E402
 from tissue_sim_ros import SimulationDiverged  # noqa: E402
 from tissue_sim_ros.ros import conversions as cv  # noqa: E402
 from tissue_sim_ros.ros import node as node_mod  # noqa: E402
@@ -180,15 +180,6 @@ class Harness:
         self.node.destroy_node()
         self.client.destroy_node()
         rclpy.shutdown(context=self.ctx)
-
-
-def diag_values(msg):
-    """{status name: (level, message, {key: value})} of a DiagnosticArray."""
-    out = {}
-    for st in msg.status:
-        level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
-        out[st.name] = (level, st.message, {kv.key: kv.value for kv in st.values})
-    return out
 
 
 @pytest.fixture

@@ -30,7 +30,7 @@ from geometry_msgs.msg import PoseStamped  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
-from conftest import call_service, subscribe_node_outputs  # noqa: E402
+from conftest import call_service, diag_values, subscribe_node_outputs  # noqa: E402
 from tissue_sim_ros.io import mcap_log as ml  # noqa: E402
 from tissue_sim_ros.ros import conversions as cv  # noqa: E402
 from tissue_sim_ros.ros.drive import insertion_trajectory, scene_start  # noqa: E402
@@ -177,14 +177,6 @@ class Client:
             os.environ.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
         else:
             os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = self._env_before
-
-
-def diag_values(msg):
-    out = {}
-    for st in msg.status:
-        level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
-        out[st.name] = (level, st.message, {kv.key: kv.value for kv in st.values})
-    return out
 
 
 def wrench_array(items):
