@@ -224,7 +224,14 @@ SAFEGUARD_FREE_NORM_SQ = (1.0 - STRETCH_CLAMP) ** 2
 
 
 @njit(cache=True, inline='always')
-def _green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22):
+def deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22):
+    """det F of F = I + H (volume ratio; <= 0 for an inverted element)."""
+    return ((1.0 + h00) * ((1.0 + h11) * (1.0 + h22) - h12 * h21) - h01 * (h10 * (1.0 + h22) - h12 * h20)
+            + h02 * (h10 * h21 - (1.0 + h11) * h20))
+
+
+@njit(cache=True, inline='always')
+def green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22):
     """Green-Lagrange strain E = (H + H^T + H^T H) / 2 as (e00, e11, e22, e01, e02, e12)."""
     return (0.5 * (h00 + h00 + h00 * h00 + h10 * h10 + h20 * h20),
             0.5 * (h11 + h11 + h01 * h01 + h11 * h11 + h21 * h21),
@@ -295,9 +302,8 @@ def _corrected_lame(lam, mu, h00, h01, h02, h10, h11, h12, h20, h21, h22, law_ki
                     g, mean_ratio_scale):
     """Seed section 4.1: (lambda + dlambda(q), mu + dmu(q)) of one element (V folded in), q its
     mean ratio relative to rest: q/q_rest = scale |det F|^(2/3) / tr(F^T F G), G = edge Gram matrix."""
-    e00, e11, e22, e01, e02, e12 = _green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
-    det_f = ((1.0 + h00) * ((1.0 + h11) * (1.0 + h22) - h12 * h21) - h01 * (h10 * (1.0 + h22) - h12 * h20)
-             + h02 * (h10 * h21 - (1.0 + h11) * h20))
+    e00, e11, e22, e01, e02, e12 = green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
+    det_f = deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22)
     # tr(C G) with C = I + 2E
     tr_cg = (g[0] * (1.0 + 2.0 * e00) + g[1] * (1.0 + 2.0 * e11) + g[2] * (1.0 + 2.0 * e22)
              + 4.0 * (g[3] * e01 + g[4] * e02 + g[5] * e12))
@@ -380,7 +386,7 @@ def element_kernel(geometric, physical, viscous):
                     f00 = 1.0 + h00
                     f11 = 1.0 + h11
                     f22 = 1.0 + h22
-                    e00, e11, e22, e01, e02, e12 = _green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
+                    e00, e11, e22, e01, e02, e12 = green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
                     if safeguard and norm_sq >= SAFEGUARD_FREE_NORM_SQ:
                         # Gershgorin lower bound on the eigenvalues of C = I + 2E, and det F
                         a01 = abs(2.0 * e01)
@@ -388,8 +394,7 @@ def element_kernel(geometric, physical, viscous):
                         a12 = abs(2.0 * e12)
                         lower = min(1.0 + 2.0 * e00 - a01 - a02,
                                     min(1.0 + 2.0 * e11 - a01 - a12, 1.0 + 2.0 * e22 - a02 - a12))
-                        det_f = (f00 * (f11 * f22 - h12 * h21) - h01 * (h10 * f22 - h12 * h20)
-                                 + h02 * (h10 * h21 - f11 * h20))
+                        det_f = deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22)
                         if lower < clamp_squared or det_f <= 0.0:
                             slow_elements[lo + n_slow] = e
                             n_slow += 1

@@ -420,24 +420,14 @@ def _strain_energy(tetrahedra, shape_gradients, volume_lambda, volume_mu, displa
         h00, h01, h02, h10, h11, h12, h20, h21, h22 = forces.element_gradient(
             displacement, tetrahedra[e, 0], tetrahedra[e, 1], tetrahedra[e, 2], tetrahedra[e, 3],
             g[0, 0], g[0, 1], g[0, 2], g[1, 0], g[1, 1], g[1, 2], g[2, 0], g[2, 1], g[2, 2])
-        e00 = h00
-        e11 = h11
-        e22 = h22
-        e01 = 0.5 * (h01 + h10)
-        e02 = 0.5 * (h02 + h20)
-        e12 = 0.5 * (h12 + h21)
         if geometric:
-            e00 += 0.5 * (h00 * h00 + h10 * h10 + h20 * h20)
-            e11 += 0.5 * (h01 * h01 + h11 * h11 + h21 * h21)
-            e22 += 0.5 * (h02 * h02 + h12 * h12 + h22 * h22)
-            e01 += 0.5 * (h00 * h01 + h10 * h11 + h20 * h21)
-            e02 += 0.5 * (h00 * h02 + h10 * h12 + h20 * h22)
-            e12 += 0.5 * (h01 * h02 + h11 * h12 + h21 * h22)
+            e00, e11, e22, e01, e02, e12 = forces.green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
+        else:
+            e00, e11, e22 = h00, h11, h22
+            e01, e02, e12 = 0.5 * (h01 + h10), 0.5 * (h02 + h20), 0.5 * (h12 + h21)
         trace = e00 + e11 + e22
         energy += (0.5 * volume_lambda[e] * trace * trace
                    + volume_mu[e] * (e00 * e00 + e11 * e11 + e22 * e22 + 2.0 * (e01 * e01 + e02 * e02 + e12 * e12)))
-        det_f = ((1.0 + h00) * ((1.0 + h11) * (1.0 + h22) - h12 * h21) - h01 * (h10 * (1.0 + h22) - h12 * h20)
-                 + h02 * (h10 * h21 - (1.0 + h11) * h20))
-        if det_f <= 0.0:
+        if forces.deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22) <= 0.0:
             inverted += 1
     return energy, inverted
