@@ -142,6 +142,17 @@ class Client:
             assert time.monotonic() < deadline, 'the node did not come up'
             time.sleep(0.02)
 
+    def wait_for(self, key, since, count, timeout=10.0):
+        """Wait until `count` messages on `key` arrived after the first `since`; the new ones.
+
+        The windows below are counted in messages, not wall time: on a loaded 2-core CI runner a
+        fixed sleep caught 11 wrenches where 25 were due, and the rate has its own test."""
+        deadline = time.monotonic() + timeout
+        while len(self.get(key)) < since + count:
+            assert time.monotonic() < deadline, f'{len(self.get(key)) - since} of {count} {key}'
+            time.sleep(0.02)
+        return self.get(key)[since:]
+
     def now_ns(self):
         return self.node.get_clock().now().nanoseconds
 
@@ -262,13 +273,11 @@ def scenario(tmp_path_factory, scene_file):
         out['pause_response'] = client.call(client.pause_client, SetBool.Request(data=True))
         n_c = len(client.get('wrench'))
         d1 = client.next_diagnostics()
-        time.sleep(0.6)
+        frozen = client.wait_for('wrench', n_c + 1, 30)
         d2 = client.next_diagnostics()
-        out['paused'] = (client.get('wrench')[n_c + 1:], d1, d2)
+        out['paused'] = (frozen, d1, d2)
         out['resume_response'] = client.call(client.pause_client, SetBool.Request(data=False))
-        n_r = len(client.get('wrench'))
-        time.sleep(0.5)
-        out['resumed'] = client.get('wrench')[n_r + 1:]
+        out['resumed'] = client.wait_for('wrench', len(client.get('wrench')) + 1, 25)
         play(client, c_times[half:], c_positions[half:], q)
         time.sleep(0.2)
         # stop with SIGINT; the client keeps listening until the process is gone
