@@ -544,11 +544,10 @@ def test_divergence_resets_and_is_reported_at_error(harness, nan):
     scene = make_scene()
     _diverge_on_call(scene, 20, nan=nan)
     h = harness(scene)
-    time.sleep(0.8)
+    wrenches = h.wait_for('wrench', 40)  # publishing on through the divergence (0.8 s)
     assert h.node.divergences >= 1
-    wrenches = h.get('wrench')
     vals = np.array([[w.wrench.force.x, w.wrench.force.y, w.wrench.force.z] for _, w in wrenches])
-    assert np.isfinite(vals).all() and len(wrenches) >= 35
+    assert np.isfinite(vals).all()
     errors = [m.msg for _, m in h.get('log') if m.level == Log.ERROR and 'diverged' in m.msg]
     assert errors and 'on_divergence = reset' in errors[0]
     if not nan:  # reset once at the 20th tick, then it runs on from time 0
@@ -571,10 +570,8 @@ def test_displacement_too_large_for_float32_is_a_divergence_not_a_crash(harness)
         return steps
     scene.advance = advance
     h = harness(scene)
-    time.sleep(0.8)
+    clouds = h.wait_for('nodes', 40)  # publishing on through the divergence (0.8 s)
     assert h.node.divergences == 1
-    clouds = h.get('nodes')
-    assert len(clouds) >= 30
     for _, cloud in clouds:
         positions, displacement = cv.point_cloud_arrays(cloud)
         assert np.isfinite(positions).all() and np.isfinite(displacement).all()
