@@ -18,10 +18,9 @@ def test_untriggered_elements_are_exact_st_venant_kirchhoff(jittered_block, live
 
 
 def test_elements_set_aside_but_not_compressed_keep_st_venant_kirchhoff(jittered_block, liver):
-    """A homogeneous shear of 0.8: every element's Gershgorin bound on F^T F (0.2) says 'maybe
-    below the clamp', so the force loop sets it aside for the safeguard pass, whose exact
-    eigenvalues (smallest stretch 0.68 > STRETCH_CLAMP) give back F S; with the physically
-    non-linear law and viscosity, the forces equal the unguarded model's to round-off."""
+    """A homogeneous shear of 0.8: |H|_F is past the cheap bound, so every element takes the
+    exact test (smallest stretch 0.68 > STRETCH_CLAMP: not set aside, not changed); with the
+    physically non-linear law and viscosity the forces equal the unguarded model's to round-off."""
     mesh = jittered_block
     shear = np.eye(3)
     shear[0, 1] = 0.8
@@ -36,6 +35,23 @@ def test_elements_set_aside_but_not_compressed_keep_st_venant_kirchhoff(jittered
     assert np.sqrt(np.linalg.eigvalsh(shear.T @ shear).min()) > STRETCH_CLAMP
     assert difference < 1e-13
     assert guarded.safeguarded_count == 0
+
+
+def test_safeguard_takes_exactly_the_elements_below_the_clamp_or_inverted(jittered_block, liver):
+    """Homogeneous random deformations near the clamp: the force loop's test (Sylvester's
+    criterion on F^T F - clamp^2 I, and det F) must pick out every element whose smallest singular
+    value (numpy's SVD) is below STRETCH_CLAMP or whose det F <= 0, and no other."""
+    mesh = jittered_block
+    model = ts.TensorMassModel(mesh, liver, geometric=True)
+    rng = np.random.default_rng(11)
+    seen = set()
+    for _ in range(40):
+        f = np.eye(3) + rng.normal(scale=0.35, size=(3, 3))
+        below = np.linalg.svd(f, compute_uv=False).min() < STRETCH_CLAMP or np.linalg.det(f) <= 0
+        model.internal_forces(mesh.rest_positions @ (f - np.eye(3)).T)
+        assert model.safeguarded_count == (mesh.n_elements if below else 0), f
+        seen.add(bool(below))
+    assert seen == {True, False}
 
 def _uniaxial_force(model, mesh, stretch, lateral=1.0):
     u = mesh.rest_positions @ (np.diag([stretch, lateral, lateral]) - np.eye(3)).T

@@ -120,6 +120,7 @@ def test_physical_law_scales_forces_as_K_plus_dlambda_A_plus_dmu_B(jittered_bloc
     physical = ts.TensorMassModel(mesh, liver, physical=law).internal_forces(u)
     frozen, distortion = _independent_physical_force(mesh, liver, law, u, geometric=False)
     assert distortion.max() > 0.05                     # the law is really exercised
+    assert 0.2 < np.mean(distortion == 0) < 0.8        # and so is its s = 0 side (quality went up)
     expected = -(frozen.stiffness_matrix() @ u.ravel()).reshape(-1, 3)
     assert np.abs(physical - expected).max() < 1e-10 * np.abs(expected).max()
     # with the corrections frozen, the force is minus the gradient of the frozen energy

@@ -307,6 +307,10 @@ def _corrected_lame(lam, mu, h00, h01, h02, h10, h11, h12, h20, h21, h22, law_ki
     # tr(C G) with C = I + 2E
     tr_cg = (g[0] * (1.0 + 2.0 * e00) + g[1] * (1.0 + 2.0 * e11) + g[2] * (1.0 + 2.0 * e22)
              + 4.0 * (g[3] * e01 + g[4] * e02 + g[5] * e12))
+    # no distortion (q >= q_rest: the law's corrections vanish at s = 0) decided on the cubes,
+    # without the cube root; most of the deformed elements of a needle dent are there
+    if mean_ratio_scale * mean_ratio_scale * mean_ratio_scale * det_f * det_f >= tr_cg * tr_cg * tr_cg:
+        return lam, mu
     relative_quality = mean_ratio_scale * np.abs(det_f) ** (2.0 / 3.0) / tr_cg
     corr_lambda, corr_mu = _law_correction(law_kind, law_params, max(0.0, 1.0 - relative_quality))
     return lam * (1.0 + corr_lambda), mu * (1.0 + corr_mu)
@@ -342,8 +346,8 @@ def element_kernel(geometric, physical, viscous):
         divided by the rest mean ratio, so q/q_rest = scale |det F|^(2/3) / tr(F^T F G).
         nonlinear_counts (n_chunks,): elements that took the non-linear path, per chunk.
         safeguard: apply the inversion safeguard on the St Venant-Kirchhoff path to elements whose
-        smallest principal stretch may be below STRETCH_CLAMP (|H|_F, then a Gershgorin bound on
-        F^T F) or whose det F <= 0; those are set aside in ``slow_elements`` (m,) and done after the
+        smallest principal stretch is below STRETCH_CLAMP (|H|_F, then Sylvester's criterion on
+        F^T F - STRETCH_CLAMP^2 I) or whose det F <= 0; those are set aside in ``slow_elements`` (m,) and done after the
         chunk's loop, so the loop itself holds no call. safeguard_scratch (n_chunks, 6, 3, 3);
         safeguard_counts (n_chunks,) how many elements it changed.
         corrected_lambda, corrected_mu (m,): the corrected Lamé values, kept for the safeguard pass.
@@ -388,14 +392,19 @@ def element_kernel(geometric, physical, viscous):
                     f22 = 1.0 + h22
                     e00, e11, e22, e01, e02, e12 = green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
                     if safeguard and norm_sq >= SAFEGUARD_FREE_NORM_SQ:
-                        # Gershgorin lower bound on the eigenvalues of C = I + 2E, and det F
-                        a01 = abs(2.0 * e01)
-                        a02 = abs(2.0 * e02)
-                        a12 = abs(2.0 * e12)
-                        lower = min(1.0 + 2.0 * e00 - a01 - a02,
-                                    min(1.0 + 2.0 * e11 - a01 - a12, 1.0 + 2.0 * e22 - a02 - a12))
+                        # smallest stretch above the clamp <=> C - clamp^2 I positive definite
+                        # (Sylvester's criterion, C = I + 2E: exact, no eigenvalues); and det F > 0
+                        m00 = 1.0 + 2.0 * e00 - clamp_squared
+                        m11 = 1.0 + 2.0 * e11 - clamp_squared
+                        m22 = 1.0 + 2.0 * e22 - clamp_squared
+                        m01 = 2.0 * e01
+                        m02 = 2.0 * e02
+                        m12 = 2.0 * e12
+                        minor2 = m00 * m11 - m01 * m01
+                        minor3 = (m00 * (m11 * m22 - m12 * m12) - m01 * (m01 * m22 - m12 * m02)
+                                  + m02 * (m01 * m12 - m11 * m02))
                         det_f = deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22)
-                        if lower < clamp_squared or det_f <= 0.0:
+                        if not (m00 > 0.0 and minor2 > 0.0 and minor3 > 0.0 and det_f > 0.0):
                             slow_elements[lo + n_slow] = e
                             n_slow += 1
                             continue
@@ -492,7 +501,7 @@ def _safeguarded_elements(elements, tetrahedra, shape_gradients, volume_lambda, 
         fm[2, 0] = h20
         fm[2, 1] = h21
         fm[2, 2] = 1.0 + h22
-        # the force loop's Gershgorin test is pessimistic: unclamped elements come back as F S
+        # an element at the clamp to round-off may come back unchanged, as F S
         changed += safeguarded_piola(fm, lam, mu, scratch[:4], pm)
         # add the viscous F S_v
         _scatter_piola(buf, i0, i1, i2, i3,
