@@ -397,17 +397,26 @@ def test_rate_values_and_stamps_of_an_insertion(harness):
     assert all(w.header.frame_id == 'needle' for _, w in wrenches)
     wstamps = np.array([cv.stamp_to_ns(w.header.stamp) for _, w in wrenches])
     assert np.all(np.diff(wstamps) > 0)
-    # the node advanced the engine by the time between its ticks: one period for the first,
-    # then the stamp differences, except after a tick that overran (one period then)
+    # the node advanced the engine in slices (engine.slices_per_tick, default 4), each by the
+    # time since the previous one: a slice period for the first, then the differences of the
+    # slice times, except after a slice that overran (one slice period then); the wrench of a
+    # tick is the state after its last slice, stamped with that slice's time
+    slices = h.node.config.slices_per_tick
+    assert slices == 4
+    slice_ns = h.node.stats['slice_ns'].array()
     advances = h.node.stats['advance_s'].array()
-    assert len(advances) == len(wrenches) == h.node.ticks
-    from_stamps = np.concatenate([[0.02], np.minimum(np.diff(wstamps) / NS, 0.04)])
+    assert len(slice_ns) == len(advances)
+    assert len(advances) <= (h.node.ticks + 1) * slices  # slices a late one skipped are not run
+    published = np.searchsorted(slice_ns, wstamps)  # the slice each wrench came from
+    assert np.array_equal(slice_ns[published], wstamps)
+    assert np.mean(np.diff(published) == slices) > 0.9  # mostly every 4th, on the timer's schedule
+    from_stamps = np.concatenate([[0.005], np.minimum(np.diff(slice_ns) / NS, 0.04)])
     differ = ~np.isclose(advances, from_stamps, rtol=0, atol=1e-9)
-    assert differ.sum() <= h.node.deadline_overruns
-    assert np.all(advances[differ] == 0.02)
-    # the values: an offline scene fed the same poses at the same stamps gives the same wrench
+    assert differ.sum() <= 0.05 * len(advances)
+    assert np.all(advances[differ] == 0.005)
+    # the values: an offline scene fed the same poses at the same slice times gives the same wrench
     n = len(wrenches)
-    expected = offline_wrenches(wstamps, advances, stamps, positions)
+    expected = offline_wrenches(slice_ns, advances, stamps, positions)[published]
     np.testing.assert_allclose(values, expected[:n], rtol=1e-7, atol=1e-10)
     assert values[:, 2].min() < -0.1  # it really went in (needle frame: the tissue pushes back)
     assert h.scene.tip_depth > 0.01
@@ -542,7 +551,7 @@ def _diverge_on_call(scene, n_call, *, nan=False):
 @pytest.mark.parametrize('nan', [False, True])
 def test_divergence_resets_and_is_reported_at_error(harness, nan):
     scene = make_scene()
-    _diverge_on_call(scene, 20, nan=nan)
+    calls = _diverge_on_call(scene, 20, nan=nan)
     h = harness(scene)
     wrenches = h.wait_for('wrench', 40)  # publishing on through the divergence (0.8 s)
     assert h.node.divergences >= 1
@@ -550,9 +559,10 @@ def test_divergence_resets_and_is_reported_at_error(harness, nan):
     assert np.isfinite(vals).all()
     errors = [m.msg for _, m in h.get('log') if m.level == Log.ERROR and 'diverged' in m.msg]
     assert errors and 'on_divergence = reset' in errors[0]
-    if not nan:  # reset once at the 20th tick, then it runs on from time 0
+    if not nan:  # reset once at the 20th engine call, then it runs on from time 0
         assert h.node.divergences == 1
-        assert h.scene.time == pytest.approx((h.node.ticks - 20) * 0.02, abs=0.021 + h.scene.dt)
+        slice_s = 0.02 / h.node.config.slices_per_tick   # each call advances one slice
+        assert h.scene.time == pytest.approx((calls['n'] - 20) * slice_s, abs=0.021 + h.scene.dt)
 
 
 def test_displacement_too_large_for_float32_is_a_divergence_not_a_crash(harness):
@@ -738,8 +748,9 @@ def test_recording_holds_every_message_in_and_out(harness, tmp_path):
 def test_node_insertion_gives_the_axial_force_curve_of_tissue_sim_insert(harness):
     """The needle-down insertion through the node against `tissue-sim insert`'s run_insertion on
     the same (default) scene: the same axial force at the same tip travel on both legs, the same
-    puncture. The node runs on simulated time, one tick per /clock step of 20 ms, the test waiting
-    for each tick's wrench: lock-step, so a busy machine cannot make the node drop time."""
+    puncture. The node runs on simulated time, one slice per /clock step of 5 ms, the test waiting
+    for each slice and each tick's wrench: lock-step, so a busy machine cannot make the node drop
+    time."""
     from tissue_sim_ros.analysis.insertion import run_insertion
     from tissue_sim_ros.engine.scene import Scene
     speed, travel, period = 0.02, 0.024, 0.02  # 9 mm to the surface, 15 mm in, and back
@@ -751,12 +762,22 @@ def test_node_insertion_gives_the_axial_force_curve_of_tissue_sim_insert(harness
     t0 = 100 * NS
     tick_ns = t0 + np.arange(n_ticks + 1) * int(period * NS)
     travel_at = np.minimum(speed * (tick_ns - t0) / NS, 2 * travel - speed * (tick_ns - t0) / NS)
+    slices = h.node.config.slices_per_tick
+    slice_ns = int(period * NS) // slices
+    slices_done = h.node.stats['slice_ns']
     for k in range(n_ticks + 1):
         h.publish_pose(start + travel_at[k] * axis, int(tick_ns[k]))  # the pose for this tick
-        clock = Clock(clock=TimeMsg(sec=int(tick_ns[k] // NS), nanosec=int(tick_ns[k] % NS)))
+        for j in range(slices):  # the clock steps through the tick's slices, the last at its time
+            now = int(tick_ns[k]) - (slices - 1 - j) * slice_ns
+            clock = Clock(clock=TimeMsg(sec=now // NS, nanosec=now % NS))
+            done = slices_done.count
+            deadline = time.monotonic() + 10
+            while slices_done.count == done:
+                h.clock_pub.publish(clock)  # repeated: /clock is best effort
+                assert time.monotonic() < deadline, f'no slice {j} in tick {k}'
+                time.sleep(0.002)
         deadline = time.monotonic() + 10
         while not any(cv.stamp_to_ns(w.header.stamp) >= tick_ns[k] for _, w in h.get('wrench')[-3:]):
-            h.clock_pub.publish(clock)  # repeated: /clock is best effort
             assert time.monotonic() < deadline, f'no wrench for tick {k}'
             time.sleep(0.002)
     h.stop_node()

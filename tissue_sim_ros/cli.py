@@ -37,7 +37,7 @@ def _drive(args):
 def _node_bench(args):
     from tissue_sim_ros.analysis import node_bench
     node_bench.run(duration_s=args.duration_s, rate_hz=args.rate_hz, scene_file=args.scene_file,
-                   out=args.out)
+                   out=args.out, slices_per_tick=args.slices_per_tick)
 
 
 def _insert(args):
@@ -99,6 +99,8 @@ def build_parser():
     node_bench.add_argument('--duration-s', type=float, default=20.0, help='measured run length [s] (default 20)')
     node_bench.add_argument('--rate-hz', type=float, default=100.0, help='pose rate [Hz] (default 100)')
     node_bench.add_argument('--scene-file', default=None, help='scene (default: the packaged one)')
+    node_bench.add_argument('--slices-per-tick', type=int, default=None,
+                            help="the node's engine.slices_per_tick (default: its parameter file's)")
     node_bench.add_argument('--out', default=None, help='keep the MCAP log and a JSON of the figures here')
     node_bench.set_defaults(run=_node_bench)
     return parser

@@ -61,7 +61,8 @@ def _node_command(params: list[str]) -> list[str]:
 
 def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | None = None,
             log_dir: str | Path | None = None, speed_mm_s: float = 5.0, depth_mm: float = 15.0,
-            domain_id: int | None = None, publish_rate_hz: float = 50.0) -> dict:
+            domain_id: int | None = None, publish_rate_hz: float = 50.0,
+            slices_per_tick: int | None = None) -> dict:
     """Run the node and the scripted driver for ``duration_s``; the figures as a dict."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
@@ -83,6 +84,8 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
     params = [f'recording.directory:={log_dir}', f'publish_rate_hz:={float(publish_rate_hz)}']
     if scene_file:
         params.append(f'scene_file:={scene_file}')
+    if slices_per_tick is not None:
+        params.append(f'engine.slices_per_tick:={int(slices_per_tick)}')
     start = scene_start(scene_file)
     times, positions = insertion_trajectory(start, speed_mm_s * 1e-3, depth_mm * 1e-3, 0.5,
                                             rate_hz)
@@ -223,6 +226,7 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
         cpu = 100.0 * (cpu1 - cpu0) / ((wall1_ns - wall0_ns) / 1e9)
     result = {
         'scene': scene_file or 'default (config/liver_sample.yaml)',
+        'slices_per_tick': slices_per_tick or 'default',
         'duration_s': (wall1_ns - wall0_ns) / 1e9,
         'pose_rate_hz': rate_hz,
         'poses_sent': len(sent),
@@ -258,7 +262,8 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
 def report(r: dict) -> str:
     g = GOALS
     lines = [
-        f'node bench: {r["scene"]}, {r["duration_s"]:.1f} s measured, poses at {r["pose_rate_hz"]:g} Hz '
+        f'node bench: {r["scene"]}, engine slices per tick {r["slices_per_tick"]}, '
+        f'{r["duration_s"]:.1f} s measured, poses at {r["pose_rate_hz"]:g} Hz '
         f'({r["poses_sent"]} sent, {r["poses_logged"]} logged by the node), node up in {r["startup_s"]:.1f} s',
         f'  wrench rate          {r["wrench_rate_hz"]:8.3f} Hz   ({r["wrench_rate_error_pct"]:+.2f} %; goal within '
         f'{100 * g["rate_rel"]:.1f} %)',
@@ -277,9 +282,10 @@ def report(r: dict) -> str:
 
 
 def run(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | None = None,
-        out: str | None = None) -> dict:
+        out: str | None = None, slices_per_tick: int | None = None) -> dict:
     """Measure and print; with ``out``, keep the MCAP log there and write node_bench.json."""
-    result = measure(duration_s=duration_s, rate_hz=rate_hz, scene_file=scene_file, log_dir=out)
+    result = measure(duration_s=duration_s, rate_hz=rate_hz, scene_file=scene_file, log_dir=out,
+                     slices_per_tick=slices_per_tick)
     print(report(result))
     if out:
         (Path(out) / 'node_bench.json').write_text(json.dumps(result, indent=2))

@@ -30,17 +30,19 @@ initial pose; ``~/pause`` (std_srvs/srv/SetBool) freezes (true) or resumes (fals
 simulation; while paused the node keeps publishing the frozen state.
 
 Timing: a timer on the node clock (``use_sim_time`` is honoured; with it and nothing on
-``/clock`` no tick fires) calls :meth:`TissueSimNode.tick` every 1/``publish_rate_hz``. Each tick
-takes the needle pose at the tick time (interpolated between received poses, see
-:mod:`tissue_sim_ros.ros.pose_input`) and advances the engine to that time: by the node-clock time
-since the previous tick (one period when on time; at most ``MAX_TICK_ADVANCE`` periods, and one
-period after a tick that overran; the excess dropped and counted in diagnostics as
-``dropped_time_s``), in as many substeps of
-the engine's fixed dt as bring the engine time to the running total (so the rounding to whole
-substeps never accumulates). The needle therefore moves in the engine at the speed of its poses,
-whatever the timer jitter. The wrench and the cloud are stamped with the tick time. A tick whose
-work takes longer than the period is a deadline overrun; a gap of more than 1.5 periods between
-tick starts is a missed tick; both are counted in diagnostics.
+``/clock`` no tick fires) calls :meth:`TissueSimNode.tick` ``engine.slices_per_tick`` times per
+1/``publish_rate_hz``. Each call (a slice) takes the needle pose at its time (interpolated between
+received poses, see :mod:`tissue_sim_ros.ros.pose_input`) and advances the engine to that time: by
+the node-clock time since the previous slice (one slice period when on time; at most
+``MAX_TICK_ADVANCE`` tick periods, and one slice period after a slice that overran; the excess
+dropped and counted in diagnostics as ``dropped_time_s``), in as many substeps of the engine's
+fixed dt as bring the engine time to the running total (so the rounding to whole substeps never
+accumulates). The needle therefore moves in the engine at the speed of its poses, whatever the
+timer jitter. After a tick's last slice the wrench and the cloud go out, stamped with its time:
+most of a tick's engine work is done before its time comes, so the wrench follows the tick time
+by one slice of work instead of a whole tick's (the latency from a pose to its wrench). A tick
+whose slices take longer than the period in all is a deadline overrun; a gap of more than 1.5
+periods between ticks is a missed tick; both are counted in diagnostics.
 
 Bad input never stops the node and never reaches a topic as NaN: see ``BAD_INPUT_KINDS`` in
 :mod:`~tissue_sim_ros.ros.pose_input` (each kind logged once, counted in diagnostics). A pose the
@@ -97,12 +99,12 @@ __all__ = ['NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'TissueSimNod
 NODE_NAME = 'tissue_sim'
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 _NS = 1_000_000_000
-#: A tick advances the engine by the node-clock time since the previous tick, at most this many
-#: periods (a tick late by more drops the excess instead of asking the engine for ever more).
-#: After a tick that overran its period, the next one advances one period only: catching up the
-#: node's own overrun would make every following tick longer still (measured on the default
-#: scene with one numba thread, about 20 ms of engine per 20 ms tick: 29 Hz with the catch-up,
-#: 43 Hz without it).
+#: A slice advances the engine by the node-clock time since the previous slice, at most this
+#: many tick periods (a slice late by more drops the excess instead of asking the engine for ever
+#: more). After a slice that overran its own period, the next one advances one slice period only:
+#: catching up the node's own overrun would make every following slice longer still (measured on
+#: the default scene with one numba thread and one slice per tick, about 20 ms of engine per 20 ms
+#: tick: 29 Hz with the catch-up, 43 Hz without it).
 MAX_TICK_ADVANCE = 2.0
 
 
@@ -124,6 +126,10 @@ class _Param:
 PARAMETERS = (
     _Param('publish_rate_hz', 50.0, 'tick rate: the engine advances 1/rate per tick and the wrench '
            'and the node cloud are published once per tick', 1.0, 1000.0),
+    _Param('engine.slices_per_tick', 4, 'the engine is advanced this many times per tick, each '
+           'time to that moment with the pose at that moment; the wrench and the cloud go out '
+           'after the last. More slices leave less engine work between a tick time and its '
+           'wrench (the latency); 1 = one advance per tick', 1, 100),
     _Param('marker_rate_hz', 5.0, 'rate of the RViz surface marker (0 = no marker); sent from '
            'every k-th tick, k = round(publish_rate_hz / marker_rate_hz), after the wrench',
            0.0, 100.0),
@@ -170,6 +176,7 @@ class ConfigError(ValueError):
 @dataclass(frozen=True)
 class NodeConfig:
     publish_rate_hz: float
+    slices_per_tick: int
     marker_rate_hz: float
     marker_max_triangles: int
     diagnostics_rate_hz: float
@@ -297,7 +304,8 @@ def make_config(values: dict, scene_frame_id: str | None = None) -> NodeConfig:
         max_rate_hz=v['input.max_rate_hz'],
         unit_quaternion_tolerance=v['input.unit_quaternion_tolerance'])
     return NodeConfig(
-        publish_rate_hz=v['publish_rate_hz'], marker_rate_hz=v['marker_rate_hz'],
+        publish_rate_hz=v['publish_rate_hz'], slices_per_tick=v['engine.slices_per_tick'],
+        marker_rate_hz=v['marker_rate_hz'],
         marker_max_triangles=v['marker.max_triangles'], diagnostics_rate_hz=v['diagnostics_rate_hz'],
         scene_file=v['scene_file'], frame_id=frame_id, needle_frame_id=v['needle_frame_id'],
         wrench_frame_id=v['wrench.frame_id'], input_limits=limits,
@@ -347,10 +355,10 @@ DIAGNOSTICS_QOS = _qos(10)
 
 
 class _Ring:
-    """Last ``n`` floats (preallocated), for percentiles in diagnostics and the bench."""
+    """Last ``n`` values (preallocated), for percentiles in diagnostics and the bench."""
 
-    def __init__(self, n: int):
-        self.values = np.zeros(max(1, int(n)))
+    def __init__(self, n: int, dtype=np.float64):
+        self.values = np.zeros(max(1, int(n)), dtype=dtype)
         self.count = 0
 
     def add(self, x: float) -> None:
@@ -400,6 +408,13 @@ class TissueSimNode(Node):
 
         self.input = PoseInput(cfg.input_limits, reference_pose=scene.needle_pose)
         self._period_s = cfg.period_s
+        self._slices = cfg.slices_per_tick
+        self._slice_s = cfg.period_s / cfg.slices_per_tick
+        self._schedule0_ns: int | None = None  # scheduled time of the timer's first call
+        self._published_tick = -1  # index of the last tick published, on that schedule
+        self._tick_step_s = 0.0  # engine time, substeps and work of the current tick's slices
+        self._tick_substeps = 0
+        self._tick_work_s = 0.0
         self._logged_kinds: set[str] = set()
         self.paused = False
         self.held = False  # diverged with on_divergence = hold
@@ -410,7 +425,7 @@ class TissueSimNode(Node):
         self._sim_target_s = float(scene.time)
         self._last_tick_ns: int | None = None  # node clock at the previous tick
         self.dropped_time_s = 0.0  # time not simulated because a tick came too late
-        self._overran = False  # the previous tick's work took longer than a period
+        self._overran = False  # the previous slice's work took longer than a slice period
         self.ticks = 0
         self.deadline_overruns = 0
         self.missed_ticks = 0
@@ -423,8 +438,10 @@ class TissueSimNode(Node):
         self._last_tick_wall: float | None = None
         window = int(math.ceil(cfg.publish_rate_hz * 10))
         self.stats = {name: _Ring(window) for name in
-                      ('tick_work_s', 'step_s', 'tick_interval_s', 'latency_s', 'substeps',
-                       'advance_s')}
+                      ('tick_work_s', 'step_s', 'tick_interval_s', 'latency_s', 'substeps')}
+        # per slice: its node-clock time and the engine time it advanced
+        self.stats['slice_ns'] = _Ring(window * self._slices, np.int64)  # ns: beyond float64
+        self.stats['advance_s'] = _Ring(window * self._slices)
         self._window = {'ticks': 0, 'step_s': 0.0, 'step_max_s': 0.0, 'overruns': 0,
                         'wall0': time.perf_counter(), 'sim0': 0.0, 'clock0': None,
                         'bad0': self.input.bad_total}
@@ -449,7 +466,7 @@ class TissueSimNode(Node):
         if cfg.recording_directory:
             self._start_recording()
         self._publish_surface(self._now_ns())
-        self._tick_timer = self.create_timer(self._period_s, self.tick)
+        self._tick_timer = self.create_timer(self._slice_s, self.tick)
         # the marker (milliseconds of Python objects) goes out from a tick, after its wrench and
         # cloud: a timer of its own could fire just before a tick and delay it
         self._marker_every = (max(1, round(cfg.publish_rate_hz / cfg.marker_rate_hz))
@@ -457,7 +474,8 @@ class TissueSimNode(Node):
         self._diagnostics_timer = self.create_timer(1.0 / cfg.diagnostics_rate_hz,
                                                     self.publish_diagnostics)
         self.get_logger().info(
-            f'ticking at {cfg.publish_rate_hz:g} Hz on {self._scene_label()}; wrench in '
+            f'ticking at {cfg.publish_rate_hz:g} Hz ({self._slices} engine slices per tick) on '
+            f'{self._scene_label()}; wrench in '
             f'{cfg.wrench_frame_id!r}, mesh in {cfg.frame_id!r}'
             + (f'; recording to {self._recorder.path}' if self._recorder else '; not recording'))
 
@@ -585,70 +603,112 @@ class TissueSimNode(Node):
     # -- the tick ---------------------------------------------------------------------------
 
     def tick(self) -> None:
-        """Advance the engine one period with the pose at tick time; publish wrench and cloud."""
+        """One slice of a tick: advance the engine to now with the pose at now; after the tick's
+        last slice, publish the wrench and the cloud stamped with its time."""
         wall0 = time.perf_counter()
-        self._drain_poses()  # before the tick time: a pose taken now is older than the tick
+        self._drain_poses()  # before the slice time: a pose taken now is older than it
         now_ns = self._now_ns()
-        if self._last_tick_wall is not None:
-            interval = wall0 - self._last_tick_wall
-            self.stats['tick_interval_s'].add(interval)
-            if interval > 1.5 * self._period_s:
-                self.missed_ticks += int(round(interval / self._period_s)) - 1
-        self._last_tick_wall = wall0
-        scene = self.scene
-        step_s = 0.0
+        publish = self._last_slice_of_tick(now_ns)
+        if publish:
+            if self._last_tick_wall is not None:
+                interval = wall0 - self._last_tick_wall
+                self.stats['tick_interval_s'].add(interval)
+                if interval > 1.5 * self._period_s:
+                    self.missed_ticks += int(round(interval / self._period_s)) - 1
+            self._last_tick_wall = wall0
         if not (self.paused or self.held):
-            target = self.input.pose_at(now_ns)
-            if target is None:
-                target = scene.needle_pose
-            step0 = time.perf_counter()
-            # the engine follows the node clock: each tick advances it by the time since the
-            # previous tick (one period on time; at most MAX_TICK_ADVANCE periods after a late
-            # tick, the rest dropped and counted), so the needle moves at the speed of its poses
-            advance_s = self._period_s
-            if self._last_tick_ns is not None:
-                advance_s = max(0.0, (now_ns - self._last_tick_ns) / _NS)
-                limit = (self._period_s if self._overran else
-                         MAX_TICK_ADVANCE * self._period_s)
-                if advance_s > limit:
-                    self.dropped_time_s += advance_s - limit
-                    advance_s = limit
-            self._sim_target_s += advance_s
-            self.stats['advance_s'].add(advance_s)
-            duration = max(0.0, self._sim_target_s - float(scene.time))
-            try:
-                try:
-                    substeps = scene.advance(duration, target[0], target[1])
-                except self._needle_input_error as exc:
-                    self.input.count('engine_refused')
-                    self._log_once('engine_refused',
-                                   f'the engine refused the needle pose, holding the needle: {exc}')
-                    hold = scene.needle_pose
-                    substeps = scene.advance(duration, hold[0], hold[1])
-                force, torque = scene.reaction_wrench(self.config.wrench_frame)
-                force = np.asarray(force, dtype=np.float64)
-                torque = np.asarray(torque, dtype=np.float64)
-                if not (np.isfinite(force).all() and np.isfinite(torque).all()):
-                    raise SimulationDiverged(
-                        f'non-finite reaction wrench {force.tolist()} {torque.tolist()}',
-                        self.ticks, float(scene.time), float(scene.dt), float('nan'))
-                largest = float(np.abs(scene.displacement).max())
-                if not largest < _FLOAT32_MAX:   # the cloud goes out as float32: never inf on a topic
-                    raise SimulationDiverged(
-                        f'displacement {largest:.3g} m does not fit the float32 cloud',
-                        self.ticks, float(scene.time), float(scene.dt), float('nan'))
-                self._last_wrench = (force, torque)
-                self._last_substeps = int(substeps)
-                self.simulated_s += advance_s
-            except SimulationDiverged as exc:
-                self._diverged(exc)
-            except self._needle_input_error as exc:  # even holding was refused: skip the tick
-                self._log_once('engine_refused_hold', f'the engine refused to hold the needle: {exc}',
-                               'error')
-            step_s = time.perf_counter() - step0
-            self.stats['step_s'].add(step_s)
-            self.stats['substeps'].add(self._last_substeps)
+            self._advance_engine(now_ns)
         self._last_tick_ns = now_ns  # paused or held: that time is not caught up later
+        slice_work = time.perf_counter() - wall0
+        self._overran = slice_work > self._slice_s
+        if publish:
+            self._publish_tick(now_ns, wall0)
+        else:
+            self._tick_work_s += slice_work
+
+    def _last_slice_of_tick(self, now_ns: int) -> bool:
+        """Whether this timer call ends a tick: the last slice of a tick on the timer's own
+        schedule, or the first call after a tick whose last slice the executor skipped (late)."""
+        period_ns = self._tick_timer.timer_period_ns
+        until_next = self._tick_timer.time_until_next_call()
+        # the scheduled time of this call: the timer's next call less one period (rcl keeps the
+        # phase of its schedule when calls are missed)
+        scheduled = now_ns + (until_next if until_next is not None else period_ns) - period_ns
+        if self._schedule0_ns is None:
+            self._schedule0_ns = scheduled
+        index = int(round((scheduled - self._schedule0_ns) / period_ns))
+        tick, position = divmod(index, self._slices)
+        if position == self._slices - 1:
+            self._published_tick = tick
+            return True
+        if tick > self._published_tick + 1:  # the previous tick's last slice never ran
+            self._published_tick = tick - 1
+            return True
+        return False
+
+    def _advance_engine(self, now_ns: int) -> None:
+        """Advance the engine by the node-clock time since the previous slice, to the pose at now."""
+        scene = self.scene
+        target = self.input.pose_at(now_ns)
+        if target is None:
+            target = scene.needle_pose
+        step0 = time.perf_counter()
+        # the engine follows the node clock: each slice advances it by the time since the
+        # previous one (one slice period on time; at most MAX_TICK_ADVANCE tick periods after a
+        # late one, and one slice period after a slice that overran, the rest dropped and
+        # counted), so the needle moves at the speed of its poses
+        advance_s = self._slice_s
+        if self._last_tick_ns is not None:
+            advance_s = max(0.0, (now_ns - self._last_tick_ns) / _NS)
+            limit = self._slice_s if self._overran else MAX_TICK_ADVANCE * self._period_s
+            if advance_s > limit:
+                self.dropped_time_s += advance_s - limit
+                advance_s = limit
+        self._sim_target_s += advance_s
+        self.stats['slice_ns'].add(now_ns)
+        self.stats['advance_s'].add(advance_s)
+        duration = max(0.0, self._sim_target_s - float(scene.time))
+        substeps = 0
+        try:
+            try:
+                substeps = scene.advance(duration, target[0], target[1])
+            except self._needle_input_error as exc:
+                self.input.count('engine_refused')
+                self._log_once('engine_refused',
+                               f'the engine refused the needle pose, holding the needle: {exc}')
+                hold = scene.needle_pose
+                substeps = scene.advance(duration, hold[0], hold[1])
+            force, torque = scene.reaction_wrench(self.config.wrench_frame)
+            force = np.asarray(force, dtype=np.float64)
+            torque = np.asarray(torque, dtype=np.float64)
+            if not (np.isfinite(force).all() and np.isfinite(torque).all()):
+                raise SimulationDiverged(
+                    f'non-finite reaction wrench {force.tolist()} {torque.tolist()}',
+                    self.ticks, float(scene.time), float(scene.dt), float('nan'))
+            largest = float(np.abs(scene.displacement).max())
+            if not largest < _FLOAT32_MAX:   # the cloud goes out as float32: never inf on a topic
+                raise SimulationDiverged(
+                    f'displacement {largest:.3g} m does not fit the float32 cloud',
+                    self.ticks, float(scene.time), float(scene.dt), float('nan'))
+            self._last_wrench = (force, torque)
+            self.simulated_s += advance_s
+        except SimulationDiverged as exc:
+            self._diverged(exc)
+        except self._needle_input_error as exc:  # even holding was refused: skip the slice
+            self._log_once('engine_refused_hold', f'the engine refused to hold the needle: {exc}',
+                           'error')
+        self._tick_step_s += time.perf_counter() - step0
+        self._tick_substeps += int(substeps)
+
+    def _publish_tick(self, now_ns: int, wall0: float) -> None:
+        """The tick's outputs (wrench, cloud, surface after a topology change, marker) and its
+        statistics; ``wall0``: when its last slice started."""
+        scene = self.scene
+        step_s = self._tick_step_s
+        if not (self.paused or self.held):
+            self._last_substeps = self._tick_substeps
+            self.stats['step_s'].add(step_s)
+            self.stats['substeps'].add(self._tick_substeps)
         force, torque = self._last_wrench
         self._publish(self.wrench_pub,
                       cv.wrench_msg(force, torque, self.config.wrench_frame_id, now_ns))
@@ -664,15 +724,15 @@ class TissueSimNode(Node):
         self._pending_receipts.clear()
         if self._marker_every and self.ticks % self._marker_every == 0:
             self._publish_marker(now_ns)
-        work = time.perf_counter() - wall0
+        work = self._tick_work_s + (time.perf_counter() - wall0)
+        self._tick_step_s, self._tick_substeps, self._tick_work_s = 0.0, 0, 0.0
         self.stats['tick_work_s'].add(work)
         self.ticks += 1
         w = self._window
         w['ticks'] += 1
         w['step_s'] += step_s
         w['step_max_s'] = max(w['step_max_s'], step_s)
-        self._overran = work > self._period_s
-        if self._overran:
+        if work > self._period_s:
             self.deadline_overruns += 1
             w['overruns'] += 1
 
