@@ -31,18 +31,22 @@ simulation; while paused the node keeps publishing the frozen state.
 
 Timing: a timer on the node clock (``use_sim_time`` is honoured; with it and nothing on
 ``/clock`` no tick fires) calls :meth:`TissueSimNode.tick` ``engine.slices_per_tick`` times per
-1/``publish_rate_hz``. Each call (a slice) takes the needle pose at its time (interpolated between
-received poses, see :mod:`tissue_sim_ros.ros.pose_input`) and advances the engine to that time: by
-the node-clock time since the previous slice (one slice period when on time; at most
-``MAX_TICK_ADVANCE`` tick periods, and one slice period after a slice that overran; the excess
-dropped and counted in diagnostics as ``dropped_time_s``), in as many substeps of the engine's
-fixed dt as bring the engine time to the running total (so the rounding to whole substeps never
+tick of 1/``publish_rate_hz``. Each slice advances the engine to the newest received pose's stamp
+(never past now, and never more than one period behind it: with no pose for longer the needle is
+held at the newest), the needle on the pose interpolated between received poses (see
+:mod:`tissue_sim_ros.ros.pose_input`). After a tick's last slice the wrench and the cloud go out,
+stamped with the tick time; they show the engine at most one period (with poses streaming, one
+pose interval) behind that time, as a tick that advanced to its own time with the pose held after
+the newest did. Each advance is by the node-clock time since the previous one (at most
+``MAX_TICK_ADVANCE`` tick periods, and one period after a tick that overran; the excess dropped
+and counted in diagnostics as ``dropped_time_s``), in as many substeps of the engine's fixed dt
+as bring the engine time to the running total (so the rounding to whole substeps never
 accumulates). The needle therefore moves in the engine at the speed of its poses, whatever the
-timer jitter. After a tick's last slice the wrench and the cloud go out, stamped with its time:
-most of a tick's engine work is done before its time comes, so the wrench follows the tick time
-by one slice of work instead of a whole tick's (the latency from a pose to its wrench). A tick
-whose slices take longer than the period in all is a deadline overrun; a gap of more than 1.5
-periods between ticks is a missed tick; both are counted in diagnostics.
+timer jitter. With poses streaming, most of a tick's engine work is done before the tick time
+comes, so the wrench follows the tick time by the work of its last slice only (the latency from
+a pose to its wrench). A tick whose slices take longer than the period in all is a deadline
+overrun; a gap of more than 1.5 periods between ticks is a missed tick; both are counted in
+diagnostics.
 
 Bad input never stops the node and never reaches a topic as NaN: see ``BAD_INPUT_KINDS`` in
 :mod:`~tissue_sim_ros.ros.pose_input` (each kind logged once, counted in diagnostics). A pose the
@@ -99,11 +103,11 @@ __all__ = ['NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'TissueSimNod
 NODE_NAME = 'tissue_sim'
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 _NS = 1_000_000_000
-#: A slice advances the engine by the node-clock time since the previous slice, at most this
-#: many tick periods (a slice late by more drops the excess instead of asking the engine for ever
-#: more). After a slice that overran its own period, the next one advances one slice period only:
-#: catching up the node's own overrun would make every following slice longer still (measured on
-#: the default scene with one numba thread and one slice per tick, about 20 ms of engine per 20 ms
+#: An advance of the engine is by the node-clock time since the previous one, at most this many
+#: tick periods (a slice late by more drops the excess instead of asking the engine for ever
+#: more). After a tick that overran its period, the next advance is one period at most: catching
+#: up the node's own overrun would make every following tick longer still (measured on the
+#: default scene with one numba thread and one advance per tick, about 20 ms of engine per 20 ms
 #: tick: 29 Hz with the catch-up, 43 Hz without it).
 MAX_TICK_ADVANCE = 2.0
 
@@ -408,6 +412,7 @@ class TissueSimNode(Node):
 
         self.input = PoseInput(cfg.input_limits, reference_pose=scene.needle_pose)
         self._period_s = cfg.period_s
+        self._period_ns = int(round(cfg.period_s * _NS))
         self._slices = cfg.slices_per_tick
         self._slice_s = cfg.period_s / cfg.slices_per_tick
         self._schedule0_ns: int | None = None  # scheduled time of the timer's first call
@@ -423,9 +428,9 @@ class TissueSimNode(Node):
         # the engine time each tick advances to: the engine steps in multiples of its dt, so
         # each advance() asks for what brings it to this target, and the rounding never adds up
         self._sim_target_s = float(scene.time)
-        self._last_tick_ns: int | None = None  # node clock at the previous tick
+        self._last_tick_ns: int | None = None  # node clock the engine was last advanced to
         self.dropped_time_s = 0.0  # time not simulated because a tick came too late
-        self._overran = False  # the previous slice's work took longer than a slice period
+        self._overran = False  # the previous tick's work took longer than a period
         self.ticks = 0
         self.deadline_overruns = 0
         self.missed_ticks = 0
@@ -442,6 +447,7 @@ class TissueSimNode(Node):
         # per slice: its node-clock time and the engine time it advanced
         self.stats['slice_ns'] = _Ring(window * self._slices, np.int64)  # ns: beyond float64
         self.stats['advance_s'] = _Ring(window * self._slices)
+        self.stats['advances_at_tick'] = _Ring(window, np.int64)  # advances made before each tick
         self._window = {'ticks': 0, 'step_s': 0.0, 'step_max_s': 0.0, 'overruns': 0,
                         'wall0': time.perf_counter(), 'sim0': 0.0, 'clock0': None,
                         'bad0': self.input.bad_total}
@@ -603,8 +609,13 @@ class TissueSimNode(Node):
     # -- the tick ---------------------------------------------------------------------------
 
     def tick(self) -> None:
-        """One slice of a tick: advance the engine to now with the pose at now; after the tick's
-        last slice, publish the wrench and the cloud stamped with its time."""
+        """One slice of a tick: advance the engine as far as the received poses reach (the
+        newest stamp, at most one period behind now), then after the tick's last slice publish
+        the wrench and the cloud stamped with the tick time.
+
+        Advancing to now would hold the needle at the newest pose until the next arrives: with
+        100 Hz poses and 5 ms slices a stop-go whose inertial force spikes punctured the capsule
+        0.7 mm early, and a needle standing still at the sampled step read 5 % low at 5 mm/s."""
         wall0 = time.perf_counter()
         self._drain_poses()  # before the slice time: a pose taken now is older than it
         now_ns = self._now_ns()
@@ -616,15 +627,19 @@ class TissueSimNode(Node):
                 if interval > 1.5 * self._period_s:
                     self.missed_ticks += int(round(interval / self._period_s)) - 1
             self._last_tick_wall = wall0
-        if not (self.paused or self.held):
-            self._advance_engine(now_ns)
-        self._last_tick_ns = now_ns  # paused or held: that time is not caught up later
-        slice_work = time.perf_counter() - wall0
-        self._overran = slice_work > self._slice_s
+        if self.paused or self.held:
+            self._last_tick_ns = now_ns  # that time is not caught up later
+        else:
+            newest = self.input.newest()
+            to_ns = now_ns if newest is None else \
+                min(now_ns, max(int(newest[0]), now_ns - self._period_ns))
+            if self._last_tick_ns is None or to_ns > self._last_tick_ns:
+                self._advance_engine(to_ns)
+                self._last_tick_ns = to_ns
         if publish:
             self._publish_tick(now_ns, wall0)
         else:
-            self._tick_work_s += slice_work
+            self._tick_work_s += time.perf_counter() - wall0
 
     def _last_slice_of_tick(self, now_ns: int) -> bool:
         """Whether this timer call ends a tick: the last slice of a tick on the timer's own
@@ -647,20 +662,21 @@ class TissueSimNode(Node):
         return False
 
     def _advance_engine(self, now_ns: int) -> None:
-        """Advance the engine by the node-clock time since the previous slice, to the pose at now."""
+        """Advance the engine by the node-clock time since it was last advanced, to the pose at
+        ``now_ns``."""
         scene = self.scene
         target = self.input.pose_at(now_ns)
         if target is None:
             target = scene.needle_pose
         step0 = time.perf_counter()
-        # the engine follows the node clock: each slice advances it by the time since the
-        # previous one (one slice period on time; at most MAX_TICK_ADVANCE tick periods after a
-        # late one, and one slice period after a slice that overran, the rest dropped and
-        # counted), so the needle moves at the speed of its poses
+        # the engine follows the node clock: each advance is by the node-clock time since the
+        # previous one (at most MAX_TICK_ADVANCE tick periods, and one tick period after a tick
+        # that overran, the rest dropped and counted), so the needle moves at the speed of its
+        # poses
         advance_s = self._slice_s
         if self._last_tick_ns is not None:
             advance_s = max(0.0, (now_ns - self._last_tick_ns) / _NS)
-            limit = self._slice_s if self._overran else MAX_TICK_ADVANCE * self._period_s
+            limit = self._period_s if self._overran else MAX_TICK_ADVANCE * self._period_s
             if advance_s > limit:
                 self.dropped_time_s += advance_s - limit
                 advance_s = limit
@@ -727,6 +743,8 @@ class TissueSimNode(Node):
         work = self._tick_work_s + (time.perf_counter() - wall0)
         self._tick_step_s, self._tick_substeps, self._tick_work_s = 0.0, 0, 0.0
         self.stats['tick_work_s'].add(work)
+        self.stats['advances_at_tick'].add(self.stats['advance_s'].count)
+        self._overran = work > self._period_s
         self.ticks += 1
         w = self._window
         w['ticks'] += 1
