@@ -131,9 +131,9 @@ PARAMETERS = (
     _Param('publish_rate_hz', 50.0, 'tick rate: the engine advances 1/rate per tick and the wrench '
            'and the node cloud are published once per tick', 1.0, 1000.0),
     _Param('engine.slices_per_tick', 4, 'the engine is advanced this many times per tick, each '
-           'time to that moment with the pose at that moment; the wrench and the cloud go out '
-           'after the last. More slices leave less engine work between a tick time and its '
-           'wrench (the latency); 1 = one advance per tick', 1, 100),
+           "time to the newest pose's stamp (at most one period behind now); the wrench and the "
+           'cloud go out after the last. More slices leave less engine work between a tick time '
+           'and its wrench (the latency); 1 = one advance per tick', 1, 100),
     _Param('marker_rate_hz', 5.0, 'rate of the RViz surface marker (0 = no marker); sent from '
            'every k-th tick, k = round(publish_rate_hz / marker_rate_hz), after the wrench',
            0.0, 100.0),
@@ -428,7 +428,7 @@ class TissueSimNode(Node):
         # the engine time each tick advances to: the engine steps in multiples of its dt, so
         # each advance() asks for what brings it to this target, and the rounding never adds up
         self._sim_target_s = float(scene.time)
-        self._last_tick_ns: int | None = None  # node clock the engine was last advanced to
+        self._engine_clock_ns: int | None = None  # node clock the engine was last advanced to
         self.dropped_time_s = 0.0  # time not simulated because a tick came too late
         self._overran = False  # the previous tick's work took longer than a period
         self.ticks = 0
@@ -444,7 +444,7 @@ class TissueSimNode(Node):
         window = int(math.ceil(cfg.publish_rate_hz * 10))
         self.stats = {name: _Ring(window) for name in
                       ('tick_work_s', 'step_s', 'tick_interval_s', 'latency_s', 'substeps')}
-        # per slice: its node-clock time and the engine time it advanced
+        # per engine advance: the node-clock time it went to and the time it advanced
         self.stats['slice_ns'] = _Ring(window * self._slices, np.int64)  # ns: beyond float64
         self.stats['advance_s'] = _Ring(window * self._slices)
         self.stats['advances_at_tick'] = _Ring(window, np.int64)  # advances made before each tick
@@ -628,14 +628,14 @@ class TissueSimNode(Node):
                     self.missed_ticks += int(round(interval / self._period_s)) - 1
             self._last_tick_wall = wall0
         if self.paused or self.held:
-            self._last_tick_ns = now_ns  # that time is not caught up later
+            self._engine_clock_ns = now_ns  # that time is not caught up later
         else:
             newest = self.input.newest()
             to_ns = now_ns if newest is None else \
                 min(now_ns, max(int(newest[0]), now_ns - self._period_ns))
-            if self._last_tick_ns is None or to_ns > self._last_tick_ns:
+            if self._engine_clock_ns is None or to_ns > self._engine_clock_ns:
                 self._advance_engine(to_ns)
-                self._last_tick_ns = to_ns
+                self._engine_clock_ns = to_ns
         if publish:
             self._publish_tick(now_ns, wall0)
         else:
@@ -661,11 +661,11 @@ class TissueSimNode(Node):
             return True
         return False
 
-    def _advance_engine(self, now_ns: int) -> None:
+    def _advance_engine(self, to_ns: int) -> None:
         """Advance the engine by the node-clock time since it was last advanced, to the pose at
-        ``now_ns``."""
+        ``to_ns``."""
         scene = self.scene
-        target = self.input.pose_at(now_ns)
+        target = self.input.pose_at(to_ns)
         if target is None:
             target = scene.needle_pose
         step0 = time.perf_counter()
@@ -674,14 +674,14 @@ class TissueSimNode(Node):
         # that overran, the rest dropped and counted), so the needle moves at the speed of its
         # poses
         advance_s = self._slice_s
-        if self._last_tick_ns is not None:
-            advance_s = max(0.0, (now_ns - self._last_tick_ns) / _NS)
+        if self._engine_clock_ns is not None:
+            advance_s = max(0.0, (to_ns - self._engine_clock_ns) / _NS)
             limit = self._period_s if self._overran else MAX_TICK_ADVANCE * self._period_s
             if advance_s > limit:
                 self.dropped_time_s += advance_s - limit
                 advance_s = limit
         self._sim_target_s += advance_s
-        self.stats['slice_ns'].add(now_ns)
+        self.stats['slice_ns'].add(to_ns)
         self.stats['advance_s'].add(advance_s)
         duration = max(0.0, self._sim_target_s - float(scene.time))
         substeps = 0
