@@ -105,9 +105,7 @@ def _independent_physical_force(mesh, material, law, u, geometric):
     distortion = np.maximum(0.0, 1.0 - mesh.mean_ratio(mesh.rest_positions + u) / mesh.mean_ratio())
     g_lambda, g_mu = law.corrections(distortion)
     frozen = ts.TensorMassModel(mesh, material, geometric=geometric)
-    frozen.volume_lambda = frozen.volume_lambda * (1.0 + g_lambda)
-    frozen.volume_mu = frozen.volume_mu * (1.0 + g_mu)
-    frozen._assemble_tensors()
+    frozen.set_element_lame(frozen.volume_lambda * (1.0 + g_lambda), frozen.volume_mu * (1.0 + g_mu))
     return frozen, distortion
 
 
@@ -211,8 +209,8 @@ def test_threshold_selects_deformed_elements(jittered_block, liver):
     nonlinear_part = picinbono_forces(model.tetrahedra[selected], model.shape_gradients[selected],
                                       model.volume_lambda[selected], model.volume_mu[selected], u)
     linear_model = ts.TensorMassModel(mesh, liver)
-    linear_model.volume_lambda = np.where(selected, 0.0, linear_model.volume_lambda)
-    linear_model.volume_mu = np.where(selected, 0.0, linear_model.volume_mu)
+    linear_model.set_element_lame(np.where(selected, 0.0, linear_model.volume_lambda),
+                                  np.where(selected, 0.0, linear_model.volume_mu))
     expected = nonlinear_part + linear_model.internal_forces(u)
     assert np.abs(force - expected).max() < 1e-12 * np.abs(expected).max()
 
@@ -226,3 +224,42 @@ def test_bad_options_named(jittered_block, liver):
         ts.Viscosity(lambda_v=1.0, mu_v=-2.0)
     with pytest.raises(ts.MaterialError, match='mu_rate'):
         ts.MeanRatioLaw.exponential(mu_rate=float('nan'))
+
+
+def test_blocks_and_workers_do_not_change_the_forces(liver):
+    """The element pass runs in SIMD blocks of 8 elements dealt round-robin to workers; the forces
+    must not depend on which block, lane, chunk or worker an element falls in, nor on the padded
+    lanes of the last block. Truth: each element alone (a one-element model, seven lanes of
+    padding), summed per node. The full model with viscosity and a threshold that mixes linear and
+    non-linear lanes within blocks; the strains are large enough to bring in the safeguard."""
+    mesh = ts.box_mesh(size=(0.03, 0.03, 0.02), divisions=(3, 3, 2))      # 108 = 13 * 8 + 4
+    assert mesh.n_elements % 8 != 0
+    rng = np.random.default_rng(5)
+    u = rng.normal(scale=2e-3, size=(mesh.n_nodes, 3))
+    v = rng.normal(scale=1e-2, size=(mesh.n_nodes, 3))
+    a = all_shape_gradients(ts.TensorMassModel(mesh, liver).shape_gradients)
+    norms = np.linalg.norm(np.einsum('mkr,mks->mrs', u[mesh.tetrahedra], a), axis=(1, 2))
+    options = dict(geometric=True, physical=ts.MeanRatioLaw.exponential(0.5, 8.0, 1.5, 12.0),
+                   viscosity=ts.Viscosity(lambda_v=5.0, mu_v=2.0), nonlinearity_threshold=float(np.median(norms)))
+    expected = np.zeros((mesh.n_nodes, 3))
+    safeguarded = 0
+    for tet in mesh.tetrahedra:
+        alone = ts.TensorMassModel(ts.make_mesh(mesh.rest_positions[tet], np.arange(4)[None]), liver, **options)
+        expected[tet] += alone.internal_forces(u[tet], v[tet])
+        safeguarded += alone.safeguarded_count
+    assert safeguarded > 0
+    for n_threads in (1, 2, 3):
+        model = ts.TensorMassModel(mesh, liver, n_threads=n_threads, **options)
+        forces = model.internal_forces(u, v)
+        assert np.abs(forces - expected).max() < 1e-12 * np.abs(expected).max()
+        assert model.nonlinear_fraction == pytest.approx(np.mean(norms >= np.median(norms)), abs=1e-15)
+        assert model.safeguarded_count == safeguarded
+
+
+def test_set_element_lame_refuses_bad_values(jittered_block, liver):
+    model = ts.TensorMassModel(jittered_block, liver)
+    m = jittered_block.n_elements
+    with pytest.raises(ValueError, match='volume_lambda'):
+        model.set_element_lame(np.ones(m - 1), np.ones(m))
+    with pytest.raises(ValueError, match='volume_mu'):
+        model.set_element_lame(np.ones(m), np.full(m, np.nan))

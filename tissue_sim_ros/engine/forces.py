@@ -18,7 +18,8 @@ Two formulations of the same forces, held equal by the tests:
   tensors K_ii and edge tensors K_ij summed over the elements around a vertex or edge; lambda and
   mu parts stored separately. Linear only, as in the paper.
 
-Parallel loops are race-free: elements are split into contiguous chunks (spatially ordered
+The element loop runs in SIMD blocks of BLOCK elements (see the section below). Parallel loops
+are race-free: elements are split into contiguous chunks of whole blocks (spatially ordered
 meshes keep each chunk's nodes local), each chunk accumulates into its own buffer, and a node
 loop reduces the buffers it touches and clears them for the next call. Nothing is allocated.
 """
@@ -199,18 +200,10 @@ def safeguarded_piola(f, lam, mu, scratch, out):
 
 
 @njit(cache=True, inline='always')
-def element_gradient(field, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z):
-    """Gradient of a nodal field over one tetrahedron, row-major 3x3 as nine scalars:
-    G = sum_k w_k a_k^T = sum_{k=1..3} (w_k - w_0) a_k^T (FORMULAS.md; a_0 = -(a_1 + a_2 + a_3))."""
-    d1x = field[i1, 0] - field[i0, 0]
-    d1y = field[i1, 1] - field[i0, 1]
-    d1z = field[i1, 2] - field[i0, 2]
-    d2x = field[i2, 0] - field[i0, 0]
-    d2y = field[i2, 1] - field[i0, 1]
-    d2z = field[i2, 2] - field[i0, 2]
-    d3x = field[i3, 0] - field[i0, 0]
-    d3y = field[i3, 1] - field[i0, 1]
-    d3z = field[i3, 2] - field[i0, 2]
+def gradient_of_differences(d1x, d1y, d1z, d2x, d2y, d2z, d3x, d3y, d3z,
+                            a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z):
+    """G = sum_{k=1..3} d_k a_k^T, row-major as nine scalars, from the differences d_k = w_k - w_0
+    of a nodal field w over one tetrahedron (FORMULAS.md: G = sum_k w_k a_k^T, a_0 = -(a_1 + a_2 + a_3))."""
     return (d1x * a1x + d2x * a2x + d3x * a3x, d1x * a1y + d2x * a2y + d3x * a3y,
             d1x * a1z + d2x * a2z + d3x * a3z, d1y * a1x + d2y * a2x + d3y * a3x,
             d1y * a1y + d2y * a2y + d3y * a3y, d1y * a1z + d2y * a2z + d3y * a3z,
@@ -218,9 +211,14 @@ def element_gradient(field, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a
             d1z * a1z + d2z * a2z + d3z * a3z)
 
 
-# Elements whose displacement gradient is this small cannot need the inversion safeguard:
-# sigma_min(I + H) >= 1 - |H|_2 >= 1 - |H|_F > STRETCH_CLAMP, and det F > 0.
-SAFEGUARD_FREE_NORM_SQ = (1.0 - STRETCH_CLAMP) ** 2
+@njit(cache=True, inline='always')
+def element_gradient(field, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z):
+    """Gradient of a nodal field over one tetrahedron (nodes i0..i3), row-major 3x3 as nine scalars."""
+    return gradient_of_differences(
+        field[i1, 0] - field[i0, 0], field[i1, 1] - field[i0, 1], field[i1, 2] - field[i0, 2],
+        field[i2, 0] - field[i0, 0], field[i2, 1] - field[i0, 1], field[i2, 2] - field[i0, 2],
+        field[i3, 0] - field[i0, 0], field[i3, 1] - field[i0, 1], field[i3, 2] - field[i0, 2],
+        a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
 
 
 @njit(cache=True, inline='always')
@@ -242,33 +240,61 @@ def green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22):
 
 
 @njit(cache=True, inline='always')
-def _viscous_stress(h00, h01, h02, h10, h11, h12, h20, h21, h22,
-                    r00, r01, r02, r10, r11, r12, r20, r21, r22, lam_v, mu_v):
-    """Kelvin-Voigt second Piola stress on dE/dt = sym(F^T dF/dt), as (v00, v11, v22, v01, v02, v12)."""
-    q00 = (1.0 + h00) * r00 + h10 * r10 + h20 * r20
-    q11 = h01 * r01 + (1.0 + h11) * r11 + h21 * r21
-    q22 = h02 * r02 + h12 * r12 + (1.0 + h22) * r22
-    q01 = 0.5 * ((1.0 + h00) * r01 + h10 * r11 + h20 * r21 + h01 * r00 + (1.0 + h11) * r10 + h21 * r20)
-    q02 = 0.5 * ((1.0 + h00) * r02 + h10 * r12 + h20 * r22 + h02 * r00 + h12 * r10 + (1.0 + h22) * r20)
-    q12 = 0.5 * (h01 * r02 + (1.0 + h11) * r12 + h21 * r22 + h02 * r01 + h12 * r11 + (1.0 + h22) * r21)
-    tr_q = lam_v * (q00 + q11 + q22)
-    return (tr_q + 2.0 * mu_v * q00, tr_q + 2.0 * mu_v * q11, tr_q + 2.0 * mu_v * q22,
-            2.0 * mu_v * q01, 2.0 * mu_v * q02, 2.0 * mu_v * q12)
+def _green_strain_rate(h00, h01, h02, h10, h11, h12, h20, h21, h22,
+                       r00, r01, r02, r10, r11, r12, r20, r21, r22):
+    """dE/dt = sym(F^T dF/dt), F = I + H, dF/dt = R, as (q00, q11, q22, q01, q02, q12)."""
+    return ((1.0 + h00) * r00 + h10 * r10 + h20 * r20,
+            h01 * r01 + (1.0 + h11) * r11 + h21 * r21,
+            h02 * r02 + h12 * r12 + (1.0 + h22) * r22,
+            0.5 * ((1.0 + h00) * r01 + h10 * r11 + h20 * r21 + h01 * r00 + (1.0 + h11) * r10 + h21 * r20),
+            0.5 * ((1.0 + h00) * r02 + h10 * r12 + h20 * r22 + h02 * r00 + h12 * r10 + (1.0 + h22) * r20),
+            0.5 * (h01 * r02 + (1.0 + h11) * r12 + h21 * r22 + h02 * r01 + h12 * r11 + (1.0 + h22) * r21))
 
 
 @njit(cache=True, inline='always')
-def _scatter_piola(buf, i0, i1, i2, i3, p00, p01, p02, p10, p11, p12, p20, p21, p22,
-                   a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z):
-    """Add the element's nodal forces f_k = -V P a_k (V folded into P), f_0 = -(f_1 + f_2 + f_3)."""
-    f1x = -(p00 * a1x + p01 * a1y + p02 * a1z)
-    f1y = -(p10 * a1x + p11 * a1y + p12 * a1z)
-    f1z = -(p20 * a1x + p21 * a1y + p22 * a1z)
-    f2x = -(p00 * a2x + p01 * a2y + p02 * a2z)
-    f2y = -(p10 * a2x + p11 * a2y + p12 * a2z)
-    f2z = -(p20 * a2x + p21 * a2y + p22 * a2z)
-    f3x = -(p00 * a3x + p01 * a3y + p02 * a3z)
-    f3y = -(p10 * a3x + p11 * a3y + p12 * a3z)
-    f3z = -(p20 * a3x + p21 * a3y + p22 * a3z)
+def _isotropic_stress(lam, mu, e00, e11, e22, e01, e02, e12):
+    """lambda tr(E) I + 2 mu E of a symmetric E, as (s00, s11, s22, s01, s02, s12)."""
+    tr_e = lam * (e00 + e11 + e22)
+    return (tr_e + 2.0 * mu * e00, tr_e + 2.0 * mu * e11, tr_e + 2.0 * mu * e22,
+            2.0 * mu * e01, 2.0 * mu * e02, 2.0 * mu * e12)
+
+
+@njit(cache=True, inline='always')
+def _viscous_stress(h00, h01, h02, h10, h11, h12, h20, h21, h22,
+                    r00, r01, r02, r10, r11, r12, r20, r21, r22, lam_v, mu_v):
+    """Kelvin-Voigt second Piola stress on dE/dt = sym(F^T dF/dt), as (v00, v11, v22, v01, v02, v12)."""
+    q00, q11, q22, q01, q02, q12 = _green_strain_rate(h00, h01, h02, h10, h11, h12, h20, h21, h22,
+                                                      r00, r01, r02, r10, r11, r12, r20, r21, r22)
+    return _isotropic_stress(lam_v, mu_v, q00, q11, q22, q01, q02, q12)
+
+
+@njit(cache=True, inline='always')
+def _first_piola(h00, h01, h02, h10, h11, h12, h20, h21, h22, s00, s11, s22, s01, s02, s12):
+    """P = F S, F = I + H, S symmetric: row-major nine scalars (P is not symmetric)."""
+    f00 = 1.0 + h00
+    f11 = 1.0 + h11
+    f22 = 1.0 + h22
+    return (f00 * s00 + h01 * s01 + h02 * s02, f00 * s01 + h01 * s11 + h02 * s12,
+            f00 * s02 + h01 * s12 + h02 * s22, h10 * s00 + f11 * s01 + h12 * s02,
+            h10 * s01 + f11 * s11 + h12 * s12, h10 * s02 + f11 * s12 + h12 * s22,
+            h20 * s00 + h21 * s01 + f22 * s02, h20 * s01 + h21 * s11 + f22 * s12,
+            h20 * s02 + h21 * s12 + f22 * s22)
+
+
+@njit(cache=True, inline='always')
+def _piola_forces(p00, p01, p02, p10, p11, p12, p20, p21, p22,
+                  a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z):
+    """Nodal forces f_k = -V P a_k, k = 1..3 (V folded into P), as nine scalars; f_0 = -(f_1 + f_2 + f_3)."""
+    return (-(p00 * a1x + p01 * a1y + p02 * a1z), -(p10 * a1x + p11 * a1y + p12 * a1z),
+            -(p20 * a1x + p21 * a1y + p22 * a1z), -(p00 * a2x + p01 * a2y + p02 * a2z),
+            -(p10 * a2x + p11 * a2y + p12 * a2z), -(p20 * a2x + p21 * a2y + p22 * a2z),
+            -(p00 * a3x + p01 * a3y + p02 * a3z), -(p10 * a3x + p11 * a3y + p12 * a3z),
+            -(p20 * a3x + p21 * a3y + p22 * a3z))
+
+
+@njit(cache=True, inline='always')
+def _scatter_forces(buf, i0, i1, i2, i3, f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z):
+    """Add an element's nodal forces f_1..f_3 and f_0 = -(f_1 + f_2 + f_3) to ``buf``."""
     buf[i0, 0] -= f1x + f2x + f3x
     buf[i0, 1] -= f1y + f2y + f3y
     buf[i0, 2] -= f1z + f2z + f3z
@@ -297,23 +323,253 @@ def _shape_gradients(shape_gradients, e):
             shape_gradients[e, 2, 0], shape_gradients[e, 2, 1], shape_gradients[e, 2, 2])
 
 
+# ----------------------------------------------------------------------------------------------
+# The element pass in SIMD blocks. BLOCK consecutive elements are one block, an element per
+# lane: a scalar loop gathers each element's node differences into the chunk's row of a small
+# work array, loops over the lanes do all the arithmetic on fixed offsets of that one row
+# (straight-line, branch-free code with no possible aliasing, which LLVM vectorizes: AVX2 does 4
+# lanes an instruction), and a scalar loop scatters the nodal forces. Field k of lane j sits at
+# k * BLOCK + j. Measured on a first cut (St Venant-Kirchhoff without the safeguard, 98304
+# tetrahedra, 2 threads): 1.58 ms per force evaluation element by element, 0.96 ms in blocks of 8
+# (4: no gain; 16: 1.48 ms; 32: 1.30 ms).
+BLOCK = 8
+# per-element constants, stored block by block (pack_element_blocks) and copied into the work row
+SHAPE = 0                      # 9: a_1, a_2, a_3 (x, y, z each)
+LAMBDA, MU = 9, 10             # V lambda, V mu
+VISCOUS_LAMBDA, VISCOUS_MU = 11, 12
+GRAM = 13                      # 6: rest edge Gram matrix (xx, yy, zz, xy, xz, yz)
+RATIO_SCALE = 19               # mean_ratio_scale
+N_CONSTANTS = 20
+# per-block work fields
+_DU = 20                       # 9: u_k - u_0, k = 1..3
+_DV = 29                       # 9: v_k - v_0
+_H = 38                        # 9: displacement gradient
+_FORCE = 47                    # 9: f_1, f_2, f_3
+_NONLINEAR = 56                # 1.0 where the element takes the non-linear path
+_NEEDS_LAW = 57                # 1.0 where the physical law's corrections are not zero
+_DET = 58                      # det F
+_TR_CG = 59                    # tr(F^T F G)
+_LAMBDA_C, _MU_C = 60, 61      # corrected Lamé values
+_SLOW = 62                     # 1.0 where the inversion safeguard must decide
+_STRAIN = 63                   # 6: Green-Lagrange strain (e00, e11, e22, e01, e02, e12)
+N_WORK = 69
+
+
+def pack_element_blocks(shape_gradients, volume_lambda, volume_mu, viscous_lambda, viscous_mu,
+                        edge_gram, mean_ratio_scale):
+    """Per-element constants in block order (n_blocks, N_CONSTANTS * BLOCK); lanes past the last
+    element are zero (they give zero force). viscous_* may be length 1 (no viscosity: zeros)."""
+    m = len(volume_lambda)
+    n_blocks = -(-m // BLOCK)
+    columns = np.zeros((n_blocks * BLOCK, N_CONSTANTS))
+    columns[:m, SHAPE:SHAPE + 9] = np.asarray(shape_gradients).reshape(m, 9)
+    columns[:m, LAMBDA] = volume_lambda
+    columns[:m, MU] = volume_mu
+    columns[:m, VISCOUS_LAMBDA] = viscous_lambda
+    columns[:m, VISCOUS_MU] = viscous_mu
+    columns[:m, GRAM:GRAM + 6] = edge_gram
+    columns[:m, RATIO_SCALE] = mean_ratio_scale
+    return np.ascontiguousarray(columns.reshape(n_blocks, BLOCK, N_CONSTANTS).transpose(0, 2, 1)
+                                .reshape(n_blocks, N_CONSTANTS * BLOCK))
+
+
+# Distortions s below this are round-off of the rest state (q/q_rest is computed to ~1e-15, and
+# a quarter of the elements at rest land on the s > 0 side) and count as none, skipping the
+# law's pow and exponentials; their corrections would be ~1e-12 of the coefficients.
+DISTORTION_FLOOR = 1e-13
+_UNDISTORTED_CUBE = (1.0 - DISTORTION_FLOOR) ** 3
+
+
 @njit(cache=True, inline='always')
-def _corrected_lame(lam, mu, h00, h01, h02, h10, h11, h12, h20, h21, h22, law_kind, law_params,
-                    g, mean_ratio_scale):
-    """Seed section 4.1: (lambda + dlambda(q), mu + dmu(q)) of one element (V folded in), q its
-    mean ratio relative to rest: q/q_rest = scale |det F|^(2/3) / tr(F^T F G), G = edge Gram matrix."""
-    e00, e11, e22, e01, e02, e12 = green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
-    det_f = deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22)
-    # tr(C G) with C = I + 2E
-    tr_cg = (g[0] * (1.0 + 2.0 * e00) + g[1] * (1.0 + 2.0 * e11) + g[2] * (1.0 + 2.0 * e22)
-             + 4.0 * (g[3] * e01 + g[4] * e02 + g[5] * e12))
-    # no distortion (q >= q_rest: the law's corrections vanish at s = 0) decided on the cubes,
-    # without the cube root; most of the deformed elements of a needle dent are there
-    if mean_ratio_scale * mean_ratio_scale * mean_ratio_scale * det_f * det_f >= tr_cg * tr_cg * tr_cg:
-        return lam, mu
-    relative_quality = mean_ratio_scale * np.abs(det_f) ** (2.0 / 3.0) / tr_cg
-    corr_lambda, corr_mu = _law_correction(law_kind, law_params, max(0.0, 1.0 - relative_quality))
-    return lam * (1.0 + corr_lambda), mu * (1.0 + corr_mu)
+def _get9(work, row, field, j):
+    o = field * BLOCK + j
+    return (work[row, o], work[row, o + BLOCK], work[row, o + 2 * BLOCK], work[row, o + 3 * BLOCK],
+            work[row, o + 4 * BLOCK], work[row, o + 5 * BLOCK], work[row, o + 6 * BLOCK],
+            work[row, o + 7 * BLOCK], work[row, o + 8 * BLOCK])
+
+
+@njit(cache=True, inline='always')
+def _set9(work, row, field, j, v0, v1, v2, v3, v4, v5, v6, v7, v8):
+    o = field * BLOCK + j
+    work[row, o] = v0
+    work[row, o + BLOCK] = v1
+    work[row, o + 2 * BLOCK] = v2
+    work[row, o + 3 * BLOCK] = v3
+    work[row, o + 4 * BLOCK] = v4
+    work[row, o + 5 * BLOCK] = v5
+    work[row, o + 6 * BLOCK] = v6
+    work[row, o + 7 * BLOCK] = v7
+    work[row, o + 8 * BLOCK] = v8
+
+
+@njit(cache=True, inline='always')
+def _lane_gradient(work, row, field, j):
+    """Gradient of the field whose node differences are at ``field``, lane j."""
+    d1x, d1y, d1z, d2x, d2y, d2z, d3x, d3y, d3z = _get9(work, row, field, j)
+    a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z = _get9(work, row, SHAPE, j)
+    return gradient_of_differences(d1x, d1y, d1z, d2x, d2y, d2z, d3x, d3y, d3z,
+                                   a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
+
+
+@njit(cache=True, inline='always')
+def _gather_differences(work, row, field, j, values, i0, i1, i2, i3):
+    for r in range(3):
+        w0 = values[i0, r]
+        work[row, (field + r) * BLOCK + j] = values[i1, r] - w0
+        work[row, (field + 3 + r) * BLOCK + j] = values[i2, r] - w0
+        work[row, (field + 6 + r) * BLOCK + j] = values[i3, r] - w0
+
+
+@njit(cache=True, inline='always')
+def _classify_lanes(work, row, threshold_squared, physical):
+    """Displacement gradient H of every lane, and whether it takes the non-linear path
+    (|H|_F^2 >= threshold^2); with the physical law also det F and tr(F^T F G), and whether the
+    law's corrections can be non-zero. Returns the count of non-linear lanes (of all BLOCK)."""
+    count = 0
+    for j in range(BLOCK):
+        h00, h01, h02, h10, h11, h12, h20, h21, h22 = _lane_gradient(work, row, _DU, j)
+        _set9(work, row, _H, j, h00, h01, h02, h10, h11, h12, h20, h21, h22)
+        norm_sq = (h00 * h00 + h01 * h01 + h02 * h02 + h10 * h10 + h11 * h11
+                   + h12 * h12 + h20 * h20 + h21 * h21 + h22 * h22)
+        nonlinear = norm_sq >= threshold_squared
+        work[row, _NONLINEAR * BLOCK + j] = 1.0 if nonlinear else 0.0
+        count += nonlinear
+        if physical:
+            e00, e11, e22, e01, e02, e12 = green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
+            det_f = deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22)
+            g = GRAM * BLOCK + j
+            # tr(C G) with C = I + 2E
+            tr_cg = (work[row, g] * (1.0 + 2.0 * e00) + work[row, g + BLOCK] * (1.0 + 2.0 * e11)
+                     + work[row, g + 2 * BLOCK] * (1.0 + 2.0 * e22)
+                     + 4.0 * (work[row, g + 3 * BLOCK] * e01 + work[row, g + 4 * BLOCK] * e02
+                              + work[row, g + 5 * BLOCK] * e12))
+            scale = work[row, RATIO_SCALE * BLOCK + j]
+            # the mean ratio fell (s = 1 - q/q_rest > DISTORTION_FLOOR), decided on the cubes
+            # without the cube root; most deformed elements of a needle dent do not distort
+            distorted = scale * scale * scale * det_f * det_f < _UNDISTORTED_CUBE * tr_cg * tr_cg * tr_cg
+            work[row, _NEEDS_LAW * BLOCK + j] = 1.0 if (nonlinear & distorted) else 0.0
+            work[row, _DET * BLOCK + j] = det_f
+            work[row, _TR_CG * BLOCK + j] = tr_cg
+            o = _STRAIN * BLOCK + j
+            work[row, o] = e00
+            work[row, o + BLOCK] = e11
+            work[row, o + 2 * BLOCK] = e22
+            work[row, o + 3 * BLOCK] = e01
+            work[row, o + 4 * BLOCK] = e02
+            work[row, o + 5 * BLOCK] = e12
+            work[row, _LAMBDA_C * BLOCK + j] = work[row, LAMBDA * BLOCK + j]
+            work[row, _MU_C * BLOCK + j] = work[row, MU * BLOCK + j]
+    return count
+
+
+@njit(cache=True, inline='always')
+def _apply_law(work, row, law_kind, law_params):
+    """Seed section 4.1: lambda + dlambda(s), mu + dmu(s) of the distorted lanes (scalar: libm's
+    pow and exp), s = 1 - q/q_rest, q/q_rest = scale |det F|^(2/3) / tr(F^T F G)."""
+    for j in range(BLOCK):
+        if work[row, _NEEDS_LAW * BLOCK + j] > 0.0:
+            relative_quality = (work[row, RATIO_SCALE * BLOCK + j] * np.abs(work[row, _DET * BLOCK + j]) ** (2.0 / 3.0)
+                                / work[row, _TR_CG * BLOCK + j])
+            corr_lambda, corr_mu = _law_correction(law_kind, law_params, max(0.0, 1.0 - relative_quality))
+            work[row, _LAMBDA_C * BLOCK + j] *= 1.0 + corr_lambda
+            work[row, _MU_C * BLOCK + j] *= 1.0 + corr_mu
+
+
+@njit(cache=True, inline='always')
+def _stress_lanes(work, row, gradient_stored, small_strain, finite_strain, physical, viscous, safeguard,
+                  clamp_squared):
+    """Nodal forces f_1..f_3 of every lane from the stress: small strain, St Venant-Kirchhoff
+    (finite_strain), or both and each lane takes the one its _NONLINEAR flag says; Kelvin-Voigt
+    added. With the safeguard, non-linear lanes whose smallest principal stretch is below the
+    clamp or that are inverted are flagged _SLOW: smallest stretch above the clamp <=> C - clamp^2 I
+    positive definite (Sylvester's criterion, exact, no eigenvalues)."""
+    for j in range(BLOCK):
+        if gradient_stored:
+            h00, h01, h02, h10, h11, h12, h20, h21, h22 = _get9(work, row, _H, j)
+        else:
+            h00, h01, h02, h10, h11, h12, h20, h21, h22 = _lane_gradient(work, row, _DU, j)
+        if physical:
+            lam = work[row, _LAMBDA_C * BLOCK + j]
+            mu = work[row, _MU_C * BLOCK + j]
+        else:
+            lam = work[row, LAMBDA * BLOCK + j]
+            mu = work[row, MU * BLOCK + j]
+        r00 = r01 = r02 = r10 = r11 = r12 = r20 = r21 = r22 = 0.0
+        lam_v = mu_v = 0.0
+        if viscous:
+            r00, r01, r02, r10, r11, r12, r20, r21, r22 = _lane_gradient(work, row, _DV, j)
+            lam_v = work[row, VISCOUS_LAMBDA * BLOCK + j]
+            mu_v = work[row, VISCOUS_MU * BLOCK + j]
+        p00 = p01 = p02 = p10 = p11 = p12 = p20 = p21 = p22 = 0.0
+        if small_strain:
+            # E = sym(H), and sym(dH/dt) for the viscous stress
+            s00, s11, s22, s01, s02, s12 = _isotropic_stress(lam, mu, h00, h11, h22, 0.5 * (h01 + h10),
+                                                             0.5 * (h02 + h20), 0.5 * (h12 + h21))
+            if viscous:
+                v00, v11, v22, v01, v02, v12 = _isotropic_stress(
+                    lam_v, mu_v, r00, r11, r22, 0.5 * (r01 + r10), 0.5 * (r02 + r20), 0.5 * (r12 + r21))
+                s00 += v00
+                s11 += v11
+                s22 += v22
+                s01 += v01
+                s02 += v02
+                s12 += v12
+            p00, p01, p02, p10, p11, p12, p20, p21, p22 = s00, s01, s02, s01, s11, s12, s02, s12, s22
+        if finite_strain:
+            nonlinear = work[row, _NONLINEAR * BLOCK + j] > 0.0
+            if physical:     # _classify_lanes has them
+                o = _STRAIN * BLOCK + j
+                e00 = work[row, o]
+                e11 = work[row, o + BLOCK]
+                e22 = work[row, o + 2 * BLOCK]
+                e01 = work[row, o + 3 * BLOCK]
+                e02 = work[row, o + 4 * BLOCK]
+                e12 = work[row, o + 5 * BLOCK]
+                det_f = work[row, _DET * BLOCK + j]
+            else:
+                e00, e11, e22, e01, e02, e12 = green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
+                det_f = deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22)
+            t00, t11, t22, t01, t02, t12 = _isotropic_stress(lam, mu, e00, e11, e22, e01, e02, e12)
+            if viscous:
+                v00, v11, v22, v01, v02, v12 = _viscous_stress(
+                    h00, h01, h02, h10, h11, h12, h20, h21, h22,
+                    r00, r01, r02, r10, r11, r12, r20, r21, r22, lam_v, mu_v)
+                t00 += v00
+                t11 += v11
+                t22 += v22
+                t01 += v01
+                t02 += v02
+                t12 += v12
+            g00, g01, g02, g10, g11, g12, g20, g21, g22 = _first_piola(
+                h00, h01, h02, h10, h11, h12, h20, h21, h22, t00, t11, t22, t01, t02, t12)
+            if small_strain:
+                p00 = g00 if nonlinear else p00
+                p01 = g01 if nonlinear else p01
+                p02 = g02 if nonlinear else p02
+                p10 = g10 if nonlinear else p10
+                p11 = g11 if nonlinear else p11
+                p12 = g12 if nonlinear else p12
+                p20 = g20 if nonlinear else p20
+                p21 = g21 if nonlinear else p21
+                p22 = g22 if nonlinear else p22
+            else:
+                p00, p01, p02, p10, p11, p12, p20, p21, p22 = g00, g01, g02, g10, g11, g12, g20, g21, g22
+            m00 = 1.0 + 2.0 * e00 - clamp_squared
+            m11 = 1.0 + 2.0 * e11 - clamp_squared
+            m22 = 1.0 + 2.0 * e22 - clamp_squared
+            m01 = 2.0 * e01
+            m02 = 2.0 * e02
+            m12 = 2.0 * e12
+            minor2 = m00 * m11 - m01 * m01
+            minor3 = (m00 * (m11 * m22 - m12 * m12) - m01 * (m01 * m22 - m12 * m02)
+                      + m02 * (m01 * m12 - m11 * m02))
+            # bitwise, not short-circuit: no branches in the lane loop
+            inside = (m00 > 0.0) & (minor2 > 0.0) & (minor3 > 0.0) & (det_f > 0.0)
+            work[row, _SLOW * BLOCK + j] = 1.0 if (safeguard & nonlinear & (not inside)) else 0.0
+        a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z = _get9(work, row, SHAPE, j)
+        f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z = _piola_forces(
+            p00, p01, p02, p10, p11, p12, p20, p21, p22, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
+        _set9(work, row, _FORCE, j, f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z)
 
 
 @functools.lru_cache(maxsize=None)
@@ -321,151 +577,96 @@ def element_kernel(geometric, physical, viscous):
     """The element pass compiled for one model: the three flags are compile-time constants, so
     each variant holds only its own arithmetic and branches (one source, eight machine codes).
 
-    Call it as ``kernel(tetrahedra, shape_gradients, volume_lambda, volume_mu, displacement,
-    velocity, threshold_squared, law_kind, law_params, edge_gram, mean_ratio_scale,
-    viscous_lambda, viscous_mu, chunk_bounds, buffers, nonlinear_counts, safeguard,
-    safeguard_scratch, safeguard_counts, corrected_lambda, corrected_mu, slow_elements)``.
+    Call it as ``kernel(tetrahedra, element_blocks, displacement, velocity, threshold_squared,
+    law_kind, law_params, chunk_bounds, work, buffers, nonlinear_counts, safeguard,
+    safeguard_counts, slow_elements, corrected_lambda, corrected_mu, shape_gradients,
+    volume_lambda, volume_mu, viscous_lambda, viscous_mu, safeguard_scratch)``.
     """
     geometric, physical, viscous = bool(geometric), bool(physical), bool(viscous)
+    nonlinear_model = geometric or physical
+    # the constants this model reads (they are stored in this order)
+    n_constants = N_CONSTANTS if physical else (VISCOUS_MU + 1 if viscous else MU + 1)
 
     @njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False)
-    def kernel(tetrahedra, shape_gradients, volume_lambda, volume_mu, displacement, velocity,
-               threshold_squared, law_kind, law_params, edge_gram, mean_ratio_scale,
-               viscous_lambda, viscous_mu, chunk_bounds, buffers, nonlinear_counts,
-               safeguard, safeguard_scratch, safeguard_counts, corrected_lambda, corrected_mu,
-               slow_elements):
+    def kernel(tetrahedra, element_blocks, displacement, velocity, threshold_squared, law_kind,
+               law_params, chunk_bounds, work, buffers, nonlinear_counts, safeguard, safeguard_counts,
+               slow_elements, corrected_lambda, corrected_mu, shape_gradients, volume_lambda,
+               volume_mu, viscous_lambda, viscous_mu, safeguard_scratch):
         """Accumulate the internal elastic (+ viscous) forces into the per-chunk ``buffers``.
 
         The node forces are the sum over chunks (``reduce_buffers``, or fused into the solver's
         node update through ``take_node_force``).
 
-        shape_gradients (m, 3, 3): rows a_1, a_2, a_3 (a_0 = -(a_1 + a_2 + a_3)).
-        volume_lambda, volume_mu (m,): V lambda and V mu of each element (viscous_*: V lambda_v, V mu_v).
-        edge_gram (m, 6): sum over the six rest edges of e e^T (xx, yy, zz, xy, xz, yz), so the
-        deformed sum of squared edge lengths is tr(F^T F G). mean_ratio_scale (m,): 12 (3 V)^(2/3)
-        divided by the rest mean ratio, so q/q_rest = scale |det F|^(2/3) / tr(F^T F G).
+        element_blocks: pack_element_blocks of the element arrays; chunk_bounds: multiples of
+        BLOCK (chunk_layout). Worker t of n_workers = len(buffers) takes chunks t, t + n_workers,
+        ... into buffers[t]; work (n_workers, >= N_WORK * BLOCK): its scratch row.
         nonlinear_counts (n_chunks,): elements that took the non-linear path, per chunk.
         safeguard: apply the inversion safeguard on the St Venant-Kirchhoff path to elements whose
-        smallest principal stretch is below STRETCH_CLAMP (|H|_F, then Sylvester's criterion on
-        F^T F - STRETCH_CLAMP^2 I) or whose det F <= 0; those are set aside in ``slow_elements`` (m,) and done after the
-        chunk's loop, so the loop itself holds no call. safeguard_scratch (n_chunks, 6, 3, 3);
-        safeguard_counts (n_chunks,) how many elements it changed.
-        corrected_lambda, corrected_mu (m,): the corrected Lamé values, kept for the safeguard pass.
+        smallest principal stretch is below STRETCH_CLAMP or whose det F <= 0; those are set aside
+        in ``slow_elements`` (m,), their corrected Lamé values in ``corrected_lambda``/``_mu`` (m,),
+        and done after the chunk's loop by ``_safeguarded_elements`` from the element arrays
+        (shape_gradients (m, 3, 3), V lambda, V mu, V lambda_v, V mu_v). safeguard_scratch
+        (n_workers, 6, 3, 3); safeguard_counts (n_chunks,) how many elements it changed.
         """
         clamp_squared = STRETCH_CLAMP * STRETCH_CLAMP
         n_chunks = chunk_bounds.shape[0] - 1
-        for c in prange(n_chunks):
-            lo = chunk_bounds[c]
-            hi = chunk_bounds[c + 1]
-            buf = buffers[c]
-            n_nonlinear = 0
-            n_slow = 0
-            for e in range(lo, hi):
-                i0, i1, i2, i3 = _element_nodes(tetrahedra, e)
-                a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z = _shape_gradients(shape_gradients, e)
-                # H = sum_k u_k a_k^T = sum_{k=1..3} (u_k - u_0) a_k^T
-                h00, h01, h02, h10, h11, h12, h20, h21, h22 = element_gradient(
-                    displacement, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
-                # rate of the displacement gradient, for Kelvin-Voigt viscosity
-                r00 = r01 = r02 = r10 = r11 = r12 = r20 = r21 = r22 = 0.0
-                if viscous:
-                    r00, r01, r02, r10, r11, r12, r20, r21, r22 = element_gradient(
-                        velocity, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
-                norm_sq = 0.0
-                nonlinear = False
-                if geometric or physical:
-                    norm_sq = (h00 * h00 + h01 * h01 + h02 * h02 + h10 * h10 + h11 * h11
-                               + h12 * h12 + h20 * h20 + h21 * h21 + h22 * h22)
-                    nonlinear = norm_sq >= threshold_squared
-                lam = volume_lambda[e]
-                mu = volume_mu[e]
-                if physical and nonlinear:
-                    lam, mu = _corrected_lame(lam, mu, h00, h01, h02, h10, h11, h12, h20, h21, h22,
-                                              law_kind, law_params, edge_gram[e], mean_ratio_scale[e])
-                    if geometric and safeguard:
-                        corrected_lambda[e] = lam    # for the safeguard pass
-                        corrected_mu[e] = mu
-                n_nonlinear += nonlinear
-                if geometric and nonlinear:
-                    f00 = 1.0 + h00
-                    f11 = 1.0 + h11
-                    f22 = 1.0 + h22
-                    e00, e11, e22, e01, e02, e12 = green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
-                    if safeguard and norm_sq >= SAFEGUARD_FREE_NORM_SQ:
-                        # smallest stretch above the clamp <=> C - clamp^2 I positive definite
-                        # (Sylvester's criterion, C = I + 2E: exact, no eigenvalues); and det F > 0
-                        m00 = 1.0 + 2.0 * e00 - clamp_squared
-                        m11 = 1.0 + 2.0 * e11 - clamp_squared
-                        m22 = 1.0 + 2.0 * e22 - clamp_squared
-                        m01 = 2.0 * e01
-                        m02 = 2.0 * e02
-                        m12 = 2.0 * e12
-                        minor2 = m00 * m11 - m01 * m01
-                        minor3 = (m00 * (m11 * m22 - m12 * m12) - m01 * (m01 * m22 - m12 * m02)
-                                  + m02 * (m01 * m12 - m11 * m02))
-                        det_f = deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22)
-                        if not (m00 > 0.0 and minor2 > 0.0 and minor3 > 0.0 and det_f > 0.0):
+        n_workers = buffers.shape[0]
+        for t in prange(n_workers):
+            buf = buffers[t]
+            for c in range(t, n_chunks, n_workers):
+                lo = chunk_bounds[c]
+                hi = chunk_bounds[c + 1]
+                n_nonlinear = 0
+                n_slow = 0
+                for base in range(lo, hi, BLOCK):
+                    n = min(BLOCK, hi - base)
+                    block = base // BLOCK
+                    for k in range(n_constants * BLOCK):
+                        work[t, k] = element_blocks[block, k]
+                    for j in range(n):
+                        i0, i1, i2, i3 = _element_nodes(tetrahedra, base + j)
+                        _gather_differences(work, t, _DU, j, displacement, i0, i1, i2, i3)
+                        if viscous:
+                            _gather_differences(work, t, _DV, j, velocity, i0, i1, i2, i3)
+                    for j in range(n, BLOCK):
+                        for k in range(9):
+                            work[t, (_DU + k) * BLOCK + j] = 0.0
+                            work[t, (_DV + k) * BLOCK + j] = 0.0
+                    lanes_nonlinear = 0
+                    if nonlinear_model:
+                        lanes_nonlinear = _classify_lanes(work, t, threshold_squared, physical)
+                        for j in range(n):
+                            n_nonlinear += work[t, _NONLINEAR * BLOCK + j] > 0.0
+                        if physical and lanes_nonlinear > 0:
+                            _apply_law(work, t, law_kind, law_params)
+                    # each lane loop holds only the stress it needs (the flags are constants)
+                    if geometric and lanes_nonlinear == BLOCK:
+                        _stress_lanes(work, t, True, False, True, physical, viscous, safeguard, clamp_squared)
+                    elif geometric and lanes_nonlinear > 0:
+                        _stress_lanes(work, t, True, True, True, physical, viscous, safeguard, clamp_squared)
+                    else:
+                        _stress_lanes(work, t, nonlinear_model, True, False, physical, viscous, safeguard,
+                                      clamp_squared)
+                    for j in range(n):
+                        e = base + j
+                        if geometric and lanes_nonlinear > 0 and work[t, _SLOW * BLOCK + j] > 0.0:
                             slow_elements[lo + n_slow] = e
                             n_slow += 1
+                            if physical:
+                                corrected_lambda[e] = work[t, _LAMBDA_C * BLOCK + j]
+                                corrected_mu[e] = work[t, _MU_C * BLOCK + j]
                             continue
-                    tr_e = e00 + e11 + e22
-                    s00 = lam * tr_e + 2.0 * mu * e00
-                    s11 = lam * tr_e + 2.0 * mu * e11
-                    s22 = lam * tr_e + 2.0 * mu * e22
-                    s01 = 2.0 * mu * e01
-                    s02 = 2.0 * mu * e02
-                    s12 = 2.0 * mu * e12
-                    if viscous:
-                        v00, v11, v22, v01, v02, v12 = _viscous_stress(
-                            h00, h01, h02, h10, h11, h12, h20, h21, h22,
-                            r00, r01, r02, r10, r11, r12, r20, r21, r22, viscous_lambda[e], viscous_mu[e])
-                        s00 += v00
-                        s11 += v11
-                        s22 += v22
-                        s01 += v01
-                        s02 += v02
-                        s12 += v12
-                    # P = F S (not symmetric)
-                    p00 = f00 * s00 + h01 * s01 + h02 * s02
-                    p01 = f00 * s01 + h01 * s11 + h02 * s12
-                    p02 = f00 * s02 + h01 * s12 + h02 * s22
-                    p10 = h10 * s00 + f11 * s01 + h12 * s02
-                    p11 = h10 * s01 + f11 * s11 + h12 * s12
-                    p12 = h10 * s02 + f11 * s12 + h12 * s22
-                    p20 = h20 * s00 + h21 * s01 + f22 * s02
-                    p21 = h20 * s01 + h21 * s11 + f22 * s12
-                    p22 = h20 * s02 + h21 * s12 + f22 * s22
-                else:
-                    # small strain (physical only: with the corrected coefficients)
-                    tr_h = lam * (h00 + h11 + h22)
-                    p00 = tr_h + 2.0 * mu * h00
-                    p11 = tr_h + 2.0 * mu * h11
-                    p22 = tr_h + 2.0 * mu * h22
-                    p01 = mu * (h01 + h10)
-                    p02 = mu * (h02 + h20)
-                    p12 = mu * (h12 + h21)
-                    if viscous:
-                        tr_r = viscous_lambda[e] * (r00 + r11 + r22)
-                        mu_v = viscous_mu[e]
-                        p00 += tr_r + 2.0 * mu_v * r00
-                        p11 += tr_r + 2.0 * mu_v * r11
-                        p22 += tr_r + 2.0 * mu_v * r22
-                        p01 += mu_v * (r01 + r10)
-                        p02 += mu_v * (r02 + r20)
-                        p12 += mu_v * (r12 + r21)
-                    p10 = p01
-                    p20 = p02
-                    p21 = p12
-                _scatter_piola(buf, i0, i1, i2, i3, p00, p01, p02, p10, p11, p12, p20, p21, p22,
-                               a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
-            nonlinear_counts[c] = n_nonlinear
-            n_safeguarded = 0
-            if geometric:
-                n_safeguarded = _safeguarded_elements(
-                    slow_elements[lo:lo + n_slow], tetrahedra, shape_gradients, volume_lambda, volume_mu,
-                    displacement, velocity, physical, viscous, corrected_lambda, corrected_mu,
-                    viscous_lambda, viscous_mu, safeguard_scratch[c], buf)
-            safeguard_counts[c] = n_safeguarded
+                        i0, i1, i2, i3 = _element_nodes(tetrahedra, e)
+                        f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z = _get9(work, t, _FORCE, j)
+                        _scatter_forces(buf, i0, i1, i2, i3, f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z)
+                nonlinear_counts[c] = n_nonlinear
+                n_safeguarded = 0
+                if geometric:
+                    n_safeguarded = _safeguarded_elements(
+                        slow_elements[lo:lo + n_slow], tetrahedra, shape_gradients, volume_lambda, volume_mu,
+                        displacement, velocity, physical, viscous, corrected_lambda, corrected_mu,
+                        viscous_lambda, viscous_mu, safeguard_scratch[t], buf)
+                safeguard_counts[c] = n_safeguarded
     return kernel
 
 
@@ -504,17 +705,18 @@ def _safeguarded_elements(elements, tetrahedra, shape_gradients, volume_lambda, 
         # an element at the clamp to round-off may come back unchanged, as F S
         changed += safeguarded_piola(fm, lam, mu, scratch[:4], pm)
         # add the viscous F S_v
-        _scatter_piola(buf, i0, i1, i2, i3,
-                       pm[0, 0] + fm[0, 0] * v00 + fm[0, 1] * v01 + fm[0, 2] * v02,
-                       pm[0, 1] + fm[0, 0] * v01 + fm[0, 1] * v11 + fm[0, 2] * v12,
-                       pm[0, 2] + fm[0, 0] * v02 + fm[0, 1] * v12 + fm[0, 2] * v22,
-                       pm[1, 0] + fm[1, 0] * v00 + fm[1, 1] * v01 + fm[1, 2] * v02,
-                       pm[1, 1] + fm[1, 0] * v01 + fm[1, 1] * v11 + fm[1, 2] * v12,
-                       pm[1, 2] + fm[1, 0] * v02 + fm[1, 1] * v12 + fm[1, 2] * v22,
-                       pm[2, 0] + fm[2, 0] * v00 + fm[2, 1] * v01 + fm[2, 2] * v02,
-                       pm[2, 1] + fm[2, 0] * v01 + fm[2, 1] * v11 + fm[2, 2] * v12,
-                       pm[2, 2] + fm[2, 0] * v02 + fm[2, 1] * v12 + fm[2, 2] * v22,
-                       a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
+        f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z = _piola_forces(
+            pm[0, 0] + fm[0, 0] * v00 + fm[0, 1] * v01 + fm[0, 2] * v02,
+            pm[0, 1] + fm[0, 0] * v01 + fm[0, 1] * v11 + fm[0, 2] * v12,
+            pm[0, 2] + fm[0, 0] * v02 + fm[0, 1] * v12 + fm[0, 2] * v22,
+            pm[1, 0] + fm[1, 0] * v00 + fm[1, 1] * v01 + fm[1, 2] * v02,
+            pm[1, 1] + fm[1, 0] * v01 + fm[1, 1] * v11 + fm[1, 2] * v12,
+            pm[1, 2] + fm[1, 0] * v02 + fm[1, 1] * v12 + fm[1, 2] * v22,
+            pm[2, 0] + fm[2, 0] * v00 + fm[2, 1] * v01 + fm[2, 2] * v02,
+            pm[2, 1] + fm[2, 0] * v01 + fm[2, 1] * v11 + fm[2, 2] * v12,
+            pm[2, 2] + fm[2, 0] * v02 + fm[2, 1] * v12 + fm[2, 2] * v22,
+            a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
+        _scatter_forces(buf, i0, i1, i2, i3, f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z)
     return changed
 
 
@@ -542,23 +744,36 @@ def reduce_buffers(buffers, chunk_node_lo, chunk_node_hi, out):
         out[i, 0], out[i, 1], out[i, 2] = take_node_force(buffers, chunk_node_lo, chunk_node_hi, i)
 
 
-def chunk_layout(tetrahedra, n_nodes, n_chunks):
-    """Split the element range into contiguous chunks; return (bounds, node_lo, node_hi).
+# Chunks per worker. A needle's non-linear elements (the law's pow and exp, the safeguard) sit in
+# one region of a spatially ordered mesh, which contiguous halves give to one thread. Workers take
+# every n_workers-th chunk instead, so the region is shared: 98304 tetrahedra with a needle dent
+# (5600 elements under the law, all in the second half), 2 threads, full model 1.32-1.38 ms with
+# halves, 1.21-1.30 ms with 32 chunks per worker.
+CHUNKS_PER_WORKER = 32
 
-    node_lo/node_hi bound the nodes each chunk touches, so the reduction reads only the buffer
-    rows a chunk can have written.
+
+def chunk_layout(tetrahedra, n_nodes, n_workers):
+    """Split the element range into contiguous chunks of whole blocks, dealt round-robin to
+    ``n_workers`` workers (worker t takes chunks t, t + n_workers, ...).
+
+    Returns (bounds, node_lo, node_hi, n_workers): node_lo/node_hi (n_workers,) bound the nodes
+    each worker touches, so the reduction reads only the buffer rows a worker can have written.
     """
     n_elements = tetrahedra.shape[0]
-    n_chunks = max(1, min(n_chunks, n_elements))
-    bounds = np.linspace(0, n_elements, n_chunks + 1).round().astype(np.int64)
-    node_lo = np.zeros(n_chunks, dtype=np.int64)
-    node_hi = np.zeros(n_chunks, dtype=np.int64)
+    n_blocks = -(-n_elements // BLOCK)
+    n_workers = max(1, min(n_workers, n_blocks))
+    n_chunks = max(n_workers, min(n_workers * CHUNKS_PER_WORKER, n_blocks))
+    bounds = np.minimum(np.linspace(0, n_blocks, n_chunks + 1).round().astype(np.int64) * BLOCK, n_elements)
+    node_lo = np.full(n_workers, n_nodes, dtype=np.int64)
+    node_hi = np.zeros(n_workers, dtype=np.int64)
     for c in range(n_chunks):
-        block = tetrahedra[bounds[c]:bounds[c + 1]]
-        if block.size:
-            node_lo[c] = block.min()
-            node_hi[c] = block.max() + 1
-    return bounds, node_lo, node_hi
+        chunk = tetrahedra[bounds[c]:bounds[c + 1]]
+        if chunk.size:
+            t = c % n_workers
+            node_lo[t] = min(node_lo[t], chunk.min())
+            node_hi[t] = max(node_hi[t], chunk.max() + 1)
+    node_lo = np.minimum(node_lo, node_hi)
+    return bounds, node_lo, node_hi, n_workers
 
 
 # ----------------------------------------------------------------------------------------------

@@ -155,19 +155,45 @@ class TensorMassModel:
             ratios.append(self.viscous_lambda / np.maximum(self.volume_lambda, 1e-300))
         return float(max(r.max() for r in ratios))
 
-    def _allocate(self, n_chunks):
+    def _allocate(self, n_workers):
         n = self.mesh.n_nodes
-        self.chunk_bounds, self.chunk_node_lo, self.chunk_node_hi = forces.chunk_layout(
-            self.tetrahedra, n, n_chunks)
-        self._buffers = np.zeros((len(self.chunk_bounds) - 1, n, 3))
-        self._nonlinear_counts = np.zeros(len(self.chunk_bounds) - 1, dtype=np.int64)
-        self._safeguard_counts = np.zeros(len(self.chunk_bounds) - 1, dtype=np.int64)
-        self._safeguard_scratch = np.zeros((len(self.chunk_bounds) - 1, 6, 3, 3))
+        self.chunk_bounds, self.chunk_node_lo, self.chunk_node_hi, n_workers = forces.chunk_layout(
+            self.tetrahedra, n, n_workers)
+        n_chunks = len(self.chunk_bounds) - 1
+        self._buffers = np.zeros((n_workers, n, 3))
+        self._nonlinear_counts = np.zeros(n_chunks, dtype=np.int64)
+        self._safeguard_counts = np.zeros(n_chunks, dtype=np.int64)
+        self._safeguard_scratch = np.zeros((n_workers, 6, 3, 3))
         m = len(self.tetrahedra)
         self._corrected_lambda = np.zeros(m)
         self._corrected_mu = np.zeros(m)
         self._slow_elements = np.zeros(m, dtype=np.int64)
         self._zero_velocity = np.zeros((n, 3))
+        # 16 spare doubles a row: two threads' rows never share a cache line (sharing one made
+        # the St Venant-Kirchhoff pass no faster on 2 threads than on 1)
+        self._work = np.zeros((n_workers, forces.N_WORK * forces.BLOCK + 16))
+        self._pack_element_blocks()
+
+    def _pack_element_blocks(self):
+        self._element_blocks = forces.pack_element_blocks(
+            self.shape_gradients, self.volume_lambda, self.volume_mu, self.viscous_lambda,
+            self.viscous_mu, self.edge_gram, self.mean_ratio_scale)
+
+    def set_element_lame(self, volume_lambda, volume_mu):
+        """Replace every element's V lambda and V mu [N m] (e.g. per-element materials, or a law's
+        corrections frozen at a state); the element blocks and the paper's vertex and edge
+        tensors are rebuilt from them."""
+        m = len(self.tetrahedra)
+        values = {}
+        for name, value in (('volume_lambda', volume_lambda), ('volume_mu', volume_mu)):
+            value = np.asarray(value, dtype=float)
+            if value.shape != (m,) or not np.all(np.isfinite(value)):
+                raise ValueError(f'{name}: expected {m} finite values, got shape {value.shape}')
+            values[name] = np.ascontiguousarray(value)
+        self.volume_lambda = values['volume_lambda']
+        self.volume_mu = values['volume_mu']
+        self._pack_element_blocks()
+        self._assemble_tensors()
 
     def _assemble_tensors(self):
         """Vertex tensors (n, 3, 3) and edge tensors (E, 3, 3), lambda and mu parts apart."""
@@ -281,14 +307,17 @@ class TensorMassModel:
     def accumulate_forces(self, displacement, velocity=None):
         """Run the element pass into the per-chunk buffers (see ``force_buffers``) without reducing."""
         viscous = self.viscous and velocity is not None
-        forces.element_kernel(self.geometric, self.physical, viscous)(
-            self.tetrahedra, self.shape_gradients, self.volume_lambda, self.volume_mu,
-            displacement, velocity if viscous else self._zero_velocity,
-            self.threshold_squared, self.law_kind, self.law_params, self.edge_gram,
-            self.mean_ratio_scale, self.viscous_lambda, self.viscous_mu,
-            self.chunk_bounds, self._buffers, self._nonlinear_counts,
-            self.inversion_safeguard and self.geometric, self._safeguard_scratch, self._safeguard_counts,
-            self._corrected_lambda, self._corrected_mu, self._slow_elements)
+        self._run_kernel(self.geometric, self.physical, viscous, displacement,
+                         velocity if viscous else self._zero_velocity, self.threshold_squared,
+                         self.inversion_safeguard and self.geometric)
+
+    def _run_kernel(self, geometric, physical, viscous, displacement, velocity, threshold_squared, safeguard):
+        forces.element_kernel(geometric, physical, viscous)(
+            self.tetrahedra, self._element_blocks, displacement, velocity, threshold_squared,
+            self.law_kind, self.law_params, self.chunk_bounds, self._work, self._buffers,
+            self._nonlinear_counts, safeguard, self._safeguard_counts, self._slow_elements,
+            self._corrected_lambda, self._corrected_mu, self.shape_gradients, self.volume_lambda,
+            self.volume_mu, self.viscous_lambda, self.viscous_mu, self._safeguard_scratch)
 
     @property
     def safeguarded_count(self):
@@ -304,12 +333,7 @@ class TensorMassModel:
         """-K u of the linear (small-strain, elastic) part, whatever the model's options."""
         if out is None:
             out = np.empty((self.mesh.n_nodes, 3))
-        forces.element_kernel(False, False, False)(
-            self.tetrahedra, self.shape_gradients, self.volume_lambda, self.volume_mu,
-            displacement, self._zero_velocity, 0.0, self.law_kind, self.law_params, self.edge_gram,
-            self.mean_ratio_scale, self.viscous_lambda, self.viscous_mu, self.chunk_bounds,
-            self._buffers, self._nonlinear_counts, False, self._safeguard_scratch,
-            self._safeguard_counts, self._corrected_lambda, self._corrected_mu, self._slow_elements)
+        self._run_kernel(False, False, False, displacement, self._zero_velocity, 0.0, False)
         forces.reduce_buffers(self._buffers, self.chunk_node_lo, self.chunk_node_hi, out)
         return out
 
