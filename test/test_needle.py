@@ -1,6 +1,7 @@
 """Needle-tissue interaction: Newton's third law, work and energy, speed (in)dependence, mesh
 convergence, puncture criteria, friction and cutting, layers, sideways loads, bad input."""
 import math
+import time
 
 import numpy as np
 import pytest
@@ -369,6 +370,40 @@ def test_advance_calls_add_up_to_the_time_asked_for():
     assert scene.time == 0.0
     scene.advance(0.02, p, q)
     assert 0.02 - scene.dt < scene.time <= 0.02 + 1e-12
+
+
+def test_a_deadline_leaves_steps_to_the_next_call_without_changing_the_result():
+    """An advance stopped by its deadline (or max_steps) leaves the rest of its steps to the next
+    call, even one of duration 0, and the needle and tissue end exactly where one uninterrupted
+    advance puts them; a deadline already past runs no step and does not move the needle."""
+    p0, q = small_scene().needle_pose
+    target = p0 + np.array([0.0, 0.0, -0.004])
+
+    def run(split):
+        scene = small_scene(gap=0.001)
+        counts = []
+        for k in range(1, 6):
+            pose = p0 + (target - p0) * k / 5
+            if split:
+                counts.append(scene.advance(0.02, pose, q, max_steps=3))
+                counts.append(scene.advance(0.0, pose, q))
+            else:
+                counts.append(scene.advance(0.02, pose, q))
+        return scene, counts
+
+    whole, whole_counts = run(False)
+    parts, part_counts = run(True)
+    assert sum(part_counts) == sum(whole_counts) and max(part_counts[::2]) == 3
+    assert min(part_counts[1::2]) > 0                        # the duration-0 calls ran the rest
+    assert parts.time == whole.time
+    assert np.allclose(parts.needle.position, whole.needle.position, rtol=0, atol=1e-15)
+    # the same steps; the split calls interpolate the needle from another start, equal to round-off
+    assert np.abs(whole.displacement).max() > 1e-4
+    assert np.abs(parts.displacement - whole.displacement).max() < 1e-12 * np.abs(whole.displacement).max()
+    before = parts.needle.position.copy()
+    assert parts.advance(0.02, target + [0.0, 0.0, -0.001], q, deadline=time.perf_counter() - 1.0) == 0
+    assert np.array_equal(parts.needle.position, before)
+    assert parts.advance(0.0, target, q) > 0                 # the next call runs those steps
 
 
 def test_advance_moves_the_needle_at_the_commanded_speed_in_every_step():

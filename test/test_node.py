@@ -356,22 +356,22 @@ def test_unwritable_recording_directory_is_refused(tmp_path):
 # the node
 
 
-def offline_wrenches(stamps_ns, advances, pose_stamps, pose_positions, frame='needle'):
+def offline_wrenches(stamps_ns, advances, pose_stamps, pose_positions, frame='needle', substeps=None):
     """Run a fresh scene with the poses interpolated (np.interp, clamped) at the given stamps,
-    advancing it by the given times."""
+    advancing it by the given times (in at most the given substeps each: where the node's slice
+    deadline left steps to the next slice)."""
     scene = make_scene()
     start = scene.needle_pose[0]
     out = []
-    target = 0.0
-    for t, step in zip(stamps_ns, advances):
+    substeps = [None] * len(advances) if substeps is None else substeps
+    for t, step, n_steps in zip(stamps_ns, advances, substeps):
         if len(pose_stamps):
             base = int(pose_stamps[0])  # ns since 1970 do not fit a float64 to the ns
             p = np.array([np.interp(int(t) - base, np.asarray(pose_stamps) - base,
                                     pose_positions[:, j]) for j in range(3)])
         else:
             p = start
-        target += step
-        scene.advance(max(0.0, target - scene.time), p, DOWN)
+        scene.advance(step, p, DOWN, max_steps=n_steps)   # the scene keeps the running target time
         out.append(np.concatenate(scene.reaction_wrench(frame)))
     return np.array(out)
 
@@ -417,7 +417,9 @@ def test_rate_values_and_stamps_of_an_insertion(harness):
     assert np.all(advances[differ] == 0.02)
     # the values: an offline scene fed the same poses at the same slice times gives the same wrench
     n = len(wrenches)
-    expected = offline_wrenches(slice_ns, advances, stamps, positions)[published]
+    substeps = h.node.stats['advance_steps'].array()
+    assert len(substeps) == len(advances)
+    expected = offline_wrenches(slice_ns, advances, stamps, positions, substeps=substeps)[published]
     np.testing.assert_allclose(values, expected[:n], rtol=1e-7, atol=1e-10)
     assert values[:, 2].min() < -0.1  # it really went in (needle frame: the tissue pushes back)
     assert h.scene.tip_depth > 0.01

@@ -181,7 +181,11 @@ class Client:
 
     def close(self):
         self.stop.set()
-        self.thread.join(timeout=5)
+        self.thread.join(timeout=10)
+        # destroying the node under a spinning executor crashed the test process once (SIGSEGV in
+        # rcl): the spinner must have stopped, and the executor lets go of the node first
+        assert not self.thread.is_alive(), 'the client executor did not stop spinning'
+        self.executor.shutdown(timeout_sec=1.0)
         self.node.destroy_node()
         rclpy.shutdown(context=self.ctx)
         if self._env_before is None:

@@ -11,6 +11,7 @@ needle base linearly (orientation by slerp) from its current pose to the given o
 """
 import copy
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -359,12 +360,17 @@ class Scene:
     def time(self):
         return self.simulation.time
 
-    def advance(self, duration, position, orientation):
+    def advance(self, duration, position, orientation, deadline=None, max_steps=None):
         """Move the needle to the given base pose over ``duration`` [s]; returns the substeps run.
 
         Runs the whole steps that end by the running target time (the sum of all durations since
-        reset); the needle ends on its way to the pose, less than one step before it, and reaches
-        it in the next call. Raises NeedleInputError (before any state changes) for a bad pose, SimulationDiverged if
+        reset, ``target_time``); the needle ends on its way to the pose, less than one step before
+        it, and reaches it in the next call. ``deadline`` (a time.perf_counter() value): no step
+        starts that would, by the last step's wall time, end past it; the steps left are run by
+        the next call (duration 0 runs just those), so a real-time caller keeps its slots.
+        ``max_steps`` stops the same way after that many steps (a replay of a run that a deadline
+        stopped).
+        Raises NeedleInputError (before any state changes) for a bad pose, SimulationDiverged if
         the tissue diverges.
         """
         if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration >= 0):
@@ -382,16 +388,31 @@ class Scene:
         start_t, end_t = sim.time, self._target_time + duration
         self._target_time = end_t
         steps = 0
+        step_wall = 0.0
         while sim.time + sim.dt <= end_t + 1e-9 * sim.dt:
+            if max_steps is not None and steps >= max_steps:
+                return steps
+            if deadline is not None:
+                now = time.perf_counter()
+                if now + step_wall > deadline:
+                    return steps
             s = min(1.0, (sim.time + sim.dt - start_t) / (end_t - start_t))
             needle.set_pose(start_p + s * (position - start_p), slerp(start_q, orientation, s))
             sim.step(1)
             needle.after_step(sim.dt)
             steps += 1
-        if duration == 0:
+            if deadline is not None:
+                step_wall = time.perf_counter() - now
+        if duration == 0 and steps == 0:
             needle.set_pose(position, orientation)
             needle.set_pose(position, orientation)   # no step: no velocity from a pose change
         return steps
+
+    @property
+    def target_time(self):
+        """The running target time [s]: the sum of the durations asked of ``advance`` since reset
+        (the simulation is less than one step short of it, or more where a deadline stopped it)."""
+        return self._target_time
 
     def reset(self):
         """Rest state, needle at its initial pose, time 0."""

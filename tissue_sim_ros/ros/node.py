@@ -44,7 +44,9 @@ as bring the engine time to the running total (so the rounding to whole substeps
 accumulates). The needle therefore moves in the engine at the speed of its poses, whatever the
 timer jitter. With poses streaming, most of a tick's engine work is done before the tick time
 comes, so the wrench follows the tick time by the work of its last slice only (the latency from
-a pose to its wrench). A tick whose slices take longer than the period in all is a deadline
+a pose to its wrench). A slice that does not publish starts no substep that would run into the
+next slice's time (``SLICE_MARGIN_S``; on the wall clock, so not with ``use_sim_time``): the
+publishing slice runs what it left, and the ticks stay on time when the machine slows a slice. A tick whose slices take longer than the period in all is a deadline
 overrun; a gap of more than 1.5 periods between ticks is a missed tick; both are counted in
 diagnostics.
 
@@ -65,6 +67,7 @@ summary on a normal exit, SIGINT and SIGTERM; after SIGKILL at most the last chu
 from __future__ import annotations
 
 import datetime as _dt
+import gc
 import math
 import signal
 import sys
@@ -110,6 +113,10 @@ _NS = 1_000_000_000
 #: default scene with one numba thread and one advance per tick, about 20 ms of engine per 20 ms
 #: tick: 29 Hz with the catch-up, 43 Hz without it).
 MAX_TICK_ADVANCE = 2.0
+#: A slice that does not publish stops starting substeps this long before the next slice is due
+#: (the executor's hop to the next call). Without a deadline a slice slowed by the machine ran
+#: into the publishing slice's time and that tick went out 2-4 ms late.
+SLICE_MARGIN_S = 0.5e-3
 
 
 # --------------------------------------------------------------------------------------------
@@ -447,6 +454,7 @@ class TissueSimNode(Node):
         # per engine advance: the node-clock time it went to and the time it advanced
         self.stats['slice_ns'] = _Ring(window * self._slices, np.int64)  # ns: beyond float64
         self.stats['advance_s'] = _Ring(window * self._slices)
+        self.stats['advance_steps'] = _Ring(window * self._slices, np.int64)  # substeps each ran
         self.stats['advances_at_tick'] = _Ring(window, np.int64)  # advances made before each tick
         self._window = {'ticks': 0, 'step_s': 0.0, 'step_max_s': 0.0, 'overruns': 0,
                         'wall0': time.perf_counter(), 'sim0': 0.0, 'clock0': None,
@@ -473,6 +481,8 @@ class TissueSimNode(Node):
             self._start_recording()
         self._publish_surface(self._now_ns())
         self._tick_timer = self.create_timer(self._slice_s, self.tick)
+        self._sim_time = bool(self.get_parameter('use_sim_time').value)
+        self._until_next_slice_ns = int(self._slice_s * _NS)
         # the marker (milliseconds of Python objects) goes out from a tick, after its wrench and
         # cloud: a timer of its own could fire just before a tick and delay it
         self._marker_every = (max(1, round(cfg.publish_rate_hz / cfg.marker_rate_hz))
@@ -633,9 +643,15 @@ class TissueSimNode(Node):
             newest = self.input.newest()
             to_ns = now_ns if newest is None else \
                 min(now_ns, max(int(newest[0]), now_ns - self._period_ns))
+            # a slice that does not publish ends before the next slice is due, by the last
+            # substep's wall time; the publishing slice runs what it left (SLICE_MARGIN_S)
+            deadline = None if publish or self._sim_time else \
+                wall0 + self._until_next_slice_ns / _NS - SLICE_MARGIN_S
             if self._engine_clock_ns is None or to_ns > self._engine_clock_ns:
-                self._advance_engine(to_ns)
+                self._advance_engine(to_ns, deadline)
                 self._engine_clock_ns = to_ns
+            elif self.scene.time + self.scene.dt <= self.scene.target_time:  # what a deadline left
+                self._advance_engine(self._engine_clock_ns, deadline)
         if publish:
             self._publish_tick(now_ns, wall0)
         else:
@@ -646,6 +662,7 @@ class TissueSimNode(Node):
         schedule, or the first call after a tick whose last slice the executor skipped (late)."""
         period_ns = self._tick_timer.timer_period_ns
         until_next = self._tick_timer.time_until_next_call()
+        self._until_next_slice_ns = until_next if until_next is not None else period_ns
         # the scheduled time of this call: the timer's next call less one period (rcl keeps the
         # phase of its schedule when calls are missed)
         scheduled = now_ns + (until_next if until_next is not None else period_ns) - period_ns
@@ -661,9 +678,10 @@ class TissueSimNode(Node):
             return True
         return False
 
-    def _advance_engine(self, to_ns: int) -> None:
+    def _advance_engine(self, to_ns: int, deadline: float | None = None) -> None:
         """Advance the engine by the node-clock time since it was last advanced, to the pose at
-        ``to_ns``."""
+        ``to_ns``; no substep starts that would end past ``deadline`` (perf_counter s), the rest
+        is left to the next slice."""
         scene = self.scene
         target = self.input.pose_at(to_ns)
         if target is None:
@@ -683,11 +701,11 @@ class TissueSimNode(Node):
         self._sim_target_s += advance_s
         self.stats['slice_ns'].add(to_ns)
         self.stats['advance_s'].add(advance_s)
-        duration = max(0.0, self._sim_target_s - float(scene.time))
+        duration = max(0.0, self._sim_target_s - float(scene.target_time))
         substeps = 0
         try:
             try:
-                substeps = scene.advance(duration, target[0], target[1])
+                substeps = scene.advance(duration, target[0], target[1], deadline)
             except self._needle_input_error as exc:
                 self.input.count('engine_refused')
                 self._log_once('engine_refused',
@@ -715,6 +733,7 @@ class TissueSimNode(Node):
                            'error')
         self._tick_step_s += time.perf_counter() - step0
         self._tick_substeps += int(substeps)
+        self.stats['advance_steps'].add(int(substeps))
 
     def _publish_tick(self, now_ns: int, wall0: float) -> None:
         """The tick's outputs (wrench, cloud, surface after a topology change, marker) and its
@@ -955,6 +974,10 @@ def main(argv=None) -> int:
             return 2
         executor = SingleThreadedExecutor()
         executor.add_node(node)
+        # the start-up's objects (numba, rclpy, the scene) move out of the collector's reach: a
+        # full collection walked them all, a 40-60 ms stall of the tick every few seconds
+        gc.collect()
+        gc.freeze()
         try:
             while not stop.is_set() and rclpy.ok():
                 executor.spin_once(timeout_sec=0.1)
