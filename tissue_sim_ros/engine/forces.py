@@ -200,15 +200,23 @@ def safeguarded_piola(f, lam, mu, scratch, out):
 
 
 @njit(cache=True, inline='always')
+def _product3(x00, x01, x02, x10, x11, x12, x20, x21, x22, y00, y01, y02, y10, y11, y12, y20, y21, y22):
+    """X Y of two 3x3 matrices given row-major as nine scalars each; row-major nine scalars."""
+    return (x00 * y00 + x01 * y10 + x02 * y20, x00 * y01 + x01 * y11 + x02 * y21,
+            x00 * y02 + x01 * y12 + x02 * y22, x10 * y00 + x11 * y10 + x12 * y20,
+            x10 * y01 + x11 * y11 + x12 * y21, x10 * y02 + x11 * y12 + x12 * y22,
+            x20 * y00 + x21 * y10 + x22 * y20, x20 * y01 + x21 * y11 + x22 * y21,
+            x20 * y02 + x21 * y12 + x22 * y22)
+
+
+@njit(cache=True, inline='always')
 def gradient_of_differences(d1x, d1y, d1z, d2x, d2y, d2z, d3x, d3y, d3z,
                             a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z):
-    """G = sum_{k=1..3} d_k a_k^T, row-major as nine scalars, from the differences d_k = w_k - w_0
-    of a nodal field w over one tetrahedron (FORMULAS.md: G = sum_k w_k a_k^T, a_0 = -(a_1 + a_2 + a_3))."""
-    return (d1x * a1x + d2x * a2x + d3x * a3x, d1x * a1y + d2x * a2y + d3x * a3y,
-            d1x * a1z + d2x * a2z + d3x * a3z, d1y * a1x + d2y * a2x + d3y * a3x,
-            d1y * a1y + d2y * a2y + d3y * a3y, d1y * a1z + d2y * a2z + d3y * a3z,
-            d1z * a1x + d2z * a2x + d3z * a3x, d1z * a1y + d2z * a2y + d3z * a3y,
-            d1z * a1z + d2z * a2z + d3z * a3z)
+    """G = sum_{k=1..3} d_k a_k^T = D^T A (rows of D: d_k, of A: a_k), row-major as nine scalars,
+    from the differences d_k = w_k - w_0 of a nodal field w over one tetrahedron (FORMULAS.md:
+    G = sum_k w_k a_k^T, a_0 = -(a_1 + a_2 + a_3))."""
+    return _product3(d1x, d2x, d3x, d1y, d2y, d3y, d1z, d2z, d3z,
+                     a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
 
 
 @njit(cache=True, inline='always')
@@ -271,25 +279,17 @@ def _viscous_stress(h00, h01, h02, h10, h11, h12, h20, h21, h22,
 @njit(cache=True, inline='always')
 def _first_piola(h00, h01, h02, h10, h11, h12, h20, h21, h22, s00, s11, s22, s01, s02, s12):
     """P = F S, F = I + H, S symmetric: row-major nine scalars (P is not symmetric)."""
-    f00 = 1.0 + h00
-    f11 = 1.0 + h11
-    f22 = 1.0 + h22
-    return (f00 * s00 + h01 * s01 + h02 * s02, f00 * s01 + h01 * s11 + h02 * s12,
-            f00 * s02 + h01 * s12 + h02 * s22, h10 * s00 + f11 * s01 + h12 * s02,
-            h10 * s01 + f11 * s11 + h12 * s12, h10 * s02 + f11 * s12 + h12 * s22,
-            h20 * s00 + h21 * s01 + f22 * s02, h20 * s01 + h21 * s11 + f22 * s12,
-            h20 * s02 + h21 * s12 + f22 * s22)
+    return _product3(1.0 + h00, h01, h02, h10, 1.0 + h11, h12, h20, h21, 1.0 + h22,
+                     s00, s01, s02, s01, s11, s12, s02, s12, s22)
 
 
 @njit(cache=True, inline='always')
 def _piola_forces(p00, p01, p02, p10, p11, p12, p20, p21, p22,
                   a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z):
-    """Nodal forces f_k = -V P a_k, k = 1..3 (V folded into P), as nine scalars; f_0 = -(f_1 + f_2 + f_3)."""
-    return (-(p00 * a1x + p01 * a1y + p02 * a1z), -(p10 * a1x + p11 * a1y + p12 * a1z),
-            -(p20 * a1x + p21 * a1y + p22 * a1z), -(p00 * a2x + p01 * a2y + p02 * a2z),
-            -(p10 * a2x + p11 * a2y + p12 * a2z), -(p20 * a2x + p21 * a2y + p22 * a2z),
-            -(p00 * a3x + p01 * a3y + p02 * a3z), -(p10 * a3x + p11 * a3y + p12 * a3z),
-            -(p20 * a3x + p21 * a3y + p22 * a3z))
+    """Nodal forces f_k = -V P a_k, k = 1..3 (V folded into P): the rows of A (-P)^T, as nine
+    scalars; f_0 = -(f_1 + f_2 + f_3)."""
+    return _product3(a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z,
+                     -p00, -p10, -p20, -p01, -p11, -p21, -p02, -p12, -p22)
 
 
 @njit(cache=True, inline='always')

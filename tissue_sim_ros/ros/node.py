@@ -482,7 +482,6 @@ class TissueSimNode(Node):
         self._publish_surface(self._now_ns())
         self._tick_timer = self.create_timer(self._slice_s, self.tick)
         self._sim_time = bool(self.get_parameter('use_sim_time').value)
-        self._until_next_slice_ns = int(self._slice_s * _NS)
         # the marker (milliseconds of Python objects) goes out from a tick, after its wrench and
         # cloud: a timer of its own could fire just before a tick and delay it
         self._marker_every = (max(1, round(cfg.publish_rate_hz / cfg.marker_rate_hz))
@@ -629,7 +628,7 @@ class TissueSimNode(Node):
         wall0 = time.perf_counter()
         self._drain_poses()  # before the slice time: a pose taken now is older than it
         now_ns = self._now_ns()
-        publish = self._last_slice_of_tick(now_ns)
+        publish, until_next_ns = self._last_slice_of_tick(now_ns)
         if publish:
             if self._last_tick_wall is not None:
                 interval = wall0 - self._last_tick_wall
@@ -646,7 +645,7 @@ class TissueSimNode(Node):
             # a slice that does not publish ends before the next slice is due, by the last
             # substep's wall time; the publishing slice runs what it left (SLICE_MARGIN_S)
             deadline = None if publish or self._sim_time else \
-                wall0 + self._until_next_slice_ns / _NS - SLICE_MARGIN_S
+                wall0 + until_next_ns / _NS - SLICE_MARGIN_S
             if self._engine_clock_ns is None or to_ns > self._engine_clock_ns:
                 self._advance_engine(to_ns, deadline)
                 self._engine_clock_ns = to_ns
@@ -657,26 +656,27 @@ class TissueSimNode(Node):
         else:
             self._tick_work_s += time.perf_counter() - wall0
 
-    def _last_slice_of_tick(self, now_ns: int) -> bool:
-        """Whether this timer call ends a tick: the last slice of a tick on the timer's own
-        schedule, or the first call after a tick whose last slice the executor skipped (late)."""
+    def _last_slice_of_tick(self, now_ns: int) -> tuple[bool, int]:
+        """(Whether this timer call ends a tick, ns until the timer's next call). A call ends a
+        tick when it is the last slice of a tick on the timer's own schedule, or the first call
+        after a tick whose last slice the executor skipped (late)."""
         period_ns = self._tick_timer.timer_period_ns
         until_next = self._tick_timer.time_until_next_call()
-        self._until_next_slice_ns = until_next if until_next is not None else period_ns
+        until_next = until_next if until_next is not None else period_ns
         # the scheduled time of this call: the timer's next call less one period (rcl keeps the
         # phase of its schedule when calls are missed)
-        scheduled = now_ns + (until_next if until_next is not None else period_ns) - period_ns
+        scheduled = now_ns + until_next - period_ns
         if self._schedule0_ns is None:
             self._schedule0_ns = scheduled
         index = int(round((scheduled - self._schedule0_ns) / period_ns))
         tick, position = divmod(index, self._slices)
         if position == self._slices - 1:
             self._published_tick = tick
-            return True
+            return True, until_next
         if tick > self._published_tick + 1:  # the previous tick's last slice never ran
             self._published_tick = tick - 1
-            return True
-        return False
+            return True, until_next
+        return False, until_next
 
     def _advance_engine(self, to_ns: int, deadline: float | None = None) -> None:
         """Advance the engine by the node-clock time since it was last advanced, to the pose at
