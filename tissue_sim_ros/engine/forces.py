@@ -311,7 +311,9 @@ def _scatter_forces(buf, i0, i1, i2, i3, f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y,
 
 @njit(cache=True, inline='always')
 def _element_nodes(tetrahedra, e):
-    """The element's node indices, unsigned so that indexing skips the negative-index wraparound."""
+    """The element's node indices, unsigned so that indexing skips the negative-index wraparound
+    (e too: elements are never counted from the end)."""
+    e = np.uint64(e)
     return (np.uint32(tetrahedra[e, 0]), np.uint32(tetrahedra[e, 1]), np.uint32(tetrahedra[e, 2]),
             np.uint32(tetrahedra[e, 3]))
 
@@ -329,7 +331,7 @@ def _shape_gradients(shape_gradients, e):
 # work array, loops over the lanes do all the arithmetic on fixed offsets of that one row
 # (straight-line, branch-free code with no possible aliasing, which LLVM vectorizes: AVX2 does 4
 # lanes an instruction), and a scalar loop scatters the nodal forces. Field k of lane j sits at
-# k * BLOCK + j. Measured on a first cut (St Venant-Kirchhoff without the safeguard, 98304
+# k * BLOCK + j (_at). Measured on a first cut (St Venant-Kirchhoff without the safeguard, 98304
 # tetrahedra, 2 threads): 1.58 ms per force evaluation element by element, 0.96 ms in blocks of 8
 # (4: no gain; 16: 1.48 ms; 32: 1.30 ms).
 BLOCK = 8
@@ -381,25 +383,30 @@ _UNDISTORTED_CUBE = (1.0 - DISTORTION_FLOOR) ** 3
 
 
 @njit(cache=True, inline='always')
+def _at(field, j):
+    """Offset of ``field`` in lane j of a work row. Unsigned, so numba does not emit the
+    negative-index wraparound (four instructions on every scalar access of the gather)."""
+    return np.uint64(field * BLOCK) + np.uint64(j)
+
+
+@njit(cache=True, inline='always')
 def _get9(work, row, field, j):
-    o = field * BLOCK + j
-    return (work[row, o], work[row, o + BLOCK], work[row, o + 2 * BLOCK], work[row, o + 3 * BLOCK],
-            work[row, o + 4 * BLOCK], work[row, o + 5 * BLOCK], work[row, o + 6 * BLOCK],
-            work[row, o + 7 * BLOCK], work[row, o + 8 * BLOCK])
+    return (work[row, _at(field, j)], work[row, _at(field + 1, j)], work[row, _at(field + 2, j)],
+            work[row, _at(field + 3, j)], work[row, _at(field + 4, j)], work[row, _at(field + 5, j)],
+            work[row, _at(field + 6, j)], work[row, _at(field + 7, j)], work[row, _at(field + 8, j)])
 
 
 @njit(cache=True, inline='always')
 def _set9(work, row, field, j, v0, v1, v2, v3, v4, v5, v6, v7, v8):
-    o = field * BLOCK + j
-    work[row, o] = v0
-    work[row, o + BLOCK] = v1
-    work[row, o + 2 * BLOCK] = v2
-    work[row, o + 3 * BLOCK] = v3
-    work[row, o + 4 * BLOCK] = v4
-    work[row, o + 5 * BLOCK] = v5
-    work[row, o + 6 * BLOCK] = v6
-    work[row, o + 7 * BLOCK] = v7
-    work[row, o + 8 * BLOCK] = v8
+    work[row, _at(field, j)] = v0
+    work[row, _at(field + 1, j)] = v1
+    work[row, _at(field + 2, j)] = v2
+    work[row, _at(field + 3, j)] = v3
+    work[row, _at(field + 4, j)] = v4
+    work[row, _at(field + 5, j)] = v5
+    work[row, _at(field + 6, j)] = v6
+    work[row, _at(field + 7, j)] = v7
+    work[row, _at(field + 8, j)] = v8
 
 
 @njit(cache=True, inline='always')
@@ -415,9 +422,9 @@ def _lane_gradient(work, row, field, j):
 def _gather_differences(work, row, field, j, values, i0, i1, i2, i3):
     for r in range(3):
         w0 = values[i0, r]
-        work[row, (field + r) * BLOCK + j] = values[i1, r] - w0
-        work[row, (field + 3 + r) * BLOCK + j] = values[i2, r] - w0
-        work[row, (field + 6 + r) * BLOCK + j] = values[i3, r] - w0
+        work[row, _at(field + r, j)] = values[i1, r] - w0
+        work[row, _at(field + 3 + r, j)] = values[i2, r] - w0
+        work[row, _at(field + 6 + r, j)] = values[i3, r] - w0
 
 
 @njit(cache=True, inline='always')
@@ -432,33 +439,31 @@ def _classify_lanes(work, row, threshold_squared, physical):
         norm_sq = (h00 * h00 + h01 * h01 + h02 * h02 + h10 * h10 + h11 * h11
                    + h12 * h12 + h20 * h20 + h21 * h21 + h22 * h22)
         nonlinear = norm_sq >= threshold_squared
-        work[row, _NONLINEAR * BLOCK + j] = 1.0 if nonlinear else 0.0
+        work[row, _at(_NONLINEAR, j)] = 1.0 if nonlinear else 0.0
         count += nonlinear
         if physical:
             e00, e11, e22, e01, e02, e12 = green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
             det_f = deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22)
-            g = GRAM * BLOCK + j
             # tr(C G) with C = I + 2E
-            tr_cg = (work[row, g] * (1.0 + 2.0 * e00) + work[row, g + BLOCK] * (1.0 + 2.0 * e11)
-                     + work[row, g + 2 * BLOCK] * (1.0 + 2.0 * e22)
-                     + 4.0 * (work[row, g + 3 * BLOCK] * e01 + work[row, g + 4 * BLOCK] * e02
-                              + work[row, g + 5 * BLOCK] * e12))
-            scale = work[row, RATIO_SCALE * BLOCK + j]
+            tr_cg = (work[row, _at(GRAM, j)] * (1.0 + 2.0 * e00) + work[row, _at(GRAM + 1, j)] * (1.0 + 2.0 * e11)
+                     + work[row, _at(GRAM + 2, j)] * (1.0 + 2.0 * e22)
+                     + 4.0 * (work[row, _at(GRAM + 3, j)] * e01 + work[row, _at(GRAM + 4, j)] * e02
+                              + work[row, _at(GRAM + 5, j)] * e12))
+            scale = work[row, _at(RATIO_SCALE, j)]
             # the mean ratio fell (s = 1 - q/q_rest > DISTORTION_FLOOR), decided on the cubes
             # without the cube root; most deformed elements of a needle dent do not distort
             distorted = scale * scale * scale * det_f * det_f < _UNDISTORTED_CUBE * tr_cg * tr_cg * tr_cg
-            work[row, _NEEDS_LAW * BLOCK + j] = 1.0 if (nonlinear & distorted) else 0.0
-            work[row, _DET * BLOCK + j] = det_f
-            work[row, _TR_CG * BLOCK + j] = tr_cg
-            o = _STRAIN * BLOCK + j
-            work[row, o] = e00
-            work[row, o + BLOCK] = e11
-            work[row, o + 2 * BLOCK] = e22
-            work[row, o + 3 * BLOCK] = e01
-            work[row, o + 4 * BLOCK] = e02
-            work[row, o + 5 * BLOCK] = e12
-            work[row, _LAMBDA_C * BLOCK + j] = work[row, LAMBDA * BLOCK + j]
-            work[row, _MU_C * BLOCK + j] = work[row, MU * BLOCK + j]
+            work[row, _at(_NEEDS_LAW, j)] = 1.0 if (nonlinear & distorted) else 0.0
+            work[row, _at(_DET, j)] = det_f
+            work[row, _at(_TR_CG, j)] = tr_cg
+            work[row, _at(_STRAIN, j)] = e00
+            work[row, _at(_STRAIN + 1, j)] = e11
+            work[row, _at(_STRAIN + 2, j)] = e22
+            work[row, _at(_STRAIN + 3, j)] = e01
+            work[row, _at(_STRAIN + 4, j)] = e02
+            work[row, _at(_STRAIN + 5, j)] = e12
+            work[row, _at(_LAMBDA_C, j)] = work[row, _at(LAMBDA, j)]
+            work[row, _at(_MU_C, j)] = work[row, _at(MU, j)]
     return count
 
 
@@ -467,12 +472,12 @@ def _apply_law(work, row, law_kind, law_params):
     """Seed section 4.1: lambda + dlambda(s), mu + dmu(s) of the distorted lanes (scalar: libm's
     pow and exp), s = 1 - q/q_rest, q/q_rest = scale |det F|^(2/3) / tr(F^T F G)."""
     for j in range(BLOCK):
-        if work[row, _NEEDS_LAW * BLOCK + j] > 0.0:
-            relative_quality = (work[row, RATIO_SCALE * BLOCK + j] * np.abs(work[row, _DET * BLOCK + j]) ** (2.0 / 3.0)
-                                / work[row, _TR_CG * BLOCK + j])
+        if work[row, _at(_NEEDS_LAW, j)] > 0.0:
+            relative_quality = (work[row, _at(RATIO_SCALE, j)] * np.abs(work[row, _at(_DET, j)]) ** (2.0 / 3.0)
+                                / work[row, _at(_TR_CG, j)])
             corr_lambda, corr_mu = _law_correction(law_kind, law_params, max(0.0, 1.0 - relative_quality))
-            work[row, _LAMBDA_C * BLOCK + j] *= 1.0 + corr_lambda
-            work[row, _MU_C * BLOCK + j] *= 1.0 + corr_mu
+            work[row, _at(_LAMBDA_C, j)] *= 1.0 + corr_lambda
+            work[row, _at(_MU_C, j)] *= 1.0 + corr_mu
 
 
 @njit(cache=True, inline='always')
@@ -489,17 +494,17 @@ def _stress_lanes(work, row, gradient_stored, small_strain, finite_strain, physi
         else:
             h00, h01, h02, h10, h11, h12, h20, h21, h22 = _lane_gradient(work, row, _DU, j)
         if physical:
-            lam = work[row, _LAMBDA_C * BLOCK + j]
-            mu = work[row, _MU_C * BLOCK + j]
+            lam = work[row, _at(_LAMBDA_C, j)]
+            mu = work[row, _at(_MU_C, j)]
         else:
-            lam = work[row, LAMBDA * BLOCK + j]
-            mu = work[row, MU * BLOCK + j]
+            lam = work[row, _at(LAMBDA, j)]
+            mu = work[row, _at(MU, j)]
         r00 = r01 = r02 = r10 = r11 = r12 = r20 = r21 = r22 = 0.0
         lam_v = mu_v = 0.0
         if viscous:
             r00, r01, r02, r10, r11, r12, r20, r21, r22 = _lane_gradient(work, row, _DV, j)
-            lam_v = work[row, VISCOUS_LAMBDA * BLOCK + j]
-            mu_v = work[row, VISCOUS_MU * BLOCK + j]
+            lam_v = work[row, _at(VISCOUS_LAMBDA, j)]
+            mu_v = work[row, _at(VISCOUS_MU, j)]
         p00 = p01 = p02 = p10 = p11 = p12 = p20 = p21 = p22 = 0.0
         if small_strain:
             # E = sym(H), and sym(dH/dt) for the viscous stress
@@ -516,16 +521,15 @@ def _stress_lanes(work, row, gradient_stored, small_strain, finite_strain, physi
                 s12 += v12
             p00, p01, p02, p10, p11, p12, p20, p21, p22 = s00, s01, s02, s01, s11, s12, s02, s12, s22
         if finite_strain:
-            nonlinear = work[row, _NONLINEAR * BLOCK + j] > 0.0
+            nonlinear = work[row, _at(_NONLINEAR, j)] > 0.0
             if physical:     # _classify_lanes has them
-                o = _STRAIN * BLOCK + j
-                e00 = work[row, o]
-                e11 = work[row, o + BLOCK]
-                e22 = work[row, o + 2 * BLOCK]
-                e01 = work[row, o + 3 * BLOCK]
-                e02 = work[row, o + 4 * BLOCK]
-                e12 = work[row, o + 5 * BLOCK]
-                det_f = work[row, _DET * BLOCK + j]
+                e00 = work[row, _at(_STRAIN, j)]
+                e11 = work[row, _at(_STRAIN + 1, j)]
+                e22 = work[row, _at(_STRAIN + 2, j)]
+                e01 = work[row, _at(_STRAIN + 3, j)]
+                e02 = work[row, _at(_STRAIN + 4, j)]
+                e12 = work[row, _at(_STRAIN + 5, j)]
+                det_f = work[row, _at(_DET, j)]
             else:
                 e00, e11, e22, e01, e02, e12 = green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
                 det_f = deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22)
@@ -565,7 +569,7 @@ def _stress_lanes(work, row, gradient_stored, small_strain, finite_strain, physi
                       + m02 * (m01 * m12 - m11 * m02))
             # bitwise, not short-circuit: no branches in the lane loop
             inside = (m00 > 0.0) & (minor2 > 0.0) & (minor3 > 0.0) & (det_f > 0.0)
-            work[row, _SLOW * BLOCK + j] = 1.0 if (safeguard & nonlinear & (not inside)) else 0.0
+            work[row, _at(_SLOW, j)] = 1.0 if (safeguard & nonlinear & (not inside)) else 0.0
         a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z = _get9(work, row, SHAPE, j)
         f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z = _piola_forces(
             p00, p01, p02, p10, p11, p12, p20, p21, p22, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
@@ -630,13 +634,13 @@ def element_kernel(geometric, physical, viscous):
                             _gather_differences(work, t, _DV, j, velocity, i0, i1, i2, i3)
                     for j in range(n, BLOCK):
                         for k in range(9):
-                            work[t, (_DU + k) * BLOCK + j] = 0.0
-                            work[t, (_DV + k) * BLOCK + j] = 0.0
+                            work[t, _at(_DU + k, j)] = 0.0
+                            work[t, _at(_DV + k, j)] = 0.0
                     lanes_nonlinear = 0
                     if nonlinear_model:
                         lanes_nonlinear = _classify_lanes(work, t, threshold_squared, physical)
                         for j in range(n):
-                            n_nonlinear += work[t, _NONLINEAR * BLOCK + j] > 0.0
+                            n_nonlinear += work[t, _at(_NONLINEAR, j)] > 0.0
                         if physical and lanes_nonlinear > 0:
                             _apply_law(work, t, law_kind, law_params)
                     # each lane loop holds only the stress it needs (the flags are constants)
@@ -649,12 +653,12 @@ def element_kernel(geometric, physical, viscous):
                                       clamp_squared)
                     for j in range(n):
                         e = base + j
-                        if geometric and lanes_nonlinear > 0 and work[t, _SLOW * BLOCK + j] > 0.0:
+                        if geometric and lanes_nonlinear > 0 and work[t, _at(_SLOW, j)] > 0.0:
                             slow_elements[lo + n_slow] = e
                             n_slow += 1
                             if physical:
-                                corrected_lambda[e] = work[t, _LAMBDA_C * BLOCK + j]
-                                corrected_mu[e] = work[t, _MU_C * BLOCK + j]
+                                corrected_lambda[e] = work[t, _at(_LAMBDA_C, j)]
+                                corrected_mu[e] = work[t, _at(_MU_C, j)]
                             continue
                         i0, i1, i2, i3 = _element_nodes(tetrahedra, e)
                         f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z = _get9(work, t, _FORCE, j)
