@@ -79,6 +79,9 @@ def test_uniaxial_stretch_exact_first_piola_and_lateral_strain(jittered_block, l
     force = ts.TensorMassModel(mesh, liver, geometric=True).internal_forces(u)
     expected = _boundary_forces(mesh, lambda area_normal: area_normal @ first_piola.T)
     scale = np.abs(expected).max()
+    # the lateral Green strain is set to -nu E_11; free lateral faces <=> forces match P = diag(P11, 0, 0)
+    print(f'uniaxial stretch {stretch}: nodal forces vs the P11 traction, lateral faces free: '
+          f'{np.abs(force - expected).max() / scale:.1e} relative')
     assert np.abs(force - expected).max() < 1e-9 * scale
     x_max = np.isclose(mesh.rest_positions[:, 0], mesh.rest_positions[:, 0].max())
     face_area = np.ptp(mesh.rest_positions[:, 1]) * np.ptp(mesh.rest_positions[:, 2])
@@ -91,11 +94,14 @@ def test_geometric_forces_are_minus_energy_gradient(jittered_block, liver):
     u = rng.normal(scale=0.004, size=(jittered_block.n_nodes, 3))        # strains ~ 0.3
     force = model.internal_forces(u)
     step = 1e-7
+    worst = 0.0
     for node, axis in [(0, 0), (7, 1), (20, 2), (33, 0), (jittered_block.n_nodes - 1, 2)]:
         plus, minus = u.copy(), u.copy()
         plus[node, axis] += step
         minus[node, axis] -= step
         gradient = (model.strain_energy(plus)[0] - model.strain_energy(minus)[0]) / (2 * step)
+        worst = max(worst, abs(-gradient - force[node, axis]) / abs(force[node, axis]))
+        print(f'St Venant-Kirchhoff force vs -dW/du (central differences): worst so far {worst:.1e} relative')
         assert -gradient == pytest.approx(force[node, axis], rel=1e-6, abs=1e-9 * np.abs(force).max())
 
 
@@ -120,6 +126,8 @@ def test_physical_law_scales_forces_as_K_plus_dlambda_A_plus_dmu_B(jittered_bloc
     assert distortion.max() > 0.05                     # the law is really exercised
     assert 0.2 < np.mean(distortion == 0) < 0.8        # and so is its s = 0 side (quality went up)
     expected = -(frozen.stiffness_matrix() @ u.ravel()).reshape(-1, 3)
+    print(f'{law.description.split("(")[0]} law: kernel vs (K + dlambda A + dmu B) u '
+          f'{np.abs(physical - expected).max() / np.abs(expected).max():.1e} relative')
     assert np.abs(physical - expected).max() < 1e-10 * np.abs(expected).max()
     # with the corrections frozen, the force is minus the gradient of the frozen energy
     assert frozen.strain_energy(u)[0] == pytest.approx(-0.5 * np.sum(u * expected), rel=1e-12)
@@ -129,6 +137,8 @@ def test_physical_law_scales_forces_as_K_plus_dlambda_A_plus_dmu_B(jittered_bloc
     frozen_geometric, _ = _independent_physical_force(mesh, liver, law, u, geometric=True)
     reference = picinbono_forces(frozen_geometric.tetrahedra, frozen_geometric.shape_gradients,
                                  frozen_geometric.volume_lambda, frozen_geometric.volume_mu, u)
+    print(f'{law.description.split("(")[0]} law, full model vs frozen K/c/d reference: '
+          f'{np.abs(full - reference).max() / np.abs(reference).max():.1e} relative')
     assert np.abs(full - reference).max() < 1e-10 * np.abs(reference).max()
 
 
@@ -145,6 +155,7 @@ def test_viscous_dissipation_rate_and_rigid_motion(jittered_block, liver):
     trace = np.trace(strain_rate, axis1=1, axis2=2)
     dissipation = np.sum(model.volumes * (viscosity.lambda_v * trace ** 2
                                           + 2 * viscosity.mu_v * np.sum(strain_rate ** 2, axis=(1, 2))))
+    print(f'viscous power vs dissipation rate: {abs(-np.sum(force * v) / dissipation - 1):.1e} relative')
     assert -np.sum(force * v) == pytest.approx(dissipation, rel=1e-12)
     assert dissipation > 0
     # rigid motion: translation plus infinitesimal rotation rate, at rest (linear model)
@@ -157,6 +168,8 @@ def test_viscous_dissipation_rate_and_rigid_motion(jittered_block, liver):
     rotation = _rotation([0.2, 1.0, 0.4], 1.1)
     current = mesh.rest_positions @ rotation.T
     moving = geometric.internal_forces(current - mesh.rest_positions, np.cross(omega, current) + drift)
+    print(f'rigid motion, viscous force: linear model {np.abs(model.internal_forces(np.zeros_like(v), rigid_v)).max() / scale:.1e}'
+          f' of the deforming case; geometric model, finite rotation: {np.abs(moving).max():.1e} N')
     assert np.abs(moving).max() < 1e-12 * liver.lame_mu * np.abs(current).max() * np.cbrt(mesh.volumes().mean())
 
 
@@ -178,6 +191,8 @@ def test_threshold_zero_is_full_model_and_large_threshold_is_linear(jittered_blo
                                  inversion_safeguard=False).internal_forces(u)
     reference = picinbono_forces(frozen.tetrahedra, frozen.shape_gradients, frozen.volume_lambda,
                                  frozen.volume_mu, u)
+    print(f'threshold 0: bit-identical to the full model; elastic part vs K/c/d reference '
+          f'{np.abs(elastic - reference).max() / np.abs(reference).max():.1e} relative')
     assert np.abs(elastic - reference).max() < 1e-10 * np.abs(reference).max()
     huge = ts.TensorMassModel(mesh, liver, geometric=True, physical=law, viscosity=viscosity,
                               nonlinearity_threshold=1e9)
