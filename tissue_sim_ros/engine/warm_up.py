@@ -1,0 +1,30 @@
+"""Compile the needle's numba kernels once per process, before the first tick.
+
+Without this a fresh clone compiles each kernel at its first use: seconds in which the node falls
+behind its robot at first contact.
+"""
+import numpy as np
+
+_WARM = []
+
+
+def warm_up():
+    """Compile (or load from numba's cache) the kernels of every needle phase once per process,
+    on a tiny scene driven through contact, puncture, cutting with friction and retraction.
+    Otherwise a fresh clone compiles each at its first use: seconds in which the node falls
+    behind its robot at first contact (the demo's engine then refused a 6.4 mm pose jump)."""
+    if _WARM:
+        return
+    _WARM.append(True)
+    from tissue_sim_ros.engine.scene import Scene
+    scene = Scene({
+        'mesh': {'size_m': [0.01, 0.01, 0.006], 'origin_m': [-0.005, -0.005, -0.006], 'divisions': [3, 3, 2]},
+        'needle': {'initial_position_m': [0.0, 0.0, 0.1505], 'length_m': 0.15,
+                   'initial_orientation_xyzw': [1.0, 0.0, 0.0, 0.0]},
+        'regions': [{'name': 'warm-up', 'young_modulus_pa': 2e4, 'cutting_force_n': 0.05,
+                     'membrane': {'criterion': 'force', 'rupture_force_n': 0.02},
+                     'friction': {'insertion_coulomb_n_per_m': 1.0}}]})
+    position, orientation = scene.needle_pose
+    for depth in (0.0015, 0.003, 0.0045, 0.003):     # down through the membrane, then back up
+        scene.advance(0.05, position - np.array([0.0, 0.0, depth]), orientation)
+        scene.reaction_wrench('needle')
