@@ -19,17 +19,20 @@ from pathlib import Path
 
 import yaml
 
+from tissue_sim_ros.io.ros_message_definitions import parse_type_name
+
 __all__ = ['message_type', 'message_from_dict', 'load_example']
 
 
 def message_type(type_name: str, part: str | None = None):
     """The Python class of 'pkg/msg/Type', or of a service's Request/Response ('pkg/srv/Type')."""
-    parts = type_name.split('/')
-    if len(parts) != 3 or parts[1] not in ('msg', 'srv'):
-        raise ValueError(f'type: {type_name!r}; expected pkg/msg/Type or pkg/srv/Type')
-    module = importlib.import_module(f'{parts[0]}.{parts[1]}')
-    cls = getattr(module, parts[2])
-    if parts[1] == 'srv':
+    try:
+        parsed = parse_type_name(type_name, short_form=False)
+    except ValueError:
+        raise ValueError(f'type: {type_name!r}; expected pkg/msg/Type or pkg/srv/Type') from None
+    module = importlib.import_module(f'{parsed.package}.{parsed.interface}')
+    cls = getattr(module, parsed.name)
+    if parsed.interface == 'srv':
         if part not in ('Request', 'Response'):
             raise ValueError(f'{type_name}: a service needs part Request or Response')
         cls = getattr(cls, part)
