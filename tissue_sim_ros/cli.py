@@ -55,6 +55,16 @@ def _scene_keys(args):
     print('\n'.join(describe_keys()))
 
 
+def _recover(args):
+    from tissue_sim_ros.io.mcap_recovery import RecoverError, recover_log
+    try:
+        _, line = recover_log(args.log, args.out)
+    except RecoverError as exc:
+        print(f'tissue-sim recover: error: {exc}', file=sys.stderr)
+        sys.exit(2)
+    print(line)
+
+
 def build_parser():
     from tissue_sim_ros import __version__
     parser = argparse.ArgumentParser(prog='tissue-sim', description='Real-time tensor-mass soft-tissue simulation.')
@@ -86,6 +96,13 @@ def build_parser():
     demo.set_defaults(run=_demo)
     keys = commands.add_parser('scene-keys', help='list every scene-file key with its default and meaning')
     keys.set_defaults(run=_scene_keys)
+    recover = commands.add_parser('recover', help='repair an MCAP log cut short (a hard kill): keep '
+                                  'every intact message, print what was kept and lost')
+    recover.add_argument('log', metavar='LOG.mcap', help='the log to repair (read only)')
+    recover.add_argument('--out', default=None, metavar='REPAIRED.mcap',
+                         help='the repaired copy, a new file (default: LOG.recovered.mcap '
+                              'beside the log; none for a complete log)')
+    recover.set_defaults(run=_recover)
     drive = commands.add_parser('drive', help='publish a scripted needle insertion and retraction on needle/pose')
     drive.add_argument('--speed-mm-s', type=float, required=True, help='needle speed [mm/s]')
     drive.add_argument('--depth-mm', type=float, required=True, help='tip depth below the entry surface [mm]')

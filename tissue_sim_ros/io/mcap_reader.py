@@ -27,7 +27,7 @@ from tissue_sim_ros.io.mcap_profile import DEFAULT_METADATA_NAME
 from tissue_sim_ros.units import NS_PER_S
 
 __all__ = ['LogMessage', 'LogReading', 'TolerantScan', 'TruncatedLogError',
-           'UndecodableMessages', 'read_log', 'read_metadata', 'summarize_log']
+           'UndecodableMessages', 'has_summary', 'read_log', 'read_metadata', 'summarize_log']
 
 _log = logging.getLogger(__name__)
 
@@ -74,6 +74,16 @@ def _check_complete(reader, path) -> None:
             f'{path}: no valid footer/summary ({exc}); the recording was cut short. '
             'Use `tissue-sim recover`, recover_truncated() or '
             'read_log(..., allow_truncated=True).') from exc
+
+
+def has_summary(path) -> bool:
+    """Whether the file's footer and summary read back (a log closed properly)."""
+    with open(path, 'rb') as f:
+        try:
+            _check_complete(make_reader(f), path)
+        except TruncatedLogError:
+            return False
+    return True
 
 
 class LogReading(Iterator[LogMessage]):

@@ -8,17 +8,20 @@ they were, in a new complete file (zstd chunks, summary) that every reader opens
 """
 from __future__ import annotations
 
+import datetime as _dt
 import struct
+from pathlib import Path
 
 from mcap.opcode import Opcode
 from mcap.records import DataEnd, Message, Metadata
 from mcap.writer import CompressionType, Writer
 
 from tissue_sim_ros.io.mcap_profile import PROFILE, library_name
-from tissue_sim_ros.io.mcap_reader import TolerantScan
+from tissue_sim_ros.io.mcap_reader import TolerantScan, has_summary
 from tissue_sim_ros.units import NS_PER_S
 
-__all__ = ['MCAP_MAGIC', 'NotAnMcapError', 'check_mcap_magic', 'recover_truncated']
+__all__ = ['MCAP_MAGIC', 'NotAnMcapError', 'RecoverError', 'check_mcap_magic', 'recover_log',
+           'recover_truncated', 'recovery_summary']
 
 MCAP_MAGIC = b'\x89MCAP0\r\n'
 
@@ -88,9 +91,10 @@ def recover_truncated(path, repaired_path=None) -> dict:
     lost), ``file_bytes`` and ``intact_bytes`` (the bytes after it are dropped),
     ``torn_chunk_end_time_ns`` (the last log time of a chunk cut short, when its header
     survived) and ``lost_s``: 0.0 when nothing was lost, the log time from the last kept
-    message to the end of a torn chunk, or None when the file does not say (a hard kill ends
-    the file at a chunk boundary; the open chunk never reached it: see
-    ``mcap_writer.ChunkAge`` for the bound). With ``repaired_path`` (must not exist) it also
+    message to the end of a torn chunk (a lower bound: a file cut off may have lost later
+    chunks too), or None when the file does not say (a hard kill ends the file at a chunk
+    boundary; the open chunk never reached it: ``mcap_chunk_age.ChunkAge`` has the bound).
+    With ``repaired_path`` (must not exist) it also
     writes every intact schema, channel, metadata record and message to a new complete MCAP
     file (same payloads, same channel metadata, zstd chunks, summary).
     """
@@ -145,3 +149,70 @@ def recover_truncated(path, repaired_path=None) -> dict:
         'lost_s': lost_s,
         'repaired_path': None if repaired_path is None else str(repaired_path),
     }
+
+
+class RecoverError(ValueError):
+    """Bad input to :func:`recover_log` (missing file, not an MCAP, output exists): one line."""
+
+
+def _clock(ns: int) -> str:
+    return _dt.datetime.fromtimestamp(ns / NS_PER_S, _dt.timezone.utc).isoformat(
+        timespec='milliseconds').replace('+00:00', 'Z')
+
+
+def recovery_summary(report: dict) -> str:
+    """One line: messages kept, the log span, and how much time was lost at the end."""
+    n, topics = report['messages'], len(report['per_topic'])
+    kept = f'{n} messages on {topics} topic{"" if topics == 1 else "s"}'
+    if n:
+        span = (report['last_log_time_ns'] - report['first_log_time_ns']) / NS_PER_S
+        kept += f' ({span:.3f} s of log, last at {_clock(report["last_log_time_ns"])})'
+    dropped = report['file_bytes'] - report['intact_bytes']
+    if report['complete']:
+        end = 'complete: nothing lost'
+    elif report['data_intact']:
+        end = f'only the summary was cut ({dropped} bytes dropped): nothing lost'
+    elif report['lost_s'] is not None:
+        end = (f'lost at the end: at least {report["lost_s"]:.3f} s (a chunk cut short, '
+               f'{dropped} bytes dropped; later chunks may be gone too)')
+    else:
+        end = ('lost at the end: not recorded in the file (after a hard kill, at most the '
+               "recorder's chunk_interval_s, 1 s by default, after the last kept message"
+               f'{f"; {dropped} bytes dropped" if dropped else ""})')
+    out = report['repaired_path']
+    return f'{report["path"]}: kept {kept}; {end}' + (f'; wrote {out}' if out else '')
+
+
+def recover_log(path, out=None) -> tuple[dict, str]:
+    """``tissue-sim recover``: check the input, write the repaired copy, and summarize.
+
+    ``out`` defaults to ``<name>.recovered.mcap`` beside the input; a complete log is copied
+    only when ``out`` is given. Returns (report of :func:`recover_truncated`, summary line);
+    RecoverError for a missing or unreadable file, a file that is not an MCAP, or an ``out``
+    that exists (never overwritten).
+    """
+    path = Path(path)
+    try:
+        check_mcap_magic(path)
+        complete = has_summary(path)
+    except (OSError, NotAnMcapError) as exc:
+        raise RecoverError(_one_line(exc, path)) from None
+    if out is None and not complete:
+        out = path.with_name(f'{path.stem}.recovered.mcap')
+    if out is not None and Path(out).exists():
+        raise RecoverError(f'{out}: exists; give --out a new file name (logs are never '
+                           'overwritten)')
+    try:
+        report = recover_truncated(path, out)
+    except OSError as exc:
+        if out is not None and not isinstance(exc, FileExistsError):
+            Path(out).unlink(missing_ok=True)
+        raise RecoverError(_one_line(exc, out)) from None
+    return report, recovery_summary(report)
+
+
+def _one_line(exc: BaseException, path) -> str:
+    if isinstance(exc, NotAnMcapError):
+        return str(exc)
+    reason = getattr(exc, 'strerror', None) or str(exc) or type(exc).__name__
+    return f'{getattr(exc, "filename", None) or path}: {reason}'
