@@ -504,6 +504,24 @@ def test_background_writer_ends_an_idle_chunk_on_wall_time(tmp_path):
         assert rec.stats().chunks_closed == 1
 
 
+def test_a_backlog_is_written_as_one_chunk_not_one_per_message(tmp_path):
+    """Messages that waited in the queue longer than the chunk age (a stalled writer) go into
+    the chunk together once the writer drains the queue, rather than closing a chunk each."""
+    path = tmp_path / 'backlog.mcap'
+    data = serialize_message(_sample('needle/wrench', 0))
+    with ml.McapRecorder(path, metadata={}, chunk_interval_s=0.1) as rec:
+        rec.add_topic('needle/wrench', WRENCH, {})
+        with rec._lock:  # the writer thread waits: the queue fills
+            for i in range(200):
+                rec.write('needle/wrench', data, T0 + i * 1000)  # 1 us apart in log time
+            time.sleep(0.3)  # every queued message is now older than the 0.05 s chunk age
+        rec.flush()
+        assert rec.stats().messages_written == 200
+    with open(path, 'rb') as f:
+        stats = make_reader(f).get_summary().statistics
+    assert stats.message_count == 200 and stats.chunk_count <= 3
+
+
 _CHILD = textwrap.dedent('''
     import sys, time
     from rclpy.serialization import serialize_message

@@ -9,7 +9,6 @@ import subprocess
 import sys
 import textwrap
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,7 +19,7 @@ from mcap.reader import make_reader  # noqa: E402
 from mcap.records import Chunk  # noqa: E402
 from mcap.stream_reader import breakup_chunk  # noqa: E402
 from mcap.data_stream import ReadDataStream  # noqa: E402
-from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
+from rclpy.serialization import serialize_message  # noqa: E402
 from rosbags.highlevel import AnyReader  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
@@ -33,7 +32,6 @@ T0 = 1_700_000_000_000_000_000
 PERIOD = 20_000_000  # 50 Hz
 POSE = 'geometry_msgs/msg/PoseStamped'
 WRENCH = 'geometry_msgs/msg/WrenchStamped'
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def _pose(i):
@@ -70,7 +68,7 @@ def log_with_bad_poses(tmp_path_factory):
     """Good poses and wrenches with a bad payload on needle/pose after every third good pose."""
     path = tmp_path_factory.mktemp('bad') / 'bad.mcap'
     bad = list(_bad_payloads().items())
-    good_times, bad_times, written = [], [], []
+    good_times, bad_times = [], []
     with ml.McapRecorder(path, metadata={'scene': 's'}) as rec:
         rec.add_topic('needle/pose', POSE, {})
         rec.add_topic('needle/wrench', WRENCH, {})
@@ -81,11 +79,9 @@ def log_with_bad_poses(tmp_path_factory):
             good_times.append(t)
             rec.write('needle/wrench',
                       serialize_message(cv.wrench_msg([i, 0, 0], [0, 0, 0], 'needle', t)), t + 1)
-            written.append(('needle/pose', t))
             if i % 3 == 2 and k < len(bad):
                 rec.write('needle/pose', bad[k][1], t + 2)
                 bad_times.append(t + 2)
-                written.append(('needle/pose', t + 2))
                 k += 1
     assert k == len(bad)
     return path, good_times, bad_times, bad

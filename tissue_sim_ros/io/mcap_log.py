@@ -14,8 +14,8 @@ import ...`` goes on working:
 
 Importing this module imports no numba (the engine is not loaded to write a log).
 """
-from tissue_sim_ros.io.mcap_profile import (DEFAULT_METADATA_NAME, MESSAGE_ENCODING, PROFILE,
-                                            SCHEMA_ENCODING)
+from tissue_sim_ros.io.mcap_profile import (  # noqa: F401  (module names it has always had)
+    DEFAULT_METADATA_NAME, MESSAGE_ENCODING, PROFILE, SCHEMA_ENCODING)
 from tissue_sim_ros.io.mcap_reader import (LogMessage, LogReading, TruncatedLogError,
                                            UndecodableMessages, read_log, read_metadata,
                                            summarize_log)

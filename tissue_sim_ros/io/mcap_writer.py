@@ -41,7 +41,7 @@ from tissue_sim_ros.io.mcap_sink import UnbufferedSink, end_chunk, new_log_path
 from tissue_sim_ros.io.ros_message_definitions import message_definition, schema_name
 from tissue_sim_ros.io.rosbag2_qos import qos_profiles_yaml
 
-__all__ = ['ChunkAge', 'McapRecorder', 'RecorderStats']  # ChunkAge: re-exported
+__all__ = ['ChunkAge', 'McapRecorder', 'RecorderStats']
 
 _COMPRESSION = {'zstd': CompressionType.ZSTD, 'lz4': CompressionType.LZ4,
                 'none': CompressionType.NONE}
