@@ -218,7 +218,7 @@ def scenario(tmp_path_factory, scene_file):
     domain = next(_DOMAINS)
     t_start = time.monotonic()
     proc = start_node(tmp, domain, scene_file, f'recording.directory:={tmp / "logs"}',
-                      'recording.chunk_interval_s:=0.5')
+                      'recording.chunk_interval_s:=0.5', 'recording.nodes_rate_hz:=50.0')
     client = Client(domain)
     out = {'tmp': tmp, 'proc': proc, 'scene_file': scene_file}
     try:
@@ -421,7 +421,8 @@ def test_mcap_opens_in_the_typescript_reader_with_crcs(scenario, mcap_js):
 
 def test_drive_then_sigterm_leaves_a_complete_log(tmp_path, scene_file):
     domain = next(_DOMAINS)
-    proc = start_node(tmp_path, domain, scene_file, f'recording.directory:={tmp_path / "logs"}')
+    proc = start_node(tmp_path, domain, scene_file, f'recording.directory:={tmp_path / "logs"}',
+                      'recording.nodes_rate_hz:=50.0')
     client = Client(domain)
     try:
         client.wait_ready(proc)

@@ -6,13 +6,14 @@ linear / physically non-linear / full model on a 1 GHz Pentium III).
 """
 import time
 
-import numba
 import numpy as np
 
 from tissue_sim_ros.engine.material import Material, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.mesh import box_mesh
 from tissue_sim_ros.engine.model import TensorMassModel
 from tissue_sim_ros.engine.solver import Simulation
+
+import numba  # noqa: E402  after the engine: its threading policy must come first
 
 # divisions of a box of 6 nx ny nz tetrahedra: about 1e3, 1e4, 1e5, 5e5
 SIZES = {'1e3': (8, 7, 3), '1e4': (15, 15, 8), '1e5': (32, 32, 16), '5e5': (56, 55, 28)}

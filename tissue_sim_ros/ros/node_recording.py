@@ -1,0 +1,59 @@
+"""The node's MCAP log: which topics it holds, with what schema and QoS, and its metadata.
+
+Every message in (the wire bytes as received) and out (serialized once: the same bytes are
+published and recorded) goes to one MCAP file per run, named by the start time
+(:class:`tissue_sim_ros.io.mcap_log.McapRecorder`, which writes on its own thread: a write here
+is a queue append, never a wait on the disk). The metadata record holds the scene, the
+parameters and where they came from. ``tissue/nodes``, most of a log's bytes, is recorded at
+``recording.nodes_rate_hz`` (every k-th tick) while it is still published every tick.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+
+from tissue_sim_ros.ros.parameters import parameters_yaml
+
+__all__ = ['open_node_log', 'every_kth_tick', 'record_service_call']
+
+def every_kth_tick(publish_rate_hz: float, rate_hz: float) -> int:
+    """k such that every k-th tick gives ``rate_hz`` (0: never, for a rate of 0)."""
+    return max(1, round(publish_rate_hz / rate_hz)) if rate_hz > 0 else 0
+
+
+def open_node_log(config, *, scene_text: str, node_name: str, node_fqn: str, topics):
+    """A McapRecorder for this run in ``config.recording_directory`` with the run's metadata;
+    ``topics``: (resolved topic, ROS type, QoS as a dict) of every channel it will hold."""
+    from tissue_sim_ros.io.mcap_log import McapRecorder
+    metadata = {
+        'scene': str(scene_text),
+        'scene_file': config.scene_file or '(packaged default)',
+        'parameters': parameters_yaml(config.values, node_name),
+        'node': node_fqn,
+        'started_at': _dt.datetime.now(_dt.timezone.utc).isoformat(),
+        'ros_distro': 'jazzy',
+    }
+    recorder = McapRecorder.create(
+        config.recording_directory, prefix=config.recording_prefix, metadata=metadata,
+        chunk_interval_s=config.recording_chunk_interval_s,
+        compression=config.recording_compression)
+    for topic, type_name, qos in topics:
+        recorder.add_topic(topic, type_name, qos)
+    return recorder
+
+
+def record_service_call(recorder, topic, srv_type, request, response, now_ns, sequence, serialize):
+    """Record a service call as rosbag2 records service introspection (contents): a
+    REQUEST_RECEIVED event with the request, then a RESPONSE_SENT event with the response, on
+    ``<service>/_service_event``; ``serialize``: rclpy's serialize_message (passed in, so that
+    this module imports no rclpy)."""
+    from service_msgs.msg import ServiceEventInfo
+
+    from tissue_sim_ros.ros.conversions import ns_to_stamp
+    for event_type, requests, responses in ((ServiceEventInfo.REQUEST_RECEIVED, [request], []),
+                                            (ServiceEventInfo.RESPONSE_SENT, [], [response])):
+        event = srv_type.Event()
+        event.info.event_type = event_type
+        event.info.stamp = ns_to_stamp(now_ns)
+        event.info.sequence_number = sequence
+        event.request, event.response = requests, responses
+        recorder.write(topic, serialize(event), now_ns)

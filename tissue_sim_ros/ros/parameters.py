@@ -1,0 +1,211 @@
+"""The node's parameters: every name with its default, range and meaning, and the checks that
+ranges cannot express. No rclpy here (declaring them is :mod:`parameter_declaration`), so tests,
+the help text and the parameter file are built without a ROS graph.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from tissue_sim_ros.ros.pose_input import PoseInputLimits
+
+__all__ = ['NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'make_config', 'load_scene',
+           'parameters_yaml', 'help_text']
+
+NODE_NAME = 'tissue_sim'
+
+@dataclass(frozen=True)
+class _Param:
+    name: str
+    default: Any
+    description: str
+    low: float | int | None = None
+    high: float | int | None = None
+    choices: tuple = ()
+
+
+#: Every parameter: name (unit in the name), default, meaning, inclusive range or choices.
+PARAMETERS = (
+    _Param('publish_rate_hz', 50.0, 'tick rate: the engine advances 1/rate per tick and the wrench '
+           'and the node cloud are published once per tick', 1.0, 1000.0),
+    _Param('engine.slices_per_tick', 4, 'the engine is advanced this many times per tick, each '
+           "time to the newest pose's stamp (at most one period behind now); the wrench and the "
+           'cloud go out after the last. More slices leave less engine work between a tick time '
+           'and its wrench (the latency); 1 = one advance per tick', 1, 100),
+    _Param('marker_rate_hz', 5.0, 'rate of the RViz surface marker (0 = no marker); sent from '
+           'every k-th tick, k = round(publish_rate_hz / marker_rate_hz), after the wrench',
+           0.0, 100.0),
+    _Param('marker.max_triangles', 2000, 'the marker keeps every k-th surface triangle so that at '
+           'most this many remain (a preview: each point is a Python object)', 1, 1_000_000),
+    _Param('diagnostics_rate_hz', 1.0, 'rate of /diagnostics', 0.01, 10.0),
+    _Param('scene_file', '', 'scene YAML; empty = the packaged config/liver_sample.yaml'),
+    _Param('frame_id', '', 'frame of the mesh, the cloud, the marker and of needle/pose; empty = '
+           "the scene's mesh frame"),
+    _Param('needle_frame_id', 'needle', 'name of the needle base frame (its +z is the needle axis)'),
+    _Param('wrench.frame_id', 'needle', 'frame the wrench is expressed in: needle_frame_id or '
+           'frame_id (either way about the needle base origin)'),
+    _Param('input.expected_frame_id', '', 'needle/pose header.frame_id accepted; empty = frame_id '
+           '(there is no tf here: other frames are refused)'),
+    _Param('input.reliability', 'reliable', 'QoS reliability of the needle/pose subscription '
+           '(best_effort also accepts best-effort publishers)', choices=('reliable', 'best_effort')),
+    _Param('input.max_jump_m', 0.005, 'a pose farther than this from the previous accepted one (or '
+           'from the needle) is refused', 1e-6, 1.0),
+    _Param('input.max_jump_rad', 0.5, 'a pose rotated more than this from the previous accepted one '
+           'is refused', 1e-6, math.pi),
+    _Param('input.stale_after_s', 0.5, 'no new pose for this long: the last one is held and '
+           'diagnostics say stale', 1e-3, 3600.0),
+    _Param('input.max_future_s', 0.5, 'a pose stamped further ahead of the node clock is refused '
+           '(clock mismatch)', 0.0, 3600.0),
+    _Param('input.max_rate_hz', 250.0, 'poses stamped closer than 1/rate to the previous one are '
+           'coalesced (flood)', 1.0, 100000.0),
+    _Param('input.unit_quaternion_tolerance', 0.01, 'a quaternion whose norm is off 1 by more is '
+           'refused; closer, it is normalised', 1e-9, 0.5),
+    _Param('recording.directory', '', 'directory for the MCAP log of the run (one file per run, '
+           'named by the start time); empty = no recording'),
+    _Param('recording.chunk_interval_s', 1.0, 'the most a hard kill loses of the log (chunks '
+           'close when their oldest message is half of it old)', 0.01, 60.0),
+    _Param('recording.compression', 'zstd', 'MCAP chunk compression', choices=('zstd', 'lz4', 'none')),
+    _Param('recording.nodes_rate_hz', 5.0, 'rate at which tissue/nodes (the deformed cloud, most '
+           'of a log) is recorded, from every k-th tick, k = round(publish_rate_hz / rate); it is '
+           'still published every tick. 0 = not recorded', 0.0, 1000.0),
+    _Param('recording.prefix', 'tissue_sim', 'log file name prefix (<prefix>_<UTC start>.mcap)'),
+    _Param('on_divergence', 'reset', 'when the simulation diverges: reset it to rest, or hold the '
+           'last good wrench until ~/reset', choices=('reset', 'hold')),
+)
+
+
+class ConfigError(ValueError):
+    """A parameter the node refuses at start; the message names it and its value."""
+
+
+@dataclass(frozen=True)
+class NodeConfig:
+    publish_rate_hz: float
+    slices_per_tick: int
+    marker_rate_hz: float
+    marker_max_triangles: int
+    diagnostics_rate_hz: float
+    scene_file: str
+    frame_id: str
+    needle_frame_id: str
+    wrench_frame_id: str
+    input_limits: PoseInputLimits
+    input_reliability: str
+    recording_directory: str
+    recording_chunk_interval_s: float
+    recording_compression: str
+    recording_nodes_rate_hz: float
+    recording_prefix: str
+    on_divergence: str
+    values: dict  # every parameter by name, as read
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.publish_rate_hz
+
+    @property
+    def wrench_frame(self) -> str:
+        """'needle' or 'world': the frame argument of Scene.reaction_wrench."""
+        return 'needle' if self.wrench_frame_id == self.needle_frame_id else 'world'
+
+
+def make_config(values: dict, scene_frame_id: str | None = None) -> NodeConfig:
+    """Check what ranges cannot express; NodeConfig, or ConfigError naming the parameter."""
+    v = dict(values)
+
+    def refuse(name, expected):
+        raise ConfigError(f'parameter {name}: {v[name]!r}; expected {expected}')
+
+    for p in PARAMETERS:
+        if p.choices and v[p.name] not in p.choices:
+            refuse(p.name, f'one of {list(p.choices)}')
+        if isinstance(p.default, float) and not math.isfinite(v[p.name]):
+            refuse(p.name, f'a finite number in [{p.low}, {p.high}]')
+    frame_id = v['frame_id'] or (scene_frame_id or 'world')
+    for name, value in (('frame_id', frame_id), ('needle_frame_id', v['needle_frame_id'])):
+        if not value or value != value.strip() or value.startswith('/'):
+            v[name] = value
+            refuse(name, 'a non-empty frame name without spaces or a leading /')
+    if v['needle_frame_id'] == frame_id:
+        refuse('needle_frame_id', f'a frame other than frame_id ({frame_id!r})')
+    if v['wrench.frame_id'] not in (v['needle_frame_id'], frame_id):
+        refuse('wrench.frame_id', f'{v["needle_frame_id"]!r} (needle_frame_id) or {frame_id!r} '
+               '(frame_id)')
+    for name in ('marker_rate_hz', 'recording.nodes_rate_hz'):
+        if v[name] > v['publish_rate_hz']:
+            refuse(name, f'at most publish_rate_hz ({v["publish_rate_hz"]})')
+    if v['scene_file'] and not Path(v['scene_file']).is_file():
+        refuse('scene_file', 'an existing scene YAML file (or empty for the packaged default)')
+    directory = v['recording.directory']
+    if directory:
+        try:
+            Path(directory).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            refuse('recording.directory', f'a directory that can be created ({exc.strerror})')
+        if not Path(directory).is_dir():
+            refuse('recording.directory', 'a directory')
+        probe = Path(directory) / f'.tissue_sim_write_test_{time.monotonic_ns()}'
+        try:
+            probe.write_bytes(b'')
+            probe.unlink()
+        except OSError as exc:
+            refuse('recording.directory', f'a writable directory ({exc.strerror})')
+    if not v['recording.prefix'] or '/' in v['recording.prefix']:
+        refuse('recording.prefix', 'a non-empty file name prefix without /')
+    limits = PoseInputLimits(
+        expected_frame_id=v['input.expected_frame_id'] or frame_id,
+        max_jump_m=v['input.max_jump_m'], max_jump_rad=v['input.max_jump_rad'],
+        stale_after_s=v['input.stale_after_s'], max_future_s=v['input.max_future_s'],
+        max_rate_hz=v['input.max_rate_hz'],
+        unit_quaternion_tolerance=v['input.unit_quaternion_tolerance'])
+    return NodeConfig(
+        publish_rate_hz=v['publish_rate_hz'], slices_per_tick=v['engine.slices_per_tick'],
+        marker_rate_hz=v['marker_rate_hz'],
+        marker_max_triangles=v['marker.max_triangles'], diagnostics_rate_hz=v['diagnostics_rate_hz'],
+        scene_file=v['scene_file'], frame_id=frame_id, needle_frame_id=v['needle_frame_id'],
+        wrench_frame_id=v['wrench.frame_id'], input_limits=limits,
+        input_reliability=v['input.reliability'], recording_directory=directory,
+        recording_chunk_interval_s=v['recording.chunk_interval_s'],
+        recording_compression=v['recording.compression'],
+        recording_nodes_rate_hz=v['recording.nodes_rate_hz'], recording_prefix=v['recording.prefix'],
+        on_divergence=v['on_divergence'], values=dict(values))
+
+
+def parameters_yaml(values: dict, node_name: str = NODE_NAME) -> str:
+    """The parameters as a ROS parameter file (nested YAML under ``<node>: ros__parameters:``)."""
+    nested: dict = {}
+    for name, value in values.items():
+        parts = name.split('.')
+        d = nested
+        for part in parts[:-1]:
+            d = d.setdefault(part, {})
+        d[parts[-1]] = value
+    return yaml.safe_dump({node_name: {'ros__parameters': nested}}, sort_keys=False)
+
+
+def help_text(summary: str = '') -> str:
+    """``tissue_sim_node --help``: the summary line, then every parameter with its range."""
+    lines = [summary, '', 'Parameters (--ros-args -p name:=value or '
+             '--params-file FILE; see config/tissue_sim.yaml):']
+    for p in PARAMETERS:
+        rng = f' [{p.low} .. {p.high}]' if p.low is not None else ''
+        rng += f' {{{", ".join(p.choices)}}}' if p.choices else ''
+        lines.append(f'  {p.name} = {p.default!r}{rng}\n      {p.description}')
+    return '\n'.join(lines)
+
+
+def load_scene(scene_file: str):
+    """The scene of ``scene_file`` (empty: the packaged default), or ConfigError naming it."""
+    from tissue_sim_ros.engine.scene import Scene, default_scene_path
+    path = scene_file or default_scene_path()
+    try:
+        return Scene.from_file(path)
+    except FileNotFoundError as exc:
+        raise ConfigError(f'parameter scene_file: {scene_file!r}: {exc}') from None
+    except (ValueError, KeyError, TypeError, OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f'parameter scene_file: {str(path)!r} was refused: {exc}') from None

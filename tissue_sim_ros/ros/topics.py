@@ -1,0 +1,61 @@
+"""The node's topics: names, types and QoS profiles, in one place.
+
+Topics (relative names; remap with ``--ros-args -r``), all reliable:
+
+==================== ================================ ===================================
+``needle/pose``      geometry_msgs/msg/PoseStamped    in: pose of the needle base frame in
+                                                      ``frame_id`` (needle axis = its +z)
+``needle/wrench``    geometry_msgs/msg/WrenchStamped  out, every tick: the wrench the tissue
+                                                      exerts on the needle [N, N m], about
+                                                      the needle base origin, expressed in
+                                                      ``wrench.frame_id``
+``tissue/nodes``     sensor_msgs/msg/PointCloud2      out, every tick: every vertex, fields
+                                                      x y z (deformed) ux uy uz (displacement)
+``tissue/surface``   shape_msgs/msg/Mesh              out, transient local: rest vertices (same
+                                                      order as the cloud) and the surface
+                                                      triangles; at start and after every
+                                                      topology change
+``tissue/marker``    visualization_msgs/msg/Marker    out, ``marker_rate_hz`` (from a tick): surface,
+                                                      TRIANGLE_LIST, decimated for RViz
+``/diagnostics``     diagnostic_msgs/DiagnosticArray  out, ``diagnostics_rate_hz``
+==================== ================================ ===================================
+
+The surface is transient local so that a late subscriber gets the mesh it needs to read the cloud.
+"""
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+__all__ = ['qos', 'WRENCH_QOS', 'NODES_QOS', 'SURFACE_QOS', 'MARKER_QOS', 'DIAGNOSTICS_QOS',
+           'SERVICE_EVENT_QOS', 'pose_qos', 'NODE_TOPIC_TYPES']
+
+
+def qos(depth: int, transient_local: bool = False,
+         reliability: ReliabilityPolicy = ReliabilityPolicy.RELIABLE) -> QoSProfile:
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=reliability,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if transient_local else DurabilityPolicy.VOLATILE)
+
+
+WRENCH_QOS = qos(10)
+NODES_QOS = qos(2)
+SURFACE_QOS = qos(1, transient_local=True)
+MARKER_QOS = qos(1)
+DIAGNOSTICS_QOS = qos(10)
+SERVICE_EVENT_QOS = qos(10)
+
+
+def pose_qos(reliability: str) -> QoSProfile:
+    """needle/pose: 100 deep, enough for a 1 kHz flood during a tick; 'reliable' or
+    'best_effort' (which also accepts best-effort publishers)."""
+    return qos(100, reliability=ReliabilityPolicy.RELIABLE if reliability == 'reliable'
+               else ReliabilityPolicy.BEST_EFFORT)
+
+
+#: The node's published topics (relative names) and their ROS types, as the log declares them.
+NODE_TOPIC_TYPES = {
+    'needle/wrench': 'geometry_msgs/msg/WrenchStamped',
+    'tissue/nodes': 'sensor_msgs/msg/PointCloud2',
+    'tissue/surface': 'shape_msgs/msg/Mesh',
+    'tissue/marker': 'visualization_msgs/msg/Marker',
+    '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
+    'needle/pose': 'geometry_msgs/msg/PoseStamped',
+}
