@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.engine.mesh import (
-    MeshError, TetMesh, box_mesh, graded_box_mesh, load_mesh, make_mesh, mean_ratio,
-    save_mesh, signed_volumes, surface_triangles,
+    MeshError, MeshOrientationWarning, TetMesh, box_mesh, graded_box_mesh, load_mesh, make_mesh,
+    mean_ratio, save_mesh, signed_volumes, surface_triangles,
 )
 
 UNIT_CORNER = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
@@ -299,7 +299,11 @@ def test_make_mesh_repairs_inverted_elements():
     inverted = [3, 10, 47]
     tets[inverted] = tets[inverted][:, [0, 2, 1, 3]]  # negative orientation
     assert (signed_volumes(reference.rest_positions, tets)[inverted] < 0).all()
-    repaired = make_mesh(reference.rest_positions, tets)
+    with pytest.warns(MeshOrientationWarning) as record:
+        repaired = make_mesh(reference.rest_positions, tets)
+    assert len(record) == 1 and '3 negatively oriented elements' in str(record[0].message)
+    assert '[3, 10, 47]' in str(record[0].message)
+    assert record[0].filename == __file__  # attributed to the caller of make_mesh
     assert repaired.flipped_elements.tolist() == inverted
     assert (repaired.volumes() > 0).all()
     np.testing.assert_allclose(repaired.volumes(), reference.volumes(), rtol=1e-14)
@@ -432,7 +436,8 @@ def test_load_mesh_repairs_an_inverted_element(tmp_path):
     assert signed_volumes(points, tets).tolist() == pytest.approx([1 / 6, -1 / 6])
     path = tmp_path / 'inverted.vtu'
     meshio.write(path, meshio.Mesh(points, [('tetra', tets)]))
-    loaded = load_mesh(path)
+    with pytest.warns(MeshOrientationWarning, match=r'inverted\.vtu: tetrahedra: 1 negatively .* \[1\]'):
+        loaded = load_mesh(path)
     assert loaded.flipped_elements.tolist() == [1]
     assert loaded.tetrahedra.tolist() == [[0, 1, 2, 3], [1, 4, 2, 3]]
     np.testing.assert_allclose(loaded.volumes(), [1 / 6, 1 / 6], rtol=1e-15)

@@ -8,13 +8,16 @@ Conventions (DESIGN.md):
 - positions ``(n, 3)`` float64; tetrahedra ``(m, 4)`` int64 node indices, positively oriented,
   i.e. ``det([p1 - p0, p2 - p0, p3 - p0]) > 0``;
 - a degenerate element, ``|V| <= 1e-12 * (longest edge)**3``, is refused with its index;
-- an inverted element is repaired on construction by swapping its vertices 2 and 3, and its
-  index is kept in :attr:`TetMesh.flipped_elements`.
+- an inverted element is repaired on construction by swapping its vertices 2 and 3, its
+  index is kept in :attr:`TetMesh.flipped_elements`, and a :class:`MeshOrientationWarning`
+  says so once per mesh (count and first ids), so a mesh file written with the other
+  orientation convention does not go unnoticed.
 """
 from __future__ import annotations
 
 import functools
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,11 +25,13 @@ import numpy as np
 
 __all__ = [
     'MeshError',
+    'MeshOrientationWarning',
     'TetMesh',
     'make_mesh',
     'signed_volumes',
     'mean_ratio',
     'surface_triangles',
+    'face_elements',
     'box_mesh',
     'graded_box_mesh',
     'load_mesh',
@@ -55,6 +60,10 @@ _EDGE_VERTICES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtyp
 class MeshError(ValueError):
     """A mesh or a mesh parameter is invalid; the message names the field, the offending values
     or element indices, and what was expected."""
+
+
+class MeshOrientationWarning(UserWarning):
+    """Negatively oriented tetrahedra were re-oriented (vertices 2 and 3 swapped) on construction."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -274,6 +283,41 @@ def _sorted_face_keys(faces_sorted: np.ndarray, n_nodes: int) -> np.ndarray | No
     return None
 
 
+def _face_rows(faces_sorted: np.ndarray) -> np.ndarray:
+    """(f,) one structured (a, b, c) record per sorted face row: compares lexicographically, so
+    it sorts and searches where the int64 key of :func:`_sorted_face_keys` would overflow."""
+    rows = np.ascontiguousarray(faces_sorted, dtype=np.int64)
+    return rows.view(np.dtype([('a', np.int64), ('b', np.int64), ('c', np.int64)])).reshape(-1)
+
+
+def face_elements(tetrahedra, triangles, n_nodes: int | None = None) -> np.ndarray:
+    """(k,) int64 index of the element of which each triangle (k, 3) is a face, matched by vertex
+    set (the lowest-numbered such element where faces are shared).
+
+    ``n_nodes``: the node count (default: the largest index + 1). Raises MeshError naming the
+    triangles that are no element's face.
+    """
+    tetrahedra = np.asarray(tetrahedra).astype(np.int64, copy=False)
+    wanted = np.sort(np.asarray(triangles).astype(np.int64, copy=False).reshape(-1, 3), axis=1)
+    faces = np.sort(tetrahedra[:, _FACE_VERTICES], axis=2).reshape(-1, 3)  # face 4 e + k
+    if n_nodes is None:
+        n_nodes = int(max(tetrahedra.max(initial=-1), wanted.max(initial=-1))) + 1
+    keys = _sorted_face_keys(faces, n_nodes)
+    if keys is not None:
+        wanted_keys = _sorted_face_keys(wanted, n_nodes)
+    else:  # very large node counts: compare the rows lexicographically
+        keys, wanted_keys = _face_rows(faces), _face_rows(wanted)
+    order = np.argsort(keys, kind='stable')
+    at = np.minimum(np.searchsorted(keys[order], wanted_keys), max(len(order) - 1, 0))
+    found = order[at]
+    missing = np.flatnonzero(keys[found] != wanted_keys)
+    if missing.size:
+        raise MeshError(f'triangles: rows {_list_indices(missing)} (first: '
+                        f'{np.asarray(triangles).reshape(-1, 3)[missing[0]].tolist()}) are no face of '
+                        'any tetrahedron; expected faces of the mesh')
+    return found // 4
+
+
 def _faces_seen_once(faces: np.ndarray, n_nodes: int) -> np.ndarray:
     """Indices (ascending) of the rows of ``faces`` (f, 3) whose vertex set occurs exactly once."""
     faces_sorted = np.sort(faces, axis=1)
@@ -436,9 +480,16 @@ def make_mesh(rest_positions, tetrahedra, element_tags=None, *,
     Refuses (MeshError): positions not (n, 3) or not finite; tetrahedra not (m, 4) integers,
     indices outside [0, n), a node repeated within an element; degenerate elements with
     |V| <= 1e-12 * (longest edge)**3; tags not (m,) integers. Negatively oriented elements are
-    repaired by swapping their vertices 2 and 3 (indices recorded in ``flipped_elements``), or
-    refused when ``fix_orientation`` is False. Nodes used by no element are kept.
+    repaired by swapping their vertices 2 and 3 (indices recorded in ``flipped_elements``, and
+    a MeshOrientationWarning with their count and first ids), or refused when
+    ``fix_orientation`` is False. Nodes used by no element are kept.
     """
+    return _build_mesh(rest_positions, tetrahedra, element_tags, fix_orientation, 'tetrahedra')
+
+
+def _build_mesh(rest_positions, tetrahedra, element_tags, fix_orientation: bool, label: str) -> TetMesh:
+    """make_mesh, its orientation warning prefixed by ``label`` (the file for load_mesh) and
+    attributed to the caller of make_mesh or load_mesh."""
     positions = _as_positions(rest_positions, 'rest_positions')
     tets = _as_tetrahedra(tetrahedra, positions.shape[0])
     tags = _as_element_tags(element_tags, tets.shape[0])
@@ -466,6 +517,9 @@ def make_mesh(rest_positions, tetrahedra, element_tags=None, *,
                             'expected det([p1-p0, p2-p0, p3-p0]) > 0 '
                             '(or call with fix_orientation=True to swap vertices 2 and 3)')
         tets[inverted, 2:4] = tets[inverted][:, [3, 2]]
+        warnings.warn(f'{label}: {inverted.size} negatively oriented elements re-oriented (vertices 2 '
+                      f'and 3 swapped): {_list_indices(inverted)}; check the orientation convention '
+                      'of the mesh source', MeshOrientationWarning, stacklevel=3)
     return TetMesh(positions, tets, tags, inverted.astype(np.int64))
 
 
@@ -666,7 +720,7 @@ def load_mesh(path) -> TetMesh:
     Only 'tetra' cells are used (all such blocks, in file order); other cell types are ignored.
     Element tags come from the first cell data found among ELEMENT_TAG_NAMES, else zeros.
     Nodes used by no tetrahedron are kept, not renumbered. Inverted elements are repaired
-    (make_mesh); a file without tetrahedra or with an invalid mesh raises MeshError naming it.
+    (make_mesh) with one MeshOrientationWarning naming the file; a file without tetrahedra or with an invalid mesh raises MeshError naming it.
     """
     import meshio
 
@@ -697,7 +751,7 @@ def load_mesh(path) -> TetMesh:
                                    for b in blocks])
             break
     try:
-        return make_mesh(points, tetrahedra, tags)
+        return _build_mesh(points, tetrahedra, tags, True, f'{path}: tetrahedra')
     except MeshError as exc:
         raise MeshError(f'{path}: {exc}') from exc
 
