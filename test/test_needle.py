@@ -319,6 +319,26 @@ def test_bad_poses_are_refused_by_name_and_state_is_unchanged():
     assert np.linalg.norm(orientation) == pytest.approx(1.0, abs=1e-15)
 
 
+def test_a_turn_about_the_base_is_limited_by_how_far_the_tip_moves():
+    """The engine's jump limit (5 mm) holds for the tip too: turning by theta about the base moves
+    the tip by the chord 2 L sin(theta / 2) while the base stays put."""
+    scene = small_scene()
+    p, q = scene.needle_pose
+    length = scene.needle.geometry.length_m
+
+    def turned(chord):
+        theta = 2 * math.asin(chord / (2 * length))
+        s, c = math.sin(theta / 2), math.cos(theta / 2)  # (0, s, 0, c) q: a turn about world y
+        return np.array([c * q[0] + s * q[2], c * q[1] + s * q[3], c * q[2] - s * q[0], c * q[3] - s * q[1]])
+    with pytest.raises(NeedleInputError, match='moves the needle by 6 mm') as err:
+        scene.advance(0.02, p, turned(0.006))
+    assert err.value.field == 'pose.position' and scene.time == 0.0
+    scene.advance(0.02, p, turned(0.004))
+    scene.advance(0.0, p, turned(0.004))  # the rest of the way: the needle at the pose asked for
+    np.testing.assert_allclose(np.linalg.norm(scene.needle.tip - (p + length * np.array([0.0, 0.0, -1.0]))),
+                               0.004, rtol=1e-9)
+
+
 def test_needle_starting_inside_the_tissue_is_refused():
     with pytest.raises(SceneError, match='starts inside the tissue'):
         small_scene(gap=-0.003)

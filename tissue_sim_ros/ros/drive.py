@@ -42,8 +42,9 @@ class DriveStart:
 
 
 def _axis(orientation) -> np.ndarray:
-    x, y, z, w = orientation
-    return np.array([2 * (x * z + y * w), 2 * (y * z - x * w), 1 - 2 * (x * x + y * y)])
+    """The needle axis (base +z) of a quaternion x y z w: the engine's rule, engine.pose.needle_axis."""
+    from tissue_sim_ros.engine.pose import needle_axis  # light: numpy only, no numba
+    return needle_axis(orientation)
 
 
 def scene_start(scene_file: str | None = None) -> DriveStart:
