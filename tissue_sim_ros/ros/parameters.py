@@ -12,12 +12,14 @@ from typing import Any
 
 import yaml
 
+from tissue_sim_ros.engine.pose import DEFAULT_MAX_JUMP_M, DEFAULT_MAX_JUMP_RAD, QUATERNION_NORM_TOLERANCE
 from tissue_sim_ros.ros.pose_input import PoseInputLimits
 
 __all__ = ['NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'make_config', 'load_scene',
            'parameters_yaml', 'help_text']
 
 NODE_NAME = 'tissue_sim'
+_LIMITS = PoseInputLimits()  # the input defaults live with the input
 
 @dataclass(frozen=True)
 class _Param:
@@ -53,17 +55,22 @@ PARAMETERS = (
            '(there is no tf here: other frames are refused)'),
     _Param('input.reliability', 'reliable', 'QoS reliability of the needle/pose subscription '
            '(best_effort also accepts best-effort publishers)', choices=('reliable', 'best_effort')),
-    _Param('input.max_jump_m', 0.005, 'a pose farther than this from the previous accepted one (or '
-           'from the needle) is refused', 1e-6, 1.0),
-    _Param('input.max_jump_rad', 0.5, 'a pose rotated more than this from the previous accepted one '
-           'is refused', 1e-6, math.pi),
+    _Param('input.max_jump_m', DEFAULT_MAX_JUMP_M, 'a pose farther than this from the previous '
+           'accepted one (or from the needle) is refused, unless the stream was stale (a gap): then '
+           'it starts a new stream the needle joins at input.resync_speed_m_s', 1e-6, 1.0),
+    _Param('input.max_jump_rad', DEFAULT_MAX_JUMP_RAD, 'a pose rotated more than this from the '
+           'previous accepted one is refused (as above)', 1e-6, math.pi),
+    _Param('input.resync_speed_m_s', _LIMITS.resync_speed_m_s, 'after a gap, the needle joins the '
+           'new stream of poses at most this fast', 1e-5, 1.0),
+    _Param('input.resync_speed_rad_s', _LIMITS.resync_speed_rad_s, 'after a gap, the needle turns '
+           'toward the new stream at most this fast', 1e-4, 10.0),
     _Param('input.stale_after_s', 0.5, 'no new pose for this long: the last one is held and '
            'diagnostics say stale', 1e-3, 3600.0),
     _Param('input.max_future_s', 0.5, 'a pose stamped further ahead of the node clock is refused '
            '(clock mismatch)', 0.0, 3600.0),
     _Param('input.max_rate_hz', 250.0, 'poses stamped closer than 1/rate to the previous one are '
            'coalesced (flood)', 1.0, 100000.0),
-    _Param('input.unit_quaternion_tolerance', 0.01, 'a quaternion whose norm is off 1 by more is '
+    _Param('input.unit_quaternion_tolerance', QUATERNION_NORM_TOLERANCE, 'a quaternion whose norm is off 1 by more is '
            'refused; closer, it is normalised', 1e-9, 0.5),
     _Param('recording.directory', '', 'directory for the MCAP log of the run (one file per run, '
            'named by the start time); empty = no recording'),
@@ -162,7 +169,8 @@ def make_config(values: dict, scene_frame_id: str | None = None) -> NodeConfig:
         max_jump_m=v['input.max_jump_m'], max_jump_rad=v['input.max_jump_rad'],
         stale_after_s=v['input.stale_after_s'], max_future_s=v['input.max_future_s'],
         max_rate_hz=v['input.max_rate_hz'],
-        unit_quaternion_tolerance=v['input.unit_quaternion_tolerance'])
+        unit_quaternion_tolerance=v['input.unit_quaternion_tolerance'],
+        resync_speed_m_s=v['input.resync_speed_m_s'], resync_speed_rad_s=v['input.resync_speed_rad_s'])
     return NodeConfig(
         publish_rate_hz=v['publish_rate_hz'], slices_per_tick=v['engine.slices_per_tick'],
         marker_rate_hz=v['marker_rate_hz'],
