@@ -31,8 +31,6 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
-
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
@@ -45,19 +43,17 @@ from visualization_msgs.msg import Marker
 
 from tissue_sim_ros.engine.driver import SimulationDriver
 from tissue_sim_ros.ros import conversions as cv
-from tissue_sim_ros.ros import topics as qos
 from tissue_sim_ros.ros.node_diagnostics import NodeStats, diagnostics_statuses
-from tissue_sim_ros.ros.node_recording import every_kth_tick, open_node_log, record_service_call
-from tissue_sim_ros.ros.topics import NODE_TOPIC_TYPES
+from tissue_sim_ros.ros.node_recording import (every_kth_tick, node_log_topics, open_node_log,
+                                               record_service_call)
 from tissue_sim_ros.ros.parameter_declaration import declare_parameters
-from tissue_sim_ros.ros.parameters import (NODE_NAME, PARAMETERS, ConfigError, NodeConfig,  # noqa: F401
-                                           help_text as _help_text, load_scene, make_config,
-                                           parameters_yaml)
+from tissue_sim_ros.ros.parameters import (NODE_NAME, PARAMETERS, ConfigError, NodeConfig,
+                                           help_text as _help_text, load_scene, make_config)
 from tissue_sim_ros.ros.pose_input import PoseInput
 from tissue_sim_ros.ros.pose_receiver import PoseReceiver
-from tissue_sim_ros.ros.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODES_QOS, SURFACE_QOS,  # noqa: F401
-                                    WRENCH_QOS)
-from tissue_sim_ros.ros.tick_schedule import MAX_TICK_ADVANCE, SLICE_MARGIN_S, TickSchedule  # noqa: F401
+from tissue_sim_ros.ros.tick_schedule import TickSchedule
+from tissue_sim_ros.ros.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODES_QOS, SURFACE_QOS,
+                                       WRENCH_QOS, pose_qos)
 from tissue_sim_ros.units import NS_PER_S
 
 __all__ = ['NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'TissueSimNode', 'main']
@@ -84,8 +80,7 @@ class TissueSimNode(Node):
 
     def __init__(self, *, scene=None, node_name: str = NODE_NAME, **node_kwargs):
         super().__init__(node_name, **node_kwargs)
-        self._recorder = None
-        self._closed = False
+        self._recorder, self._closed = None, False
         try:
             self._set_up(scene)
         except BaseException:
@@ -103,28 +98,22 @@ class TissueSimNode(Node):
         self.input = PoseInput(cfg.input_limits, reference_pose=self.scene.needle_pose)
         self.schedule = TickSchedule(cfg.period_s, cfg.slices_per_tick)
         self._stats = NodeStats(cfg.publish_rate_hz, cfg.slices_per_tick)
-        self.paused = False
-        self.ticks = 0
+        self.paused, self.ticks, self._service_calls = False, 0, 0
         self._logged_kinds: set[str] = set()
         self._received = PoseReceiver(limit=MAX_POSES_PER_SLICE)
-        self._tick_step_s, self._tick_substeps, self._tick_work_s = 0.0, 0, 0.0
-        self._last_substeps = 0
-        self._topology_version = None
-        self._triangles = None
+        self._topology_version, self._triangles = None, None
         self._pending_receipts: list[int] = []
-
         self.wrench_pub = self.create_publisher(WrenchStamped, 'needle/wrench', WRENCH_QOS)
         self.nodes_pub = self.create_publisher(PointCloud2, 'tissue/nodes', NODES_QOS)
         self.surface_pub = self.create_publisher(Mesh, 'tissue/surface', SURFACE_QOS)
         self.marker_pub = (self.create_publisher(Marker, 'tissue/marker', MARKER_QOS)
                            if cfg.marker_rate_hz > 0 else None)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
-        self.pose_qos = qos.pose_qos(cfg.input_reliability)
+        self.pose_qos = pose_qos(cfg.input_reliability)
         self.pose_sub = self.create_subscription(PoseStamped, 'needle/pose', self._on_pose,
                                                  self.pose_qos, raw=True)
         self.reset_srv = self.create_service(Trigger, '~/reset', self._on_reset)
         self.pause_srv = self.create_service(SetBool, '~/pause', self._on_pause)
-        self._service_calls = 0
         if cfg.recording_directory:
             self._start_recording()
         self._publish_surface(self._now_ns())
@@ -142,8 +131,6 @@ class TissueSimNode(Node):
             f'in {cfg.frame_id!r}' + (f'; recording to {self._recorder.path}' if self._recorder
                                       else '; not recording'))
 
-    # -- what tests and tools read -------------------------------------------------------------
-
     stats = property(lambda self: self._stats.rings)
     divergences = property(lambda self: self.driver.divergences)
     held = property(lambda self: self.driver.held)
@@ -152,27 +139,13 @@ class TissueSimNode(Node):
     missed_ticks = property(lambda self: self.schedule.missed_ticks)
     deadline_overruns = property(lambda self: self.schedule.deadline_overruns)
 
-    @property
-    def recording_path(self) -> Path | None:
-        return None if self._recorder is None else self._recorder.path
-
-    # -- set-up ----------------------------------------------------------------------------------
+    recording_path = property(lambda self: None if self._recorder is None else self._recorder.path)
 
     def _start_recording(self) -> None:
-        publishers = {'needle/wrench': (self.wrench_pub, WRENCH_QOS),
-                      'tissue/nodes': (self.nodes_pub, NODES_QOS),
-                      'tissue/surface': (self.surface_pub, SURFACE_QOS),
-                      'tissue/marker': (self.marker_pub, MARKER_QOS),
-                      '/diagnostics': (self.diagnostics_pub, DIAGNOSTICS_QOS),
-                      'needle/pose': (self.pose_sub, self.pose_qos)}
-        topics = [(entity.topic_name, NODE_TOPIC_TYPES[name], cv.qos_to_dict(profile))
-                  for name, (entity, profile) in publishers.items() if entity is not None]
-        topics += [(self._event_topic(srv), type_name, cv.qos_to_dict(qos.SERVICE_EVENT_QOS))
-                   for srv, type_name in ((self.reset_srv, 'std_srvs/srv/Trigger_Event'),
-                                          (self.pause_srv, 'std_srvs/srv/SetBool_Event'))]
         self._recorder = open_node_log(self.config, scene_text=getattr(self.scene, 'text', ''),
                                        node_name=self.get_name(),
-                                       node_fqn=self.get_fully_qualified_name(), topics=topics)
+                                       node_fqn=self.get_fully_qualified_name(),
+                                       topics=node_log_topics(self, cv.qos_to_dict))
 
     def _event_topic(self, service) -> str:
         return self.resolve_service_name(service.srv_name) + '/_service_event'
@@ -200,14 +173,14 @@ class TissueSimNode(Node):
             self._logged_kinds.add(kind)
             getattr(self.get_logger(), level)(f'{text} (logged once for {kind}; counted in diagnostics)')
 
-    # -- input -------------------------------------------------------------------------------------
-
     def _on_pose(self, data: bytes) -> None:
         """A pose as received: recorded as is, queued for the next slice to decode."""
+        wall0 = time.perf_counter()
         receipt_ns = self._now_ns()
         if self._recorder is not None:
             self._recorder.write(self.pose_sub.topic_name, data, receipt_ns)
         self._received.add(receipt_ns, data)
+        self._stats.input_s += time.perf_counter() - wall0
 
     def _take_poses(self) -> None:
         """Take every pose waiting in the subscription (the executor takes one per wait: when
@@ -220,9 +193,9 @@ class TissueSimNode(Node):
                 if taken is None:
                     break
                 self._on_pose(taken[0])
+        wall0 = time.perf_counter()
         self._pending_receipts += self._received.decode_into(self.input, _decode_pose, self._log_once)
-
-    # -- the tick ----------------------------------------------------------------------------------
+        self._stats.input_s += time.perf_counter() - wall0
 
     def tick(self) -> None:
         """One slice of a tick: advance the engine as far as the received poses reach, then, after
@@ -234,9 +207,7 @@ class TissueSimNode(Node):
         until_next = timer.time_until_next_call()
         publish = self.schedule.ends_tick(now_ns, until_next, timer.timer_period_ns)
         if publish:
-            interval = self.schedule.tick_started(wall0)
-            if interval is not None:
-                self._stats.rings['tick_interval_s'].add(interval)
+            self._stats.tick_started(self.schedule.tick_started(wall0, self._stats.input_s))
         if self.paused or self.driver.held:
             self.schedule.hold(now_ns)
         else:
@@ -251,20 +222,15 @@ class TissueSimNode(Node):
         if publish:
             self._publish_tick(now_ns, wall0)
         else:
-            self._tick_work_s += time.perf_counter() - wall0
+            self._stats.tick_work_s += time.perf_counter() - wall0
 
     def _advance_engine(self, to_ns: int, advance_s: float, deadline: float | None) -> None:
         """Advance the engine by ``advance_s`` to the pose at ``to_ns``; no substep starts that
         would end past ``deadline`` (perf_counter s), the rest is left to the next slice."""
-        rings = self._stats.rings
-        rings['slice_ns'].add(to_ns)
-        rings['advance_s'].add(advance_s)
         target = self.input.pose_at(to_ns) or (None, None)
         step0 = time.perf_counter()
         outcome = self.driver.advance(advance_s, target[0], target[1], deadline=deadline)
-        self._tick_step_s += time.perf_counter() - step0
-        self._tick_substeps += outcome.substeps
-        rings['advance_steps'].add(outcome.substeps)
+        self._stats.advanced(to_ns, advance_s, outcome.substeps, time.perf_counter() - step0)
         if outcome.refused is not None:
             self.input.count('engine_refused')
             self._log_once('engine_refused',
@@ -276,11 +242,6 @@ class TissueSimNode(Node):
         """The tick's outputs (wrench, cloud, surface after a topology change, marker) and its
         statistics; ``wall0``: when its last slice started."""
         driver, held = self.driver, self.driver.held
-        step_s = self._tick_step_s
-        if not (self.paused or held):
-            self._last_substeps = self._tick_substeps
-            self._stats.rings['step_s'].add(step_s)
-            self._stats.rings['substeps'].add(self._tick_substeps)
         self._publish(self.wrench_pub, cv.wrench_msg(driver.force, driver.torque,
                                                      self.config.wrench_frame_id, now_ns))
         publish_ns = self._now_ns()
@@ -296,27 +257,18 @@ class TissueSimNode(Node):
         self._pending_receipts.clear()
         if self._marker_every and self.ticks % self._marker_every == 0:
             self._publish_marker(now_ns)
-        work = self._tick_work_s + (time.perf_counter() - wall0)
-        self._tick_step_s, self._tick_substeps, self._tick_work_s = 0.0, 0, 0.0
-        self._stats.tick(work, step_s, self.schedule.tick_done(work))
+        work = self._stats.tick_work_s + (time.perf_counter() - wall0)
+        self._stats.tick(work, self.schedule.tick_done(work), not (self.paused or held))
         self.ticks += 1
 
     def _after_divergence(self, exc: Exception) -> None:
-        if self.driver.held:
-            self.get_logger().error(
-                f'simulation diverged: {exc}; on_divergence = hold: the last finite wrench is '
-                'republished until ~/reset', throttle_duration_sec=1.0)
-            return
-        self.get_logger().error(
-            f'simulation diverged: {exc}; on_divergence = reset: tissue back at rest, needle at its '
-            f'initial pose (divergence {self.driver.divergences})', throttle_duration_sec=1.0)
-        self.input.reset(self.scene.needle_pose)
-
-    def _reset_scene(self) -> None:
-        self.driver.reset()
-        self.input.reset(self.scene.needle_pose)
-
-    # -- surface, marker -----------------------------------------------------------------------------
+        then = ('hold: the last finite wrench is republished until ~/reset' if self.driver.held else
+                f'reset: tissue back at rest, needle at its initial pose (divergence '
+                f'{self.driver.divergences})')
+        self.get_logger().error(f'simulation diverged: {exc}; on_divergence = {then}',
+                                throttle_duration_sec=1.0)
+        if not self.driver.held:
+            self.input.reset(self.scene.needle_pose)
 
     def _publish_surface(self, now_ns: int) -> None:
         scene = self.scene
@@ -332,10 +284,9 @@ class TissueSimNode(Node):
             self.driver.deformed_positions(), self._triangles, self.config.frame_id, now_ns,
             max_triangles=self.config.marker_max_triangles), now_ns)
 
-    # -- services ------------------------------------------------------------------------------------
-
     def _on_reset(self, request, response):
-        self._reset_scene()
+        self.driver.reset()
+        self.input.reset(self.scene.needle_pose)
         self.get_logger().info('~/reset: tissue at rest, needle at its initial pose')
         if self.scene.topology_version != self._topology_version:
             self._publish_surface(self._now_ns())
@@ -355,22 +306,18 @@ class TissueSimNode(Node):
         self._record_call(self.pause_srv, SetBool, request, response)
         return response
 
-    # -- diagnostics ---------------------------------------------------------------------------------
-
     def diagnostics_statuses(self, now_ns: int) -> list:
         """The DiagnosticStatus tuples (name, level, message, values) of this moment."""
         return diagnostics_statuses(self.get_name(), now_ns, stats=self._stats,
                                     schedule=self.schedule, driver=self.driver,
                                     pose_input=self.input, paused=self.paused, ticks=self.ticks,
-                                    last_substeps=self._last_substeps, recorder=self._recorder)
+                                    recorder=self._recorder)
 
     def publish_diagnostics(self) -> None:
         now_ns = self._now_ns()
         self._publish(self.diagnostics_pub,
                       cv.diagnostic_array_msg(now_ns, self.diagnostics_statuses(now_ns)), now_ns)
         self._stats.new_window(self.driver.simulated_s, self._now_ns(), self.input.bad_total)
-
-    # -- shutdown ------------------------------------------------------------------------------------
 
     def close(self) -> None:
         """Stop the timers and close the recording (its summary written). Idempotent."""

@@ -43,7 +43,7 @@ class NodeStats:
     def __init__(self, publish_rate_hz: float, slices: int):
         window = int(math.ceil(publish_rate_hz * 10))
         self.rings = {name: Ring(window) for name in
-                      ('tick_work_s', 'step_s', 'tick_interval_s', 'latency_s', 'substeps')}
+                      ('tick_work_s', 'step_s', 'tick_interval_s', 'latency_s', 'substeps', 'input_s')}
         # per engine advance: the node-clock time it went to, the time it advanced, its substeps
         self.rings['slice_ns'] = Ring(window * slices, np.int64)  # ns: beyond float64
         self.rings['advance_s'] = Ring(window * slices)
@@ -57,7 +57,37 @@ class NodeStats:
                        'wall0': time.perf_counter(), 'sim0': simulated_s, 'clock0': clock_ns,
                        'bad0': bad_total}
 
-    def tick(self, work_s: float, step_s: float, overran: bool) -> None:
+    # -- the current tick's accumulators ---------------------------------------------------------
+
+    tick_step_s = 0.0   # engine time of this tick's slices
+    tick_substeps = 0
+    tick_work_s = 0.0   # slices' whole work before the publishing one
+    input_s = 0.0       # time on received poses since the last tick
+    last_substeps = 0   # substeps of the last running tick
+
+    def advanced(self, to_ns: int, advance_s: float, substeps: int, step_s: float) -> None:
+        """One engine advance of a slice: to node time ``to_ns`` by ``advance_s``."""
+        self.rings['slice_ns'].add(to_ns)
+        self.rings['advance_s'].add(advance_s)
+        self.rings['advance_steps'].add(substeps)
+        self.tick_step_s += step_s
+        self.tick_substeps += substeps
+
+    def tick_started(self, interval: float | None) -> None:
+        self.rings['input_s'].add(self.input_s)
+        self.input_s = 0.0
+        if interval is not None:
+            self.rings['tick_interval_s'].add(interval)
+
+    def tick(self, work_s: float, overran: bool, running: bool) -> None:
+        """A tick published after ``work_s`` of its slices' work; ``running``: neither paused
+        nor held (the engine's figures count only then)."""
+        step_s = self.tick_step_s
+        if running:
+            self.last_substeps = self.tick_substeps
+            self.rings['step_s'].add(step_s)
+            self.rings['substeps'].add(self.tick_substeps)
+        self.tick_step_s, self.tick_substeps, self.tick_work_s = 0.0, 0, 0.0
         self.rings['tick_work_s'].add(work_s)
         self.rings['advances_at_tick'].add(self.rings['advance_s'].count)
         w = self.window
@@ -68,7 +98,7 @@ class NodeStats:
 
 
 def diagnostics_statuses(name: str, now_ns: int, *, stats: NodeStats, schedule, driver, pose_input,
-                         paused: bool, ticks: int, last_substeps: int, recorder=None) -> list:
+                         paused: bool, ticks: int, recorder=None) -> list:
     """The DiagnosticStatus tuples (name, level, message, values) of this moment."""
     w = stats.window
     scene = driver.scene
@@ -97,13 +127,14 @@ def diagnostics_statuses(name: str, now_ns: int, *, stats: NodeStats, schedule, 
         'step_time_ms_max': w['step_max_s'] * 1e3,
         'tick_work_ms_p99': stats.rings['tick_work_s'].percentile(99) * 1e3,
         'tick_period_deviation_ms_p99': float(np.percentile(deviation, 99)) * 1e3,
-        'substeps_last': last_substeps,
+        'substeps_last': stats.last_substeps,
         'engine_dt_s': float(scene.dt),
         'engine_time_behind_s': driver.target_time - sim_now,
         'real_time_factor': rtf,
         'compute_load': step_mean / period,
         'deadline_overruns': schedule.deadline_overruns,
         'missed_ticks': schedule.missed_ticks,
+        'missed_ticks_for_input': schedule.missed_for_input,
         'dropped_time_s': schedule.dropped_time_s,
         'divergences': driver.divergences,
         'stability': 'held after divergence' if driver.held else 'stable',
@@ -133,7 +164,8 @@ def _input_status(name, now_ns, stats, pose_input, elapsed) -> tuple:
     values = {'poses_received': pose_input.received, 'poses_accepted': pose_input.accepted,
               'last_pose_age_s': 'none yet' if age is None else age, 'stale': stale,
               'latency_ms_p50': stats.rings['latency_s'].percentile(50) * 1e3,
-              'latency_ms_p99': stats.rings['latency_s'].percentile(99) * 1e3}
+              'latency_ms_p99': stats.rings['latency_s'].percentile(99) * 1e3,
+              'input_work_ms_per_tick_max': float(stats.rings['input_s'].array().max(initial=0.0)) * 1e3}
     values.update({f'bad_input.{k}': v for k, v in pose_input.counts.items()})
     if bad_new:
         level, message = 'WARN', f'{bad_new} bad poses in the last {elapsed:.3g} s'

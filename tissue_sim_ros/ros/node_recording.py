@@ -12,12 +12,30 @@ from __future__ import annotations
 import datetime as _dt
 
 from tissue_sim_ros.ros.parameters import parameters_yaml
+from tissue_sim_ros.ros.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODE_TOPIC_TYPES, NODES_QOS,
+                                      SERVICE_EVENT_QOS, SURFACE_QOS, WRENCH_QOS)
 
-__all__ = ['open_node_log', 'every_kth_tick', 'record_service_call']
+__all__ = ['node_log_topics', 'open_node_log', 'every_kth_tick', 'record_service_call']
 
 def every_kth_tick(publish_rate_hz: float, rate_hz: float) -> int:
     """k such that every k-th tick gives ``rate_hz`` (0: never, for a rate of 0)."""
     return max(1, round(publish_rate_hz / rate_hz)) if rate_hz > 0 else 0
+
+
+def node_log_topics(node, qos_to_dict) -> list:
+    """(resolved topic, ROS type, QoS dict) of every channel of the node's log: its publishers,
+    its pose subscription and its two services' event topics."""
+    entities = {'needle/wrench': (node.wrench_pub, WRENCH_QOS),
+                'tissue/nodes': (node.nodes_pub, NODES_QOS),
+                'tissue/surface': (node.surface_pub, SURFACE_QOS),
+                'tissue/marker': (node.marker_pub, MARKER_QOS),
+                '/diagnostics': (node.diagnostics_pub, DIAGNOSTICS_QOS),
+                'needle/pose': (node.pose_sub, node.pose_qos)}
+    topics = [(entity.topic_name, NODE_TOPIC_TYPES[name], qos_to_dict(profile))
+              for name, (entity, profile) in entities.items() if entity is not None]
+    return topics + [(node._event_topic(srv), type_name, qos_to_dict(SERVICE_EVENT_QOS))
+                     for srv, type_name in ((node.reset_srv, 'std_srvs/srv/Trigger_Event'),
+                                            (node.pause_srv, 'std_srvs/srv/SetBool_Event'))]
 
 
 def open_node_log(config, *, scene_text: str, node_name: str, node_fqn: str, topics):

@@ -48,6 +48,7 @@ class TickSchedule:
         self.overran = False      # the previous tick's work took longer than a period
         self.dropped_time_s = 0.0  # time not simulated because a slice came too late
         self.missed_ticks = 0
+        self.missed_for_input = 0  # missed ticks that input handling caused
         self.deadline_overruns = 0
         self._schedule0_ns: int | None = None  # scheduled time of the timer's first call
         self._published_tick = -1
@@ -69,15 +70,20 @@ class TickSchedule:
             return True
         return False
 
-    def tick_started(self, wall: float) -> float | None:
-        """A publishing slice began at ``wall`` (perf_counter s): the interval since the previous
-        one (None for the first), counting missed ticks."""
+    def tick_started(self, wall: float, input_s: float = 0.0) -> float | None:
+        """A publishing slice began at ``wall`` (perf_counter s), ``input_s`` of the node's time
+        since the previous one spent on input: the interval since that one (None for the first),
+        counting missed ticks, and among them those input handling caused (it took more than
+        half a period of the interval: with less, the tick would have been on time without it)."""
         last, self._last_tick_wall = self._last_tick_wall, wall
         if last is None:
             return None
         interval = wall - last
         if interval > 1.5 * self.period_s:
-            self.missed_ticks += int(round(interval / self.period_s)) - 1
+            missed = int(round(interval / self.period_s)) - 1
+            self.missed_ticks += missed
+            if input_s > 0.5 * self.period_s:
+                self.missed_for_input += missed
         return interval
 
     def tick_done(self, work_s: float) -> bool:
