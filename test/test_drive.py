@@ -60,3 +60,52 @@ def test_impossible_drives_are_refused_by_name(start, kw, name):
     args = {'speed_m_s': 0.005, 'depth_m': 0.01, 'hold_s': 0.0, 'rate_hz': 100.0, **kw}
     with pytest.raises(ValueError, match=name):
         insertion_trajectory(start, **args)
+
+
+class _RecordingPublisher:
+    """Stands in for a rclpy publisher: keeps what each publish() saw and when."""
+
+    def __init__(self):
+        self.positions, self.stamps, self.at = [], [], []
+
+    def publish(self, msg):
+        import time
+        self.at.append(time.monotonic())
+        p = msg.pose.position
+        self.positions.append((p.x, p.y, p.z))
+        self.stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+
+
+def test_publish_trajectory_sends_each_pose_on_its_schedule():
+    pytest.importorskip('geometry_msgs')
+    import time
+    from tissue_sim_ros.ros.drive import pose_message, publish_trajectory
+    times = np.array([0.0, 0.02, 0.04, 0.05])
+    positions = np.arange(12, dtype=float).reshape(4, 3) * 1e-3
+    clock = iter(range(7_000_000_000, 8_000_000_000, 1_000))
+    pub = _RecordingPublisher()
+    t0 = time.monotonic()
+    sent = publish_trajectory(pub, pose_message('world', [0.0, 1.0, 0.0, 0.0]), times, positions,
+                              lambda: next(clock))
+    assert sent == [7_000_000_000, 7_000_001_000, 7_000_002_000, 7_000_003_000] == pub.stamps
+    np.testing.assert_array_equal(pub.positions, positions)
+    assert all(at - t0 >= t - 1e-3 for at, t in zip(pub.at, times))  # never early
+
+
+def test_publish_trajectory_repeats_the_schedule_for_a_duration():
+    pytest.importorskip('geometry_msgs')
+    import time
+    from tissue_sim_ros.ros.drive import pose_message, publish_trajectory
+    times = np.array([0.0, 0.01, 0.02])
+    positions = np.array([[0.0, 0.0, 0.1], [0.0, 0.0, 0.2], [0.0, 0.0, 0.3]])
+    pub = _RecordingPublisher()
+    msg = pose_message('world', [0.0, 0.0, 0.0, 1.0])
+    t0 = time.monotonic()
+    sent = publish_trajectory(pub, msg, times, positions, time.time_ns, repeat_for_s=0.2,
+                              cycle_s=0.05)
+    # cycles start every 50 ms: 4 whole cycles of 3 poses in 0.2 s, maybe the 5th cycle's first
+    assert len(sent) in (12, 13)
+    np.testing.assert_array_equal(pub.positions, positions[np.arange(len(sent)) % 3])
+    scheduled = [(k // 3) * 0.05 + times[k % 3] for k in range(len(sent))]
+    assert all(at - t0 >= s - 1e-3 for at, s in zip(pub.at, scheduled))
+    assert msg.pose.orientation.w == 1.0 and msg.header.frame_id == 'world'

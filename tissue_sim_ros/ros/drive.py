@@ -26,7 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ['DriveStart', 'insertion_trajectory', 'scene_start', 'run_drive']
+__all__ = ['DriveStart', 'insertion_trajectory', 'scene_start', 'pose_message',
+           'publish_trajectory', 'run_drive']
 
 
 @dataclass(frozen=True)
@@ -108,6 +109,45 @@ def insertion_trajectory(start: DriveStart, speed_m_s: float, depth_m: float, ho
     return t, positions
 
 
+def pose_message(frame_id: str, orientation):
+    """A PoseStamped in ``frame_id`` with the orientation (x y z w) a scripted motion keeps."""
+    from geometry_msgs.msg import PoseStamped
+    msg = PoseStamped()
+    msg.header.frame_id = frame_id
+    o = msg.pose.orientation
+    o.x, o.y, o.z, o.w = (float(c) for c in orientation)
+    return msg
+
+
+def publish_trajectory(publisher, message, times, positions, now_ns, *,
+                       repeat_for_s: float | None = None, cycle_s: float | None = None) -> list[int]:
+    """Publish ``message`` at ``positions[k]`` at ``times[k]`` seconds from now, each stamped
+    ``now_ns()`` as it goes out; the stamps, in order.
+
+    With ``repeat_for_s`` the schedule starts over every ``cycle_s`` (default: its length plus one
+    sample period) until that many seconds have passed, for a benchmark's steady stream.
+    """
+    from tissue_sim_ros.ros.conversions import ns_to_stamp
+    if cycle_s is None:
+        cycle_s = times[-1] + (times[1] - times[0] if len(times) > 1 else 0.0)
+    position = message.pose.position
+    sent = []
+    t0 = time.monotonic()
+    k = 0
+    while (k < len(times)) if repeat_for_s is None else (time.monotonic() - t0 < repeat_for_s):
+        cycle, i = divmod(k, len(times))
+        delay = t0 + cycle * cycle_s + times[i] - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        stamp = now_ns()
+        message.header.stamp = ns_to_stamp(stamp)
+        position.x, position.y, position.z = (float(c) for c in positions[i])
+        publisher.publish(message)
+        sent.append(stamp)
+        k += 1
+    return sent
+
+
 def run_drive(speed_mm_s: float, depth_mm: float, *, start_height_mm: float | None = None,
               rate_hz: float = 100.0, hold_s: float = 0.5, scene_file: str | None = None,
               topic: str = 'needle/pose', frame_id: str | None = None,
@@ -119,14 +159,11 @@ def run_drive(speed_mm_s: float, depth_mm: float, *, start_height_mm: float | No
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.signals import SignalHandlerOptions
 
-    from tissue_sim_ros.ros.conversions import ns_to_stamp
-
     start = scene_start(scene_file)
     t, positions = insertion_trajectory(
         start, speed_mm_s * 1e-3, depth_mm * 1e-3, hold_s, rate_hz,
         None if start_height_mm is None else start_height_mm * 1e-3)
     frame = frame_id or start.frame_id
-    q = [float(c) for c in start.orientation]
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.SIGINT)
     try:
         node = rclpy.create_node('tissue_sim_drive')
@@ -144,19 +181,8 @@ def run_drive(speed_mm_s: float, depth_mm: float, *, start_height_mm: float | No
               f'{np.linalg.norm(positions - positions[0], axis=1).max() * 1e3:.1f} mm at '
               f'{speed_mm_s:g} mm/s to {depth_mm:g} mm below the surface, hold {hold_s:g} s, back')
         clock = node.get_clock()
-        t0 = time.monotonic()
-        msg = PoseStamped()
-        msg.header.frame_id = frame
-        msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z, \
-            msg.pose.orientation.w = q
-        for k in range(len(t)):
-            delay = t0 + t[k] - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            msg.header.stamp = ns_to_stamp(clock.now().nanoseconds)
-            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = \
-                (float(c) for c in positions[k])
-            pub.publish(msg)
+        publish_trajectory(pub, pose_message(frame, start.orientation), t, positions,
+                           lambda: clock.now().nanoseconds)
         acked = pub.wait_for_all_acked(Duration(seconds=5.0))
         if not acked:
             print('tissue-sim drive: the node did not acknowledge every pose within 5 s',
