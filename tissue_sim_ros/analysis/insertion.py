@@ -105,26 +105,11 @@ def pre_puncture_nrmse(result, rupture_depth=0.019, contact_depth=0.009):
 
 
 def plot_insertion(result, path, *, reference=True, title='needle insertion'):
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(7, 4.2))
-    inserting = ~result.retracting
-    if reference and DATA_DIR.exists():
-        depth, force = okamura_main_trace()
-        ax.plot(depth * 1e3, force, '.', ms=3, color='0.55', label='bovine liver, ex vivo (Okamura et al. 2004)')
-    ax.plot(result.depth[inserting] * 1e3, result.axial_force[inserting], '-', color='C0', label='simulated, insertion')
-    ax.plot(result.depth[~inserting] * 1e3, result.axial_force[~inserting], '-', color='C3', label='simulated, retraction')
-    for event in result.puncture_events:
-        ax.axvline(np.interp(event['time_s'], result.time, result.depth) * 1e3, color='C2', lw=0.8, ls='--')
-    ax.set_xlabel('needle travel from start [mm]')
-    ax.set_ylabel('axial force on the needle [N]')
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    ax.legend(loc='upper left', fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    """Axial force against travel of a run (puncture events dashed) over the bovine-liver data."""
+    from tissue_sim_ros.analysis.force_plot import plot_force_against_travel
+    marks = [np.interp(event['time_s'], result.time, result.depth) for event in result.puncture_events]
+    plot_force_against_travel(path, result.depth, result.axial_force, result.retracting, title=title,
+                              reference=reference, marks_m=marks)
 
 
 def main(scene_file, speed_mm_s, depth_mm, out, *, tick=0.02, stream=sys.stdout, overrides=None):
