@@ -5,19 +5,13 @@ Starts ``tissue_sim_node`` (recording on, private ROS domain, localhost discover
 with SIGINT, then reads the log with the project's reader and prints messages per topic, the
 wrench rate, the peak axial force and where the capsule gave way, and plots force against depth.
 """
-import os
-import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-
-def _script(name):
-    path = Path(sys.executable).parent / name
-    return str(path) if path.exists() else name
+from tissue_sim_ros.units import NS_PER_S
 
 
 def _wrench_and_travel(log):
@@ -28,7 +22,7 @@ def _wrench_and_travel(log):
     from tissue_sim_ros.engine.needle import rotation_matrix
     poses, wrenches = [], []
     for m in read_log(log, topics=['/needle/pose', '/needle/wrench']):
-        stamp = m.message.header.stamp.sec + 1e-9 * m.message.header.stamp.nanosec
+        stamp = m.message.header.stamp.sec + m.message.header.stamp.nanosec / NS_PER_S
         if m.topic.endswith('pose'):
             p, o = m.message.pose.position, m.message.pose.orientation
             poses.append((stamp, p.x, p.y, p.z, o.x, o.y, o.z, o.w))
@@ -44,36 +38,37 @@ def _wrench_and_travel(log):
     return t, np.interp(t, poses[:, 0], travel_at_pose), axial
 
 
+def _drive_node(out, logs, speed_mm_s, depth_mm):
+    """Start the node recording into ``logs``, wait for it, run ``tissue-sim drive`` against it,
+    stop it with SIGINT; the drive's exit status and the node's."""
+    from tissue_sim_ros.ros.node_process import NodeProcess, console_script
+    print(f'starting tissue_sim_node (recording to {logs}) ...', flush=True)
+    with NodeProcess([f'recording.directory:={logs}'], out / 'node.log') as node:
+        node.wait_for_subscriber('needle/pose')
+        drive = subprocess.run(console_script('tissue-sim', 'tissue_sim_ros.cli') +
+                               ['drive', '--speed-mm-s', str(speed_mm_s), '--depth-mm', str(depth_mm),
+                                '--hold-s', '0.5'], env=node.env, timeout=300)
+        time.sleep(0.3)                         # the last wrenches
+    return drive.returncode, node.returncode
+
+
 def run(out='out', speed_mm_s=5.0, depth_mm=15.0):
+    """Node, scripted insertion, log read back: print the figures, plot, return them."""
+    from tissue_sim_ros.analysis.force_plot import plot_force_against_travel
     from tissue_sim_ros.io.mcap_log import summarize_log
     out = Path(out).resolve()
     logs = out / 'logs'
     logs.mkdir(parents=True, exist_ok=True)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(100 + os.getpid() % 100),
-               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
     before = set(logs.glob('*.mcap'))
-    print(f'starting tissue_sim_node (recording to {logs}) ...', flush=True)
-    node = subprocess.Popen([_script('tissue_sim_node'), '--ros-args', '-p', f'recording.directory:={logs}'],
-                            env=env, stdout=open(out / 'node.log', 'w'), stderr=subprocess.STDOUT)
-    try:
-        drive = subprocess.run([_script('tissue-sim'), 'drive', '--speed-mm-s', str(speed_mm_s),
-                                '--depth-mm', str(depth_mm), '--hold-s', '0.5'],
-                               env=env, timeout=300)
-        time.sleep(0.3)                         # the last wrenches
-    finally:
-        node.send_signal(signal.SIGINT)
-        try:
-            node.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            node.kill()
-    if drive.returncode != 0:
-        raise SystemExit(f'tissue-sim drive failed (exit {drive.returncode}); node output in {out / "node.log"}')
+    drive_status, node_status = _drive_node(out, logs, speed_mm_s, depth_mm)
+    if drive_status != 0:
+        raise SystemExit(f'tissue-sim drive failed (exit {drive_status}); node output in {out / "node.log"}')
     new = sorted(set(logs.glob('*.mcap')) - before)
     if not new:
         raise SystemExit(f'the node wrote no log; its output is in {out / "node.log"}')
     log = new[-1]
     summary = summarize_log(log)
-    print(f'\nlog {log} (node exit {node.returncode}):')
+    print(f'\nlog {log} (node exit {node_status}):')
     for topic, entry in sorted(summary['topics'].items()):
         print(f'  {topic:<20} {entry["type"]:<36} {entry["count"]:>6} messages')
     t, travel, axial = _wrench_and_travel(log)
@@ -85,27 +80,9 @@ def run(out='out', speed_mm_s=5.0, depth_mm=15.0):
           f'at travel {travel[int(np.argmax(axial))] * 1e3:.2f} mm')
     print(f'largest force drop while inserting (the capsule giving way): {axial[k]:.3f} -> {axial[k + 1]:.3f} N '
           f'at travel {travel[k] * 1e3:.2f} mm')
-    _plot(travel, axial, inserting, out / 'node_insertion.png', speed_mm_s)
+    plot_force_against_travel(out / 'node_insertion.png', travel, axial, ~inserting,
+                              title=f'tissue_sim_node, insertion at {speed_mm_s:g} mm/s',
+                              labels=('node, insertion (from the MCAP log)', 'node, retraction'))
     print(f'wrote {out / "node_insertion.png"}')
     return {'log': log, 'rate_hz': rate, 'peak_axial_n': float(axial.max()), 'puncture_travel_m': float(travel[k])}
 
-
-def _plot(travel, axial, inserting, path, speed_mm_s):
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    from tissue_sim_ros.analysis.insertion import DATA_DIR, okamura_main_trace
-    fig, ax = plt.subplots(figsize=(7, 4.2))
-    if DATA_DIR.exists():
-        d, f = okamura_main_trace()
-        ax.plot(d * 1e3, f, '.', ms=3, color='0.55', label='bovine liver, ex vivo (Okamura et al. 2004, 3 mm/s)')
-    ax.plot(travel[inserting] * 1e3, axial[inserting], color='C0', label='node, insertion (from the MCAP log)')
-    ax.plot(travel[~inserting] * 1e3, axial[~inserting], color='C3', label='node, retraction')
-    ax.set_xlabel('needle travel from start [mm]')
-    ax.set_ylabel('axial force on the needle [N]')
-    ax.set_title(f'tissue_sim_node, insertion at {speed_mm_s:g} mm/s')
-    ax.grid(alpha=0.3)
-    ax.legend(loc='upper left', fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)

@@ -19,27 +19,31 @@ Figures:
 - overruns: ticks whose work took longer than a period, and missed ticks, from the node's last
   diagnostics; its mean step time, substeps, compute load.
 
-The numbers are figures of this machine at the time of the run (other load shows in them); the
-issue's goals are printed beside them, not enforced.
+The numbers are figures of this machine at the time of the run (other load shows in them: the
+report gives the load average before the run); the issue's goals are printed beside them, not
+enforced. ``load`` > 0 runs that many busy processes and one listening ROS client (wrench and
+point cloud) beside the node during the window (:mod:`tissue_sim_ros.analysis.background_load`),
+so that a figure under load can be reproduced.
 """
 from __future__ import annotations
 
 import json
 import os
 import shutil
-import signal
-import subprocess
-import sys
 import tempfile
 import threading
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from tissue_sim_ros.units import NS_PER_S
+
 __all__ = ['run', 'measure']
 
 GOALS = {'rate_rel': 0.005, 'period_dev_p99_ms': 4.0, 'latency_p99_ms': 25.0}
+_NS_PER_MS = NS_PER_S // 1000
 
 
 def _cpu_seconds(pid: int) -> float | None:
@@ -50,207 +54,252 @@ def _cpu_seconds(pid: int) -> float | None:
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')  # utime + stime
 
 
-def _node_command(params: list[str]) -> list[str]:
-    script = Path(sys.executable).parent / 'tissue_sim_node'
-    cmd = [str(script)] if script.exists() else [sys.executable, '-m', 'tissue_sim_ros.ros.node']
-    cmd.append('--ros-args')
-    for p in params:
-        cmd += ['-p', p]
-    return cmd
-
-
-def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | None = None,
-            log_dir: str | Path | None = None, speed_mm_s: float = 5.0, depth_mm: float = 15.0,
-            domain_id: int | None = None, publish_rate_hz: float = 50.0,
-            slices_per_tick: int | None = None) -> dict:
-    """Run the node and the scripted driver for ``duration_s``; the figures as a dict."""
-    import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
-    from geometry_msgs.msg import PoseStamped, WrenchStamped
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-    from shape_msgs.msg import Mesh
-
-    from tissue_sim_ros.io import mcap_log as ml
-    from tissue_sim_ros.ros.conversions import ns_to_stamp, stamp_to_ns
-    from tissue_sim_ros.ros.drive import insertion_trajectory, scene_start
-
-    own_dir = log_dir is None
-    log_dir = Path(tempfile.mkdtemp(prefix='node_bench_')) if own_dir else Path(log_dir)
-    log_dir.mkdir(parents=True, exist_ok=True)
-    domain_id = domain_id if domain_id is not None else 150 + os.getpid() % 80
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id),
-               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+def _node_params(log_dir: Path, publish_rate_hz: float, scene_file: str | None,
+                 slices_per_tick: int | None) -> list[str]:
     params = [f'recording.directory:={log_dir}', f'publish_rate_hz:={float(publish_rate_hz)}']
     if scene_file:
         params.append(f'scene_file:={scene_file}')
     if slices_per_tick is not None:
         params.append(f'engine.slices_per_tick:={int(slices_per_tick)}')
-    start = scene_start(scene_file)
-    times, positions = insertion_trajectory(start, speed_mm_s * 1e-3, depth_mm * 1e-3, 0.5,
-                                            rate_hz)
-    earlier_logs = set(log_dir.glob('*.mcap'))
-    node_log = open(log_dir / 'node.log', 'w')  # noqa: SIM115
-    t_launch = time.monotonic()
-    proc = subprocess.Popen(_node_command(params), env=env, stdout=node_log,
-                            stderr=subprocess.STDOUT)
+    return params
 
-    previous_range = os.environ.get('ROS_AUTOMATIC_DISCOVERY_RANGE')
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain_id)
-    client = rclpy.create_node('node_bench', context=ctx)
-    wrench_rx: list[tuple[int, int]] = []  # (receive ns on the system clock, stamp ns)
-    diagnostics: list = []
-    surfaces: list = []
-    reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-    client.create_subscription(
-        WrenchStamped, 'needle/wrench',
-        lambda m: wrench_rx.append((time.time_ns(), stamp_to_ns(m.header.stamp))), reliable)
-    client.create_subscription(DiagnosticArray, '/diagnostics', diagnostics.append, reliable)
-    client.create_subscription(Mesh, 'tissue/surface', surfaces.append, QoSProfile(
-        depth=1, reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL))
-    pub = client.create_publisher(PoseStamped, 'needle/pose', reliable)
-    executor = SingleThreadedExecutor(context=ctx)
-    executor.add_node(client)
-    stop = threading.Event()
 
-    def spin():
-        while not stop.is_set():
-            executor.spin_once(timeout_sec=0.05)
-    spinner = threading.Thread(target=spin, daemon=True)
-    spinner.start()
-    sent: list[int] = []
-    try:
-        deadline = time.monotonic() + 120
-        while not (surfaces and pub.get_subscription_count()):
-            if proc.poll() is not None:
-                raise RuntimeError(f'the node exited ({proc.returncode}); see {log_dir / "node.log"}')
-            if time.monotonic() > deadline:
-                raise RuntimeError('the node did not come up within 120 s')
+class _BenchClient:
+    """This process's side of the graph: publishes the poses, records each wrench's arrival
+    (system clock ns, stamp ns), keeps the diagnostics and the surface (the sign the node is
+    up), spun on a thread until close()."""
+
+    def __init__(self, context):
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import PoseStamped, WrenchStamped
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from shape_msgs.msg import Mesh
+
+        from tissue_sim_ros.ros.conversions import stamp_to_ns
+        self.node = rclpy.create_node('node_bench', context=context)
+        self.wrench_rx: list[tuple[int, int]] = []
+        self.diagnostics: list = []
+        self.surfaces: list = []
+        reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        self.node.create_subscription(
+            WrenchStamped, 'needle/wrench',
+            lambda m: self.wrench_rx.append((time.time_ns(), stamp_to_ns(m.header.stamp))), reliable)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self.diagnostics.append,
+                                      reliable)
+        self.node.create_subscription(Mesh, 'tissue/surface', self.surfaces.append, QoSProfile(
+            depth=1, reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self.pose_pub = self.node.create_publisher(PoseStamped, 'needle/pose', reliable)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self._stop = threading.Event()
+        self._spinner = threading.Thread(target=self._spin, daemon=True)
+        self._spinner.start()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def node_is_up(self) -> bool:
+        return bool(self.surfaces) and self.pose_pub.get_subscription_count() > 0
+
+    def await_next_diagnostics(self, timeout_s: float = 3.0) -> None:
+        """Wait for one more diagnostics message (the counters at the end of the window)."""
+        seen, deadline = len(self.diagnostics), time.monotonic() + timeout_s
+        while len(self.diagnostics) == seen and time.monotonic() < deadline:
             time.sleep(0.02)
-        startup_s = time.monotonic() - t_launch
-        time.sleep(1.0)  # let the first ticks (caches, page faults) pass
-        msg = PoseStamped()
-        msg.header.frame_id = start.frame_id
-        (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z,
-         msg.pose.orientation.w) = (float(c) for c in start.orientation)
-        cpu0, wall0_ns = _cpu_seconds(proc.pid), time.time_ns()
-        t0 = time.monotonic()
-        k = 0
-        while time.monotonic() - t0 < duration_s:
-            cycle, i = divmod(k, len(times))
-            delay = t0 + cycle * (times[-1] + 1.0 / rate_hz) + times[i] - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            stamp = time.time_ns()
-            msg.header.stamp = ns_to_stamp(stamp)
-            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = \
-                (float(c) for c in positions[i])
-            pub.publish(msg)
-            sent.append(stamp)
-            k += 1
-        cpu1, wall1_ns = _cpu_seconds(proc.pid), time.time_ns()
-        time.sleep(0.3)
-        n_diag = len(diagnostics)
-        wait_until = time.monotonic() + 3
-        while len(diagnostics) == n_diag and time.monotonic() < wait_until:
-            time.sleep(0.02)
-        proc.send_signal(signal.SIGINT)
-        rc = proc.wait(timeout=30)
-        time.sleep(0.2)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        stop.set()
-        spinner.join(timeout=5)
-        client.destroy_node()
-        rclpy.shutdown(context=ctx)
-        node_log.close()
-        if previous_range is None:
-            os.environ.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
-        else:
-            os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = previous_range
 
-    new_logs = sorted(set(log_dir.glob('*.mcap')) - earlier_logs)
-    if len(new_logs) != 1:
-        raise RuntimeError(f'expected one new MCAP log in {log_dir}, found {new_logs}')
-    path = new_logs[0]
-    period_ns = 1e9 / publish_rate_hz
-    pose_receipt, pose_stamp, wrench_tick, wrench_publish = [], [], [], []
+    def close(self) -> None:
+        self._stop.set()
+        self._spinner.join(timeout=5)
+        self.executor.shutdown()
+        self.node.destroy_node()
+
+
+@dataclass
+class _Window:
+    """The measured window: its ends on the system clock, the node's CPU seconds at each, the
+    stamps of the poses sent in it."""
+
+    wall0_ns: int
+    wall1_ns: int
+    cpu0: float | None
+    cpu1: float | None
+    sent: list[int] = field(default_factory=list)
+
+    @property
+    def seconds(self) -> float:
+        return (self.wall1_ns - self.wall0_ns) / NS_PER_S
+
+    def cpu_pct(self) -> float | None:
+        if self.cpu0 is None or self.cpu1 is None:
+            return None
+        return 100.0 * (self.cpu1 - self.cpu0) / self.seconds
+
+
+def _drive_window(node, client: _BenchClient, start, times, positions, rate_hz: float,
+                  duration_s: float) -> _Window:
+    """Stream the scripted poses for ``duration_s``, the node's CPU time read at both ends."""
+    from tissue_sim_ros.ros.drive import pose_message, publish_trajectory
+    message = pose_message(start.frame_id, start.orientation)
+    cpu0, wall0_ns = _cpu_seconds(node.pid), time.time_ns()
+    sent = publish_trajectory(client.pose_pub, message, times, positions, time.time_ns,
+                              repeat_for_s=duration_s, cycle_s=times[-1] + 1.0 / rate_hz)
+    return _Window(wall0_ns, time.time_ns(), cpu0, _cpu_seconds(node.pid), sent)
+
+
+def _log_timings(path: Path) -> dict:
+    """From the node's log: each pose's receipt (log time) and stamp, each wrench's tick (stamp)
+    and publish time (log time), ns on the node's clock."""
+    from tissue_sim_ros.io import mcap_log as ml
+    from tissue_sim_ros.ros.conversions import stamp_to_ns
+    columns = {'pose_receipt': [], 'pose_stamp': [], 'wrench_tick': [], 'wrench_publish': []}
     for m in ml.read_log(path, topics=['/needle/pose', '/needle/wrench']):
         if m.topic == '/needle/pose':
-            pose_receipt.append(m.log_time_ns)
-            pose_stamp.append(stamp_to_ns(m.message.header.stamp))
+            columns['pose_receipt'].append(m.log_time_ns)
+            columns['pose_stamp'].append(stamp_to_ns(m.message.header.stamp))
         else:
-            wrench_tick.append(stamp_to_ns(m.message.header.stamp))
-            wrench_publish.append(m.log_time_ns)
-    pose_receipt = np.array(pose_receipt, dtype=np.int64)
-    pose_stamp = np.array(pose_stamp, dtype=np.int64)
-    wrench_tick = np.array(wrench_tick, dtype=np.int64)
-    wrench_publish = np.array(wrench_publish, dtype=np.int64)
+            columns['wrench_tick'].append(stamp_to_ns(m.message.header.stamp))
+            columns['wrench_publish'].append(m.log_time_ns)
+    return {name: np.array(values, dtype=np.int64) for name, values in columns.items()}
 
-    rx = np.array(wrench_rx, dtype=np.int64)
-    in_window = (rx[:, 0] >= wall0_ns) & (rx[:, 0] <= wall1_ns)
-    rx_w = rx[in_window]
-    rate = (len(rx_w) - 1) / ((rx_w[-1, 0] - rx_w[0, 0]) / 1e9)
-    ticks_w = wrench_tick[(wrench_tick >= wall0_ns) & (wrench_tick <= wall1_ns)]
-    periods = np.diff(ticks_w) / 1e6
-    deviation = np.abs(periods - period_ns / 1e6)
-    rx_periods = np.diff(rx_w[:, 0]) / 1e6
 
-    in_w = (pose_receipt >= wall0_ns) & (pose_receipt <= wall1_ns)
-    receipts = pose_receipt[in_w]
-    idx = np.searchsorted(wrench_tick, receipts, side='left')  # first tick at or after receipt
-    ok = idx < len(wrench_tick)
-    latency = (wrench_publish[idx[ok]] - receipts[ok]) / 1e6
-    # end to end: sent here -> that wrench received here (matched by its tick stamp)
-    rx_by_stamp = dict(zip(rx[:, 1].tolist(), rx[:, 0].tolist()))
-    e2e = []
-    for stamp, j in zip(pose_stamp[in_w][ok], idx[ok]):
-        got = rx_by_stamp.get(int(wrench_tick[j]))
-        if got is not None:
-            e2e.append((got - stamp) / 1e6)
-    e2e = np.array(e2e)
-
-    def values(msg, name_part):
-        for st in msg.status:
-            if name_part in st.name:
-                return {kv.key: kv.value for kv in st.values}
-        return {}
-    engine = values(diagnostics[-1], 'engine') if diagnostics else {}
-    inputs = values(diagnostics[-1], 'input') if diagnostics else {}
-    cpu = None
-    if cpu0 is not None and cpu1 is not None:
-        cpu = 100.0 * (cpu1 - cpu0) / ((wall1_ns - wall0_ns) / 1e9)
-    result = {
-        'scene': scene_file or 'default (config/liver_sample.yaml)',
-        'slices_per_tick': slices_per_tick or 'default',
-        'duration_s': (wall1_ns - wall0_ns) / 1e9,
-        'pose_rate_hz': rate_hz,
-        'poses_sent': len(sent),
-        'poses_logged': int(len(pose_receipt)),
-        'startup_s': startup_s,
-        'node_exit_code': rc,
+def _rate_and_periods(wrench_rx: np.ndarray, ticks: np.ndarray, window: _Window,
+                      publish_rate_hz: float) -> dict:
+    """Wrench rate at this receiver and tick period figures over the window."""
+    period_ms = 1e3 / publish_rate_hz
+    rx = wrench_rx[(wrench_rx[:, 0] >= window.wall0_ns) & (wrench_rx[:, 0] <= window.wall1_ns)]
+    if len(rx) < 2:
+        raise RuntimeError(f'{len(rx)} wrenches arrived in the {window.seconds:.1f} s window; '
+                           'expected a steady stream (is the node running?)')
+    rate = (len(rx) - 1) / ((rx[-1, 0] - rx[0, 0]) / NS_PER_S)
+    ticks_w = ticks[(ticks >= window.wall0_ns) & (ticks <= window.wall1_ns)]
+    periods = np.diff(ticks_w) / _NS_PER_MS
+    deviation = np.abs(periods - period_ms)
+    rx_periods = np.diff(rx[:, 0]) / _NS_PER_MS
+    return {
         'wrench_rate_hz': rate,
         'wrench_rate_error_pct': 100.0 * (rate - publish_rate_hz) / publish_rate_hz,
         'tick_period_ms_p50': float(np.percentile(periods, 50)),
         'tick_period_dev_ms_p99': float(np.percentile(deviation, 99)),
         'tick_period_dev_ms_max': float(deviation.max()),
-        'receive_period_dev_ms_p99': float(np.percentile(np.abs(rx_periods - period_ns / 1e6), 99)),
+        'receive_period_dev_ms_p99': float(np.percentile(np.abs(rx_periods - period_ms), 99)),
+    }
+
+
+def _latencies(log: dict, wrench_rx: np.ndarray, window: _Window) -> dict:
+    """Pose receipt -> first wrench ticked at or after it (its publish time), and end to end:
+    pose sent here -> that wrench received here (matched by its tick stamp)."""
+    in_window = (log['pose_receipt'] >= window.wall0_ns) & (log['pose_receipt'] <= window.wall1_ns)
+    receipts = log['pose_receipt'][in_window]
+    idx = np.searchsorted(log['wrench_tick'], receipts, side='left')
+    ok = idx < len(log['wrench_tick'])
+    latency = (log['wrench_publish'][idx[ok]] - receipts[ok]) / _NS_PER_MS
+    rx_by_stamp = dict(zip(wrench_rx[:, 1].tolist(), wrench_rx[:, 0].tolist()))
+    e2e = []
+    for stamp, j in zip(log['pose_stamp'][in_window][ok], idx[ok]):
+        got = rx_by_stamp.get(int(log['wrench_tick'][j]))
+        if got is not None:
+            e2e.append((got - stamp) / _NS_PER_MS)
+    e2e = np.array(e2e)
+    nan = float('nan')
+    return {
         'latency_ms_p50': float(np.percentile(latency, 50)),
         'latency_ms_p99': float(np.percentile(latency, 99)),
         'latency_ms_max': float(latency.max()),
-        'end_to_end_ms_p50': float(np.percentile(e2e, 50)) if e2e.size else float('nan'),
-        'end_to_end_ms_p99': float(np.percentile(e2e, 99)) if e2e.size else float('nan'),
-        'node_cpu_pct_of_one_core': cpu,
+        'end_to_end_ms_p50': float(np.percentile(e2e, 50)) if e2e.size else nan,
+        'end_to_end_ms_p99': float(np.percentile(e2e, 99)) if e2e.size else nan,
+    }
+
+
+def _diagnostic_figures(diagnostics: list) -> dict:
+    """Counters from the node's last diagnostics (engine and input status)."""
+    def values(name_part):
+        for status in (diagnostics[-1].status if diagnostics else ()):
+            if name_part in status.name:
+                return {kv.key: kv.value for kv in status.values}
+        return {}
+    engine, inputs = values('engine'), values('input')
+    return {
         'deadline_overruns': int(engine.get('deadline_overruns', -1)),
         'missed_ticks': int(engine.get('missed_ticks', -1)),
         'ticks': int(engine.get('ticks', -1)),
         'step_time_ms_mean_last_window': float(engine.get('step_time_ms_mean', 'nan')),
         'substeps_per_tick': int(engine.get('substeps_last', -1)),
         'node_latency_ms_p99_own': float(inputs.get('latency_ms_p99', 'nan')),
+    }
+
+
+def _new_log(log_dir: Path, earlier: set) -> Path:
+    new_logs = sorted(set(log_dir.glob('*.mcap')) - earlier)
+    if len(new_logs) != 1:
+        raise RuntimeError(f'expected one new MCAP log in {log_dir}, found {new_logs}')
+    return new_logs[0]
+
+
+def _run_node(log_dir: Path, params: list[str], domain_id: int | None, start, times, positions,
+              rate_hz: float, duration_s: float, load: int) -> dict:
+    """Start the node (and the load), wait until it is up, stream poses for the window, stop it;
+    what was seen here, as a dict."""
+    from tissue_sim_ros.analysis.background_load import BackgroundLoad, machine_load
+    from tissue_sim_ros.ros.node_process import NodeProcess, client_context
+    machine = machine_load()
+    with NodeProcess(params, log_dir / 'node.log', domain_id) as node, \
+            client_context(node.domain_id) as context:
+        client = _BenchClient(context)
+        try:
+            startup_s = node.wait_until(client.node_is_up, 300.0)
+            with BackgroundLoad(load, node.env) as background:
+                time.sleep(1.0)  # let the first ticks (caches, page faults) pass
+                window = _drive_window(node, client, start, times, positions, rate_hz, duration_s)
+                time.sleep(0.3)
+                client.await_next_diagnostics()
+            exit_code = node.stop()
+            time.sleep(0.2)
+        finally:
+            client.close()
+    return {'window': window, 'startup_s': startup_s, 'exit_code': exit_code,
+            'wrench_rx': np.array(client.wrench_rx, dtype=np.int64),
+            'diagnostics': client.diagnostics, 'load': background.describe(),
+            'listener': background.listener, 'machine': machine}
+
+
+def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | None = None,
+            log_dir: str | Path | None = None, speed_mm_s: float = 5.0, depth_mm: float = 15.0,
+            domain_id: int | None = None, publish_rate_hz: float = 50.0,
+            slices_per_tick: int | None = None, load: int = 0) -> dict:
+    """Run the node and the scripted driver for ``duration_s`` (with ``load`` busy processes and
+    a listening client beside them when ``load`` > 0); the figures as a dict."""
+    from tissue_sim_ros.ros.drive import insertion_trajectory, scene_start
+    start = scene_start(scene_file)
+    times, positions = insertion_trajectory(start, speed_mm_s * 1e-3, depth_mm * 1e-3, 0.5,
+                                            rate_hz)
+    own_dir = log_dir is None
+    log_dir = Path(tempfile.mkdtemp(prefix='node_bench_')) if own_dir else Path(log_dir)
+    log_dir.mkdir(parents=True, exist_ok=True)
+    earlier_logs = set(log_dir.glob('*.mcap'))
+    run = _run_node(log_dir, _node_params(log_dir, publish_rate_hz, scene_file, slices_per_tick),
+                    domain_id, start, times, positions, rate_hz, duration_s, load)
+    path = _new_log(log_dir, earlier_logs)
+    log, window = _log_timings(path), run['window']
+    result = {
+        'scene': scene_file or 'default (config/liver_sample.yaml)',
+        'slices_per_tick': slices_per_tick or 'default',
+        'load': run['load'],
+        'listener': run['listener'],
+        'machine_before': run['machine'],
+        'duration_s': window.seconds,
+        'pose_rate_hz': rate_hz,
+        'poses_sent': len(window.sent),
+        'poses_logged': int(len(log['pose_receipt'])),
+        'startup_s': run['startup_s'],
+        'node_exit_code': run['exit_code'],
+        **_rate_and_periods(run['wrench_rx'], log['wrench_tick'], window, publish_rate_hz),
+        **_latencies(log, run['wrench_rx'], window),
+        'node_cpu_pct_of_one_core': window.cpu_pct(),
+        **_diagnostic_figures(run['diagnostics']),
         'mcap': str(path),
     }
     if own_dir:
@@ -265,6 +314,7 @@ def report(r: dict) -> str:
         f'node bench: {r["scene"]}, engine slices per tick {r["slices_per_tick"]}, '
         f'{r["duration_s"]:.1f} s measured, poses at {r["pose_rate_hz"]:g} Hz '
         f'({r["poses_sent"]} sent, {r["poses_logged"]} logged by the node), node up in {r["startup_s"]:.1f} s',
+        f'  load beside the node {r["load"]}; before the run: {r["machine_before"]}',
         f'  wrench rate          {r["wrench_rate_hz"]:8.3f} Hz   ({r["wrench_rate_error_pct"]:+.2f} %; goal within '
         f'{100 * g["rate_rel"]:.1f} %)',
         f'  tick period          p50 {r["tick_period_ms_p50"]:.3f} ms, |deviation| p99 '
@@ -278,14 +328,18 @@ def report(r: dict) -> str:
         f'{r["ticks"]} ticks; step {r["step_time_ms_mean_last_window"]:.2f} ms mean, '
         f'{r["substeps_per_tick"]} substeps per tick',
     ]
+    listener = r.get('listener') or {}
+    if listener:
+        lines.append('  listening client     ' + ', '.join(
+            f'{name} {v["count"]} messages at {v["rate_hz"]:.2f} Hz' for name, v in listener.items()))
     return '\n'.join(lines)
 
 
 def run(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | None = None,
-        out: str | None = None, slices_per_tick: int | None = None) -> dict:
+        out: str | None = None, slices_per_tick: int | None = None, load: int = 0) -> dict:
     """Measure and print; with ``out``, keep the MCAP log there and write node_bench.json."""
     result = measure(duration_s=duration_s, rate_hz=rate_hz, scene_file=scene_file, log_dir=out,
-                     slices_per_tick=slices_per_tick)
+                     slices_per_tick=slices_per_tick, load=load)
     print(report(result))
     if out:
         (Path(out) / 'node_bench.json').write_text(json.dumps(result, indent=2))

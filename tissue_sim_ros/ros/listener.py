@@ -1,0 +1,77 @@
+"""A ROS client that only listens to the node's wrench and point cloud: the extra subscriber a lab
+has (a controller, RViz, a logger), run beside the node by ``tissue-sim node-bench --load N``.
+
+``python -m tissue_sim_ros.ros.listener`` (on the node's ROS domain) prints one JSON line
+``{"ready": true}`` once both topics have a publisher, and on SIGINT or SIGTERM one JSON line with
+what it received per topic: the count and the rate over the time between its first and last
+message.
+"""
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import threading
+import time
+
+from tissue_sim_ros.units import NS_PER_S
+
+#: what the listener subscribes to: name in its report -> (topic, message type as module.Class)
+TOPICS = {'wrench': ('needle/wrench', 'geometry_msgs.msg.WrenchStamped'),
+          'cloud': ('tissue/nodes', 'sensor_msgs.msg.PointCloud2')}
+
+
+class Arrivals:
+    """Count and first/last arrival time of one topic's messages."""
+
+    def __init__(self):
+        self.count, self.first_ns, self.last_ns = 0, 0, 0
+
+    def __call__(self, _message) -> None:
+        now = time.monotonic_ns()
+        if not self.count:
+            self.first_ns = now
+        self.count, self.last_ns = self.count + 1, now
+
+    def summary(self) -> dict:
+        span_s = (self.last_ns - self.first_ns) / NS_PER_S
+        rate = (self.count - 1) / span_s if self.count > 1 and span_s > 0 else 0.0
+        return {'count': self.count, 'rate_hz': rate}
+
+
+def _message_type(dotted: str):
+    from importlib import import_module
+    module, name = dotted.rsplit('.', 1)
+    return getattr(import_module(module), name)
+
+
+def main() -> int:
+    """Listen until SIGINT or SIGTERM; print the arrivals as JSON."""
+    import rclpy
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rclpy.signals import SignalHandlerOptions
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    node = rclpy.create_node('tissue_sim_listener')
+    arrivals = {name: Arrivals() for name in TOPICS}
+    reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    subscriptions = [node.create_subscription(_message_type(kind), topic, arrivals[name], reliable)
+                     for name, (topic, kind) in TOPICS.items()]
+    ready = False
+    try:
+        while not stop.is_set():
+            rclpy.spin_once(node, timeout_sec=0.1)
+            if not ready and all(s.get_publisher_count() for s in subscriptions):
+                ready = True
+                print(json.dumps({'ready': True}), flush=True)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    print(json.dumps({name: a.summary() for name, a in arrivals.items()}), flush=True)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
