@@ -107,3 +107,88 @@ def test_compress_demo_writes_plot_and_tracks_E_A_strain(tmp_path, capsys):
     final = float(re.search(r'final reaction ([0-9.]+) N', out).group(1))
     # 0.05 x 0.05 block, 0.03 high, E = 5 kPa: E A strain = 0.375 N at 3 %; slow plate, within 3 %
     assert final == pytest.approx(5e3 * 0.05 * 0.05 * 0.03, rel=0.03)
+
+
+def _error_line(capsys, argv):
+    """Run ``tissue-sim argv`` in this process; the one stderr line it printed, after checking
+    exit status 2 and no traceback."""
+    from tissue_sim_ros import cli
+    try:
+        status = cli.main(argv)
+    except SystemExit as exc:  # argparse refusing a value exits from parse_args
+        status = exc.code
+    err = capsys.readouterr().err
+    assert status == 2, err
+    assert 'Traceback' not in err and err.count('\n') == 1, err
+    assert err.startswith(f'tissue-sim {argv[0]}: error: '), err
+    return err
+
+
+@pytest.mark.parametrize('argv, named', [
+    (['insert', '--speed-mm-s', '-3'], ["--speed-mm-s: '-3'", '> 0']),
+    (['insert', '--depth-mm', '-3'], ["--depth-mm: '-3'"]),
+    (['insert', '--speed-mm-s', 'nan'], ["--speed-mm-s: 'nan'", 'finite']),
+    (['insert', '--depth-mm', 'deep'], ["--depth-mm: 'deep'"]),
+    (['drive', '--speed-mm-s', '0', '--depth-mm', '3'], ["--speed-mm-s: '0'"]),
+    (['drive', '--speed-mm-s', '1', '--depth-mm', '-3'], ["--depth-mm: '-3'", '>= 0']),
+    (['drive', '--speed-mm-s', '1', '--depth-mm', '3', '--rate-hz', '-100'], ["--rate-hz: '-100'"]),
+    (['drive', '--speed-mm-s', '1', '--depth-mm', '3', '--hold-s', 'inf'], ["--hold-s: 'inf'"]),
+    (['drive', '--speed-mm-s', '1'], ['--depth-mm', 'required']),
+    (['demo', '--speed-mm-s', '-5'], ["--speed-mm-s: '-5'"]),
+    (['demo', '--depth-mm', '-15'], ["--depth-mm: '-15'"]),
+    (['compress', '--strain', '1.2'], ["--strain: '1.2'", '< 1']),
+    (['compress', '--speed-mm-s', '0'], ["--speed-mm-s: '0'"]),
+    (['node-bench', '--duration-s', '-1'], ["--duration-s: '-1'", '>= 1']),
+    (['node-bench', '--load', '-1'], ["--load: '-1'", 'whole number >= 0']),
+    (['node-bench', '--load', 'two'], ["--load: 'two'"]),
+    (['node-bench', '--slices-per-tick', '0'], ["--slices-per-tick: '0'"]),
+    (['bench', '--models', 'full', 'fastest'], ['--models fastest: unknown', 'full+visc']),
+])
+def test_cli_refuses_impossible_values_in_one_line(capsys, argv, named):
+    err = _error_line(capsys, argv)
+    for words in named:
+        assert words in err
+
+
+def test_cli_names_a_missing_or_unusable_file(tmp_path, capsys):
+    """Scene files that are missing or a directory, an --out that is a file or lies below one,
+    a scene whose mesh.file is missing or whose YAML is broken: one line naming the path."""
+    a_file = tmp_path / 'a_file'
+    a_file.write_text('not a directory')
+    missing_mesh = tmp_path / 'missing_mesh.yaml'
+    missing_mesh.write_text(f'mesh:\n  generator: file\n  file: {tmp_path / "nowhere.msh"}\n')
+    broken = tmp_path / 'broken.yaml'
+    broken.write_text('mesh: [1, 2\n')
+    cases = [
+        (['insert', '--scene', str(tmp_path / 'none.yaml')], [str(tmp_path / 'none.yaml'), 'no such file']),
+        (['insert', '--scene', str(tmp_path)], [str(tmp_path), 'not a file']),
+        (['drive', '--speed-mm-s', '1', '--depth-mm', '1', '--scene-file', str(tmp_path / 'x.yaml')],
+         [str(tmp_path / 'x.yaml')]),
+        (['insert', '--out', str(a_file)], [str(a_file), 'expected a directory']),
+        (['compress', '--out', str(a_file / 'below')], [str(a_file), 'is a file']),
+        (['node-bench', '--out', str(a_file)], [str(a_file)]),
+        (['insert', '--scene', str(missing_mesh), '--out', str(tmp_path)], [str(tmp_path / 'nowhere.msh')]),
+        (['insert', '--scene', str(broken), '--out', str(tmp_path)], ['broken.yaml', 'not valid YAML']),
+    ]
+    for argv, named in cases:
+        err = _error_line(capsys, argv)
+        for words in named:
+            assert words in err, (argv, err)
+
+
+def test_cli_names_the_file_an_os_error_is_about(tmp_path, capsys):
+    """demo's log folder is a file already: the OSError becomes one line with that path."""
+    (tmp_path / 'logs').write_text('in the way')
+    err = _error_line(capsys, ['demo', '--out', str(tmp_path)])
+    assert str(tmp_path / 'logs') in err and 'File exists' in err
+
+
+def test_console_script_missing_mesh_file_is_one_line(tmp_path):
+    """The issue's case, as a user runs it: insert on a scene whose mesh.file does not exist."""
+    scene = tmp_path / 'scene.yaml'
+    scene.write_text('mesh:\n  generator: file\n  file: liver.vtu\n')
+    result = subprocess.run([str(Path(sys.executable).parent / 'tissue-sim'), 'insert', '--scene',
+                             str(scene), '--out', str(tmp_path)],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2
+    assert result.stderr == f"tissue-sim insert: error: mesh file '{tmp_path / 'liver.vtu'}' does not exist\n"

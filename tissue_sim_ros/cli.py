@@ -1,7 +1,64 @@
 """tissue-sim: the command line (thin; the work is in engine/ and analysis/)."""
 import argparse
+import math
+import os
 import sys
 from pathlib import Path
+
+
+class CommandError(ValueError):
+    """Bad input that only the command line can see (e.g. an unknown name in a list option)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: the problem and where the usage is, exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f'{self.prog}: error: {message} (usage: {self.prog} --help)\n')
+
+
+def _number(low, *, inclusive=False, high=None, whole=False):
+    """An argparse type: a finite number > ``low`` (>= with ``inclusive``), < ``high``; an int
+    with ``whole``. The refusal names the value and what was expected."""
+    expected = (f'{"a whole" if whole else "a finite"} number {">=" if inclusive else ">"} {low:g}'
+                + ('' if high is None else f' and < {high:g}'))
+
+    def parse(text):
+        try:
+            value = int(text) if whole else float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f'{text!r}: expected {expected}') from None
+        if not (math.isfinite(value) and (value >= low if inclusive else value > low)
+                and (high is None or value < high)):
+            raise argparse.ArgumentTypeError(f'{text!r}: expected {expected}')
+        return value
+    return parse
+
+
+_POSITIVE = _number(0)
+_NON_NEGATIVE = _number(0, inclusive=True)
+
+
+def _input_file(text):
+    """An argparse type: a file that exists (not a directory)."""
+    path = Path(text)
+    if not path.exists():
+        raise argparse.ArgumentTypeError(f'{text!r}: no such file')
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(f'{text!r}: not a file (a directory?); expected a scene YAML file')
+    return text
+
+
+def _output_dir(text):
+    """An argparse type: a directory that exists or can be made, and can be written to."""
+    path = Path(text).absolute()
+    existing = next(p for p in (path, *path.parents) if p.exists())
+    where = repr(text) if existing == path else f'{text!r}: {existing}'
+    if not existing.is_dir():
+        raise argparse.ArgumentTypeError(f'{where} is a file; expected a directory')
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise argparse.ArgumentTypeError(f'{where} is not writable')
+    return text
 
 
 def _compress(args):
@@ -23,6 +80,10 @@ def _compress(args):
 
 def _bench(args):
     from tissue_sim_ros.analysis import bench
+    unknown = [m for m in args.models or () if m not in bench.MODELS]
+    if unknown:
+        raise CommandError(f'--models {" ".join(unknown)}: unknown; expected some of '
+                           f'{", ".join(bench.MODELS)}')
     bench.run(sizes=args.sizes, models=args.models)
 
 
@@ -37,7 +98,7 @@ def _drive(args):
 def _node_bench(args):
     from tissue_sim_ros.analysis import node_bench
     node_bench.run(duration_s=args.duration_s, rate_hz=args.rate_hz, scene_file=args.scene_file,
-                   out=args.out, slices_per_tick=args.slices_per_tick)
+                   out=args.out, slices_per_tick=args.slices_per_tick, load=args.load)
 
 
 def _insert(args):
@@ -67,13 +128,14 @@ def _recover(args):
 
 def build_parser():
     from tissue_sim_ros import __version__
-    parser = argparse.ArgumentParser(prog='tissue-sim', description='Real-time tensor-mass soft-tissue simulation.')
+    parser = _Parser(prog='tissue-sim', description='Real-time tensor-mass soft-tissue simulation.')
     parser.add_argument('--version', action='version', version=f'tissue-sim {__version__}')
     commands = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
     compress = commands.add_parser('compress', help='headless plate compression of a liver-like block, with a plot')
-    compress.add_argument('--out', default='out', help='output directory (default: out)')
-    compress.add_argument('--strain', type=float, default=0.10, help='final nominal strain (default 0.10)')
-    compress.add_argument('--speed-mm-s', type=float, default=10.0, help='plate speed [mm/s] (default 10)')
+    compress.add_argument('--out', type=_output_dir, default='out', help='output directory (default: out)')
+    compress.add_argument('--strain', type=_number(0, high=1), default=0.10,
+                          help='final nominal strain (default 0.10)')
+    compress.add_argument('--speed-mm-s', type=_POSITIVE, default=10.0, help='plate speed [mm/s] (default 10)')
     compress.set_defaults(run=_compress)
     bench = commands.add_parser('bench', help='print force/step timings and tet-steps/s per mesh size')
     bench.add_argument('--sizes', nargs='+', choices=['1e3', '1e4', '1e5', '5e5'], default=None,
@@ -83,16 +145,17 @@ def build_parser():
                             'geometric, geometric+visc, full, full+visc, full+thr0.02')
     bench.set_defaults(run=_bench)
     insert = commands.add_parser('insert', help='simulate a straight needle insertion and retraction (no ROS)')
-    insert.add_argument('--scene', default=None, help='scene YAML (default: the packaged liver sample)')
-    insert.add_argument('--speed-mm-s', type=float, default=3.0, help='needle speed [mm/s] (default 3)')
-    insert.add_argument('--depth-mm', type=float, default=35.0,
+    insert.add_argument('--scene', type=_input_file, default=None,
+                        help='scene YAML (default: the packaged liver sample)')
+    insert.add_argument('--speed-mm-s', type=_POSITIVE, default=3.0, help='needle speed [mm/s] (default 3)')
+    insert.add_argument('--depth-mm', type=_POSITIVE, default=35.0,
                         help='tip travel from its start pose [mm] (default 35; the default scene starts 9 mm above the tissue)')
-    insert.add_argument('--out', default='out', help='output directory for insertion.csv and .png (default: out)')
+    insert.add_argument('--out', type=_output_dir, default='out', help='output directory for insertion.csv and .png (default: out)')
     insert.set_defaults(run=_insert)
     demo = commands.add_parser('demo', help='the main job: node + scripted insertion + MCAP read back, summary and plot')
-    demo.add_argument('--out', default='out', help='output directory (default: out)')
-    demo.add_argument('--speed-mm-s', type=float, default=5.0, help='needle speed [mm/s] (default 5)')
-    demo.add_argument('--depth-mm', type=float, default=15.0, help='depth below the surface [mm] (default 15)')
+    demo.add_argument('--out', type=_output_dir, default='out', help='output directory (default: out)')
+    demo.add_argument('--speed-mm-s', type=_POSITIVE, default=5.0, help='needle speed [mm/s] (default 5)')
+    demo.add_argument('--depth-mm', type=_NON_NEGATIVE, default=15.0, help='depth below the surface [mm] (default 15)')
     demo.set_defaults(run=_demo)
     keys = commands.add_parser('scene-keys', help='list every scene-file key with its default and meaning')
     keys.set_defaults(run=_scene_keys)
@@ -104,42 +167,69 @@ def build_parser():
                               'beside the log; none for a complete log)')
     recover.set_defaults(run=_recover)
     drive = commands.add_parser('drive', help='publish a scripted needle insertion and retraction on needle/pose')
-    drive.add_argument('--speed-mm-s', type=float, required=True, help='needle speed [mm/s]')
-    drive.add_argument('--depth-mm', type=float, required=True, help='tip depth below the entry surface [mm]')
-    drive.add_argument('--start-height-mm', type=float, default=None,
+    drive.add_argument('--speed-mm-s', type=_POSITIVE, required=True, help='needle speed [mm/s]')
+    drive.add_argument('--depth-mm', type=_NON_NEGATIVE, required=True, help='tip depth below the entry surface [mm]')
+    drive.add_argument('--start-height-mm', type=_NON_NEGATIVE, default=None,
                        help="tip height above the surface at the start [mm] (default: the scene's)")
-    drive.add_argument('--rate-hz', type=float, default=100.0, help='pose rate [Hz] (default 100)')
-    drive.add_argument('--hold-s', type=float, default=0.5, help='pause at full depth [s] (default 0.5)')
-    drive.add_argument('--scene-file', default=None, help="scene the node runs (default: the packaged one)")
+    drive.add_argument('--rate-hz', type=_POSITIVE, default=100.0, help='pose rate [Hz] (default 100)')
+    drive.add_argument('--hold-s', type=_NON_NEGATIVE, default=0.5, help='pause at full depth [s] (default 0.5)')
+    drive.add_argument('--scene-file', type=_input_file, default=None, help="scene the node runs (default: the packaged one)")
     drive.set_defaults(run=_drive)
     node_bench = commands.add_parser('node-bench', help='run the node as a process and print its timing figures')
-    node_bench.add_argument('--duration-s', type=float, default=20.0, help='measured run length [s] (default 20)')
-    node_bench.add_argument('--rate-hz', type=float, default=100.0, help='pose rate [Hz] (default 100)')
-    node_bench.add_argument('--scene-file', default=None, help='scene (default: the packaged one)')
-    node_bench.add_argument('--slices-per-tick', type=int, default=None,
+    node_bench.add_argument('--duration-s', type=_number(1, inclusive=True), default=20.0,
+                            help='measured run length [s], at least 1 (default 20)')
+    node_bench.add_argument('--rate-hz', type=_POSITIVE, default=100.0, help='pose rate [Hz] (default 100)')
+    node_bench.add_argument('--scene-file', type=_input_file, default=None, help='scene (default: the packaged one)')
+    node_bench.add_argument('--slices-per-tick', type=_number(1, inclusive=True, whole=True), default=None,
                             help="the node's engine.slices_per_tick (default: its parameter file's)")
-    node_bench.add_argument('--out', default=None, help='keep the MCAP log and a JSON of the figures here')
+    node_bench.add_argument('--out', type=_output_dir, default=None,
+                            help='keep the MCAP log and a JSON of the figures here')
+    node_bench.add_argument('--load', type=_number(0, inclusive=True, whole=True), default=0, metavar='N',
+                            help='run N busy processes and one listening ROS client (wrench, cloud) '
+                                 'beside the node (default 0: none)')
     node_bench.set_defaults(run=_node_bench)
     return parser
 
 
-def main(argv=None):
-    """Run a command; a bad scene, bad needle input or a diverged simulation is one error line
-    (exit status 2), not a traceback."""
+def _input_errors():
+    """The exception types that mean bad input or a run that cannot go on, not a bug: each
+    becomes one error line."""
+    from tissue_sim_ros.engine.material import MaterialError
+    from tissue_sim_ros.engine.mesh import MeshError
     from tissue_sim_ros.engine.needle import NeedleInputError
     from tissue_sim_ros.engine.scene import SceneError
     from tissue_sim_ros.engine.solver import SimulationDiverged
+    from tissue_sim_ros.ros.node_process import NodeProcessError
+    return (SceneError, MeshError, MaterialError, NeedleInputError, SimulationDiverged,
+            NodeProcessError, CommandError, OSError)
+
+
+def _describe(exc):
+    """One line for an error: an OSError names its file; other messages fold onto one line."""
+    from tissue_sim_ros.engine.solver import SimulationDiverged
+    if isinstance(exc, OSError) and exc.filename is not None:
+        text = f'{exc.filename}: {exc.strerror or exc}'
+    else:
+        text = str(exc)
+    if isinstance(exc, SimulationDiverged) and 'inverted' in text:
+        text += ('; a small-strain model inverts elements at large deformation: '
+                 'model.geometric: true handles it')
+    return ' '.join(text.split())
+
+
+def main(argv=None):
+    """Run a command; bad input (a scene, a mesh, a file, a value), a diverged simulation or a
+    node that would not start is one error line naming it (exit status 2), not a traceback."""
     args = build_parser().parse_args(argv)
     try:
         args.run(args)
-    except (SceneError, NeedleInputError, SimulationDiverged) as exc:
-        print(f'tissue-sim {args.command}: error: {exc}', file=sys.stderr)
-        if isinstance(exc, SimulationDiverged) and 'inverted' in str(exc):
-            print('  (a small-strain model inverts elements at large deformation: '
-                  'model.geometric: true handles it)', file=sys.stderr)
+    except KeyboardInterrupt:
+        print(f'tissue-sim {args.command}: interrupted', file=sys.stderr)
+        return 130
+    except _input_errors() as exc:
+        print(f'tissue-sim {args.command}: error: {_describe(exc)}', file=sys.stderr)
         return 2
     return 0
-
 
 if __name__ == '__main__':
     sys.exit(main())
