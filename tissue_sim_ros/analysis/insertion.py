@@ -45,33 +45,36 @@ def run_insertion(scene, speed, travel, *, tick=0.02, retract=True, progress=Non
         raise ValueError(f'speed = {speed!r}: expected a finite speed > 0 m/s')
     if not (travel > 0 and np.isfinite(travel)):
         raise ValueError(f'travel = {travel!r}: expected a finite distance > 0 m')
-    start, orientation = scene.needle_pose
+    from tissue_sim_ros.engine.driver import SimulationDriver
+    start = scene.needle_pose[0]
     axis = scene.needle.axis.copy()
     legs = [(0.0, travel)] + ([(travel, 0.0)] if retract else [])
-    rows = {k: [] for k in ('time', 'depth', 'force', 'torque', 'axial', 'phase', 'retracting')}
-    steps, wall0, next_report = 0, time.perf_counter(), 1.0
+    times, depths, retracting, t = [], [], [], 0.0
     for begin, end in legs:
         n_ticks = max(1, int(np.ceil(abs(end - begin) / (speed * tick) - 1e-9)))
         for k in range(1, n_ticks + 1):
-            depth = begin + (end - begin) * k / n_ticks
-            steps += scene.advance(abs(end - begin) / n_ticks / speed, start + depth * axis, orientation)
-            force, torque = scene.reaction_wrench('world')
-            rows['time'].append(scene.time)
-            rows['depth'].append(depth)
-            rows['force'].append(force)
-            rows['torque'].append(torque)
-            rows['axial'].append(-float(np.dot(force, axis)))
-            rows['phase'].append(scene.phase)
-            rows['retracting'].append(end < begin)
-            if progress is not None and scene.time >= next_report:
-                elapsed = time.perf_counter() - wall0
-                print(f'  t = {scene.time:6.2f} s  depth {depth * 1e3:6.2f} mm  axial {rows["axial"][-1]:7.3f} N  '
-                      f'{scene.phase:<10}  real-time factor {scene.time / elapsed:5.2f}', file=progress, flush=True)
-                next_report += 1.0
-    return InsertionResult(np.array(rows['time']), np.array(rows['depth']), np.array(rows['force']),
-                           np.array(rows['torque']), np.array(rows['axial']), rows['phase'],
-                           np.array(rows['retracting']), list(scene.puncture_events),
-                           time.perf_counter() - wall0, steps, scene.dt)
+            t += abs(end - begin) / n_ticks / speed
+            times.append(t)
+            depths.append(begin + (end - begin) * k / n_ticks)
+            retracting.append(end < begin)
+    depths = np.array(depths)
+    driver = SimulationDriver(scene, wrench_frame='world', on_divergence='raise')
+    wall0, next_report = time.perf_counter(), [1.0]
+
+    def report(k, drv):
+        if drv.time >= next_report[0]:
+            elapsed = time.perf_counter() - wall0
+            print(f'  t = {drv.time:6.2f} s  depth {depths[k] * 1e3:6.2f} mm  axial '
+                  f'{-float(np.dot(drv.force, axis)):7.3f} N  {drv.scene.phase:<10}  real-time factor '
+                  f'{drv.time / elapsed:5.2f}', file=progress, flush=True)
+            next_report[0] += 1.0
+
+    samples = driver.follow(times, start + depths[:, None] * axis,
+                            progress=None if progress is None else report)
+    return InsertionResult(samples.time, depths, samples.force, samples.torque,
+                           -(samples.force @ axis), samples.phase, np.array(retracting),
+                           list(scene.puncture_events), time.perf_counter() - wall0,
+                           samples.substeps, scene.dt)
 
 
 def write_csv(result, path):
