@@ -128,6 +128,7 @@ def test_background_load_spins_listens_and_stops_whatever_happens():
         with pytest.raises(KeyboardInterrupt):
             with load:
                 pids = [s.pid for s in load.spinners] + [load.listener_process.pid]
+                assert sorted(_my_spinners()) == sorted(pids[:2])
                 cpu0 = [_cpu_seconds(pid) for pid in pids[:2]]
                 deadline = time.monotonic() + 30
                 while not (wrench.get_subscription_count() and cloud.get_subscription_count()):
@@ -144,8 +145,48 @@ def test_background_load_spins_listens_and_stops_whatever_happens():
                 assert all(_cpu_seconds(pid) - c > 0.05 for pid, c in zip(pids, cpu0))
                 raise KeyboardInterrupt  # e.g. the user stops the bench
         stand_in.destroy_node()
-    assert not any(_alive(pid) for pid in pids)
+    assert not any(_alive(pid) for pid in pids) and _my_spinners() == []
     assert load.listener['wrench']['count'] == 25 and load.listener['cloud']['count'] == 10
     sent_rate = 24 / (sent_at[-1] - sent_at[0])  # about 50 Hz; less on a loaded machine
     assert load.listener['wrench']['rate_hz'] == pytest.approx(sent_rate, rel=0.25)
     assert '2 busy processes + 1 listening client' in load.describe()
+
+
+def _my_spinners():
+    """Pids of running spinner processes this test process started."""
+    found = []
+    for proc in Path('/proc').iterdir():
+        try:
+            argv = (proc / 'cmdline').read_bytes().split(b'\0')
+        except OSError:
+            continue
+        if len(argv) > 3 and argv[2] == SPIN.encode() and argv[3] == str(os.getpid()).encode():
+            if _alive(int(proc.name)):
+                found.append(int(proc.name))
+    return found
+
+
+@pytest.mark.slow
+def test_measure_end_to_end_under_load(tmp_path):
+    """One short node-bench run with one busy process on a coarse scene: every pose sent at 100 Hz
+    is in the node's log, the bench and the listener both heard the wrench, the node stopped
+    cleanly on SIGINT, and no spinner is left."""
+    pytest.importorskip('rclpy')
+    import yaml
+    root = Path(__file__).resolve().parents[1]
+    spec = yaml.safe_load((root / 'config' / 'liver_sample.yaml').read_text())
+    spec['mesh'] = {'generator': 'box', 'size_m': spec['mesh']['size_m'],
+                    'origin_m': spec['mesh']['origin_m'], 'divisions': [6, 6, 4]}
+    scene = tmp_path / 'coarse.yaml'
+    scene.write_text(yaml.safe_dump(spec, sort_keys=False))
+    r = node_bench.measure(duration_s=1.0, rate_hz=100.0, scene_file=str(scene),
+                           log_dir=tmp_path / 'out', load=1)
+    assert r['node_exit_code'] == 0
+    assert r['poses_sent'] == pytest.approx(100, abs=3) and r['poses_logged'] == r['poses_sent']
+    assert r['load'].startswith('1 busy process + 1 listening client')
+    assert r['listener']['wrench']['count'] > 10 and r['listener']['cloud']['count'] > 0
+    assert 0 < r['wrench_rate_hz'] <= 50.0 * 1.05 and r['ticks'] > 0
+    assert Path(r['mcap']).is_file() and (tmp_path / 'out' / 'node.log').is_file()
+    assert _my_spinners() == []
+    text = node_bench.report(r)
+    assert 'load beside the node 1 busy process' in text and 'listening client     wrench' in text
