@@ -31,3 +31,10 @@ def test_a_time_step_above_the_critical_step_is_refused_naming_both():
         assert f'{critical:.4g} s' in text
     with pytest.raises(SceneError, match=r'solver.time_step_safety = 1.5: expected at most 1'):
         Scene.from_file(None, mesh=COARSE, solver={'time_step_safety': 1.5})
+
+
+def test_a_scene_file_that_is_not_a_mapping_is_refused_by_name(tmp_path):
+    path = tmp_path / 'list.yaml'
+    path.write_text('- 1\n- 2\n')
+    with pytest.raises(SceneError, match=r"list.yaml': expected a mapping of scene keys .* found a list"):
+        Scene.from_file(path)

@@ -197,6 +197,9 @@ class Scene:
             spec = yaml.safe_load(text)
         except yaml.YAMLError as exc:
             raise SceneError(f'scene_file = {str(path)!r}: not valid YAML ({exc})') from exc
+        if spec is not None and not isinstance(spec, dict):
+            raise SceneError(f'scene_file = {str(path)!r}: expected a mapping of scene keys at the top '
+                             f'level, found a {type(spec).__name__}')
         spec = merge(spec or {}, overrides)
         return cls(spec, text=text, base_dir=path.parent)
 
