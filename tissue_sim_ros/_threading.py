@@ -18,6 +18,12 @@ host numba gets the host's own features with '-prefer-256-bit' appended.
 These are defaults only: a user who exports NUMBA_THREADING_LAYER, OMP_WAIT_POLICY,
 GOMP_SPINCOUNT or NUMBA_CPU_FEATURES keeps their choice (OMP_WAIT_POLICY=passive is the better
 pick on a machine that is always oversubscribed).
+
+numba's cache of compiled kernels goes to a per-user directory, $XDG_CACHE_HOME/tissue_sim_ros/numba
+(default ~/.cache/tissue_sim_ros/numba), one known place instead of __pycache__ beside the installed
+sources, which may be read-only on a ROS install. A user's own NUMBA_CACHE_DIR keeps its meaning.
+The variable is process-wide: other numba code in the same process caches there too (under its own
+source directory's name, as numba always does).
 """
 import os
 
@@ -31,3 +37,15 @@ if 'NUMBA_CPU_FEATURES' not in os.environ and 'NUMBA_CPU_NAME' not in os.environ
     _features = llvmlite.binding.get_host_cpu_features()
     if _features.get('avx512f'):
         os.environ['NUMBA_CPU_FEATURES'] = _features.flatten() + ',-prefer-256-bit'
+
+
+def _user_cache_dir():
+    """$XDG_CACHE_HOME/tissue_sim_ros/numba, else ~/.cache/...; None without an absolute home."""
+    base = os.environ.get('XDG_CACHE_HOME', '')
+    if not os.path.isabs(base):
+        base = os.path.join(os.path.expanduser('~'), '.cache')
+    return os.path.join(base, 'tissue_sim_ros', 'numba') if os.path.isabs(base) else None
+
+
+if 'NUMBA_CACHE_DIR' not in os.environ and _user_cache_dir() is not None:
+    os.environ['NUMBA_CACHE_DIR'] = _user_cache_dir()
