@@ -24,9 +24,13 @@ meshes keep each chunk's nodes local), each chunk accumulates into its own buffe
 loop reduces the buffers it touches and clears them for the next call. Nothing is allocated.
 """
 import functools
+import types
 
 import numpy as np
 from numba import njit, prange
+from numba.extending import register_jitable
+
+from tissue_sim_ros.engine import compile_cache  # noqa: F401  (reports compiles on a first start)
 
 # Floating-point contraction and reassociation are fine here; NaN and inf must stay detectable
 # (the watchdog looks for them), so no 'nnan' / 'ninf'.
@@ -309,7 +313,12 @@ def _scatter_forces(buf, i0, i1, i2, i3, f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y,
     buf[i3, 2] += f3z
 
 
-@njit(cache=True, inline='always')
+# The small load/store helpers below are plain calls that LLVM inlines, not inline='always':
+# numba copies an inlined function's IR into every call site, and the element pass has hundreds
+# of them. register_jitable, not njit: a dispatcher is compiled once per constant argument (each
+# field offset its own signature, 20-odd compiles per model); these are typed on plain integers.
+# Integer offsets, loads and stores only, so no floating-point flag depends on where they end up.
+@register_jitable
 def _element_nodes(tetrahedra, e):
     """The element's node indices, unsigned so that indexing skips the negative-index wraparound
     (e too: elements are never counted from the end)."""
@@ -318,7 +327,7 @@ def _element_nodes(tetrahedra, e):
             np.uint32(tetrahedra[e, 3]))
 
 
-@njit(cache=True, inline='always')
+@register_jitable
 def _shape_gradients(shape_gradients, e):
     return (shape_gradients[e, 0, 0], shape_gradients[e, 0, 1], shape_gradients[e, 0, 2],
             shape_gradients[e, 1, 0], shape_gradients[e, 1, 1], shape_gradients[e, 1, 2],
@@ -382,21 +391,21 @@ DISTORTION_FLOOR = 1e-13
 _UNDISTORTED_CUBE = (1.0 - DISTORTION_FLOOR) ** 3
 
 
-@njit(cache=True, inline='always')
+@register_jitable
 def _at(field, j):
     """Offset of ``field`` in lane j of a work row. Unsigned, so numba does not emit the
     negative-index wraparound (four instructions on every scalar access of the gather)."""
     return np.uint64(field * BLOCK) + np.uint64(j)
 
 
-@njit(cache=True, inline='always')
+@register_jitable
 def _get9(work, row, field, j):
     return (work[row, _at(field, j)], work[row, _at(field + 1, j)], work[row, _at(field + 2, j)],
             work[row, _at(field + 3, j)], work[row, _at(field + 4, j)], work[row, _at(field + 5, j)],
             work[row, _at(field + 6, j)], work[row, _at(field + 7, j)], work[row, _at(field + 8, j)])
 
 
-@njit(cache=True, inline='always')
+@register_jitable
 def _set9(work, row, field, j, v0, v1, v2, v3, v4, v5, v6, v7, v8):
     work[row, _at(field, j)] = v0
     work[row, _at(field + 1, j)] = v1
@@ -576,6 +585,12 @@ def _stress_lanes(work, row, gradient_stored, small_strain, finite_strain, physi
         _set9(work, row, _FORCE, j, f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z)
 
 
+def model_name(geometric, physical, viscous):
+    """'linear', or the non-linear parts and viscosity a model has, e.g. 'geometric_physical_viscous'."""
+    parts = [name for name, on in (('geometric', geometric), ('physical', physical), ('viscous', viscous)) if on]
+    return '_'.join(parts) or 'linear'
+
+
 @functools.lru_cache(maxsize=None)
 def element_kernel(geometric, physical, viscous):
     """The element pass compiled for one model: the three flags are compile-time constants, so
@@ -585,13 +600,16 @@ def element_kernel(geometric, physical, viscous):
     law_kind, law_params, chunk_bounds, work, buffers, nonlinear_counts, safeguard,
     safeguard_counts, slow_elements, corrected_lambda, corrected_mu, shape_gradients,
     volume_lambda, volume_mu, viscous_lambda, viscous_mu, safeguard_scratch)``.
+
+    The parallel loop only calls each thread's pass (``_thread_pass_of``). Written inside the
+    prange loop, the pass went through numba's parallel passes, which copy and rewrite the whole
+    loop body, and it was typed and compiled twice (the loop, then its outlined body). With the
+    load/store helpers below as plain calls, compiling the full model (geometric + physical +
+    viscous) takes 18 s of CPU instead of 64 s; the machine code of the pass is the same but for
+    a few instructions (forces equal to 2e-16 of the largest, the order of fused products).
     """
     geometric, physical, viscous = bool(geometric), bool(physical), bool(viscous)
-    nonlinear_model = geometric or physical
-    # the constants this model reads (they are stored in this order)
-    n_constants = N_CONSTANTS if physical else (VISCOUS_MU + 1 if viscous else MU + 1)
 
-    @njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False)
     def kernel(tetrahedra, element_blocks, displacement, velocity, threshold_squared, law_kind,
                law_params, chunk_bounds, work, buffers, nonlinear_counts, safeguard, safeguard_counts,
                slow_elements, corrected_lambda, corrected_mu, shape_gradients, volume_lambda,
@@ -612,69 +630,106 @@ def element_kernel(geometric, physical, viscous):
         (shape_gradients (m, 3, 3), V lambda, V mu, V lambda_v, V mu_v). safeguard_scratch
         (n_workers, 6, 3, 3); safeguard_counts (n_chunks,) how many elements it changed.
         """
+        for t in prange(buffers.shape[0]):
+            # _thread_pass: this model's pass (bound below). The thread index as the outlined
+            # body types it (unsigned), so the pass has one signature and no index wraparound.
+            _thread_pass(geometric, physical, viscous, np.uint64(t), tetrahedra, element_blocks,  # noqa: F821
+                         displacement, velocity, threshold_squared, law_kind, law_params, chunk_bounds,
+                         work, buffers, nonlinear_counts, safeguard, safeguard_counts, slow_elements,
+                         corrected_lambda, corrected_mu, shape_gradients, volume_lambda, volume_mu,
+                         viscous_lambda, viscous_mu, safeguard_scratch)
+
+    # The pass is a global of this kernel's own: a closure holding the pass's dispatcher would
+    # change numba's cache key in every process (it hashes what a closure holds, and a dispatcher
+    # pickles with a new id each time).
+    namespace = dict(globals(), _thread_pass=_thread_pass_of(geometric, physical, viscous))
+    kernel = types.FunctionType(kernel.__code__, namespace, kernel.__name__, kernel.__defaults__,
+                                kernel.__closure__)
+    # One cache index per model: numba names the index after the qualified name, and processes
+    # that compile different models at once (compile_cache) must not write one index together
+    # (an entry can be lost, or point at another model's code).
+    kernel.__qualname__ = f'element_kernel.<locals>.kernel_{model_name(geometric, physical, viscous)}'
+    return njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False)(kernel)
+
+
+@functools.lru_cache(maxsize=None)
+def _thread_pass_of(geometric, physical, viscous):
+    """Thread t's chunks of the element pass for one model, the flags closed over as constants
+    (the is_* arguments are the kernel's: they keep its cache key apart per model). Not cached on
+    its own: the kernel's cache entry holds it."""
+    nonlinear_model = geometric or physical
+    # the constants this model reads (they are stored in this order)
+    n_constants = N_CONSTANTS if physical else (VISCOUS_MU + 1 if viscous else MU + 1)
+
+    @njit(fastmath=FASTMATH, boundscheck=False)
+    def thread_pass(is_geometric, is_physical, is_viscous, t, tetrahedra, element_blocks, displacement,
+                    velocity, threshold_squared, law_kind, law_params, chunk_bounds, work, buffers,
+                    nonlinear_counts, safeguard, safeguard_counts, slow_elements, corrected_lambda,
+                    corrected_mu, shape_gradients, volume_lambda, volume_mu, viscous_lambda, viscous_mu,
+                    safeguard_scratch):
         clamp_squared = STRETCH_CLAMP * STRETCH_CLAMP
         n_chunks = chunk_bounds.shape[0] - 1
         n_workers = buffers.shape[0]
-        for t in prange(n_workers):
-            buf = buffers[t]
-            for c in range(t, n_chunks, n_workers):
-                lo = chunk_bounds[c]
-                hi = chunk_bounds[c + 1]
-                n_nonlinear = 0
-                n_slow = 0
-                for base in range(lo, hi, BLOCK):
-                    n = min(BLOCK, hi - base)
-                    block = base // BLOCK
-                    for k in range(n_constants * BLOCK):
-                        work[t, k] = element_blocks[block, k]
+        buf = buffers[t]
+        for c in range(t, n_chunks, n_workers):
+            lo = chunk_bounds[c]
+            hi = chunk_bounds[c + 1]
+            n_nonlinear = 0
+            n_slow = 0
+            for base in range(lo, hi, BLOCK):
+                n = min(BLOCK, hi - base)
+                block = base // BLOCK
+                for k in range(n_constants * BLOCK):
+                    work[t, k] = element_blocks[block, k]
+                for j in range(n):
+                    i0, i1, i2, i3 = _element_nodes(tetrahedra, base + j)
+                    _gather_differences(work, t, _DU, j, displacement, i0, i1, i2, i3)
+                    if viscous:
+                        _gather_differences(work, t, _DV, j, velocity, i0, i1, i2, i3)
+                for j in range(n, BLOCK):
+                    for k in range(9):
+                        work[t, _at(_DU + k, j)] = 0.0
+                        work[t, _at(_DV + k, j)] = 0.0
+                lanes_nonlinear = 0
+                if nonlinear_model:
+                    lanes_nonlinear = _classify_lanes(work, t, threshold_squared, physical)
                     for j in range(n):
-                        i0, i1, i2, i3 = _element_nodes(tetrahedra, base + j)
-                        _gather_differences(work, t, _DU, j, displacement, i0, i1, i2, i3)
-                        if viscous:
-                            _gather_differences(work, t, _DV, j, velocity, i0, i1, i2, i3)
-                    for j in range(n, BLOCK):
-                        for k in range(9):
-                            work[t, _at(_DU + k, j)] = 0.0
-                            work[t, _at(_DV + k, j)] = 0.0
-                    lanes_nonlinear = 0
-                    if nonlinear_model:
-                        lanes_nonlinear = _classify_lanes(work, t, threshold_squared, physical)
-                        for j in range(n):
-                            n_nonlinear += work[t, _at(_NONLINEAR, j)] > 0.0
-                        if physical and lanes_nonlinear > 0:
-                            _apply_law(work, t, law_kind, law_params)
-                    # each lane loop holds only the stress it needs (the flags are constants)
-                    if geometric and lanes_nonlinear == BLOCK:
-                        _stress_lanes(work, t, True, False, True, physical, viscous, safeguard, clamp_squared)
-                    elif geometric and lanes_nonlinear > 0:
-                        _stress_lanes(work, t, True, True, True, physical, viscous, safeguard, clamp_squared)
-                    else:
-                        _stress_lanes(work, t, nonlinear_model, True, False, physical, viscous, safeguard,
-                                      clamp_squared)
-                    for j in range(n):
-                        e = base + j
-                        if geometric and lanes_nonlinear > 0 and work[t, _at(_SLOW, j)] > 0.0:
-                            slow_elements[lo + n_slow] = e
-                            n_slow += 1
-                            if physical:
-                                corrected_lambda[e] = work[t, _at(_LAMBDA_C, j)]
-                                corrected_mu[e] = work[t, _at(_MU_C, j)]
-                            continue
-                        i0, i1, i2, i3 = _element_nodes(tetrahedra, e)
-                        f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z = _get9(work, t, _FORCE, j)
-                        _scatter_forces(buf, i0, i1, i2, i3, f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z)
-                nonlinear_counts[c] = n_nonlinear
-                n_safeguarded = 0
-                if geometric:
-                    n_safeguarded = _safeguarded_elements(
-                        slow_elements[lo:lo + n_slow], tetrahedra, shape_gradients, volume_lambda, volume_mu,
-                        displacement, velocity, physical, viscous, corrected_lambda, corrected_mu,
-                        viscous_lambda, viscous_mu, safeguard_scratch[t], buf)
-                safeguard_counts[c] = n_safeguarded
-    return kernel
+                        n_nonlinear += work[t, _at(_NONLINEAR, j)] > 0.0
+                    if physical and lanes_nonlinear > 0:
+                        _apply_law(work, t, law_kind, law_params)
+                # each lane loop holds only the stress it needs (the flags are constants)
+                if geometric and lanes_nonlinear == BLOCK:
+                    _stress_lanes(work, t, True, False, True, physical, viscous, safeguard, clamp_squared)
+                elif geometric and lanes_nonlinear > 0:
+                    _stress_lanes(work, t, True, True, True, physical, viscous, safeguard, clamp_squared)
+                else:
+                    _stress_lanes(work, t, nonlinear_model, True, False, physical, viscous, safeguard,
+                                  clamp_squared)
+                for j in range(n):
+                    e = base + j
+                    if geometric and lanes_nonlinear > 0 and work[t, _at(_SLOW, j)] > 0.0:
+                        slow_elements[lo + n_slow] = e
+                        n_slow += 1
+                        if physical:
+                            corrected_lambda[e] = work[t, _at(_LAMBDA_C, j)]
+                            corrected_mu[e] = work[t, _at(_MU_C, j)]
+                        continue
+                    i0, i1, i2, i3 = _element_nodes(tetrahedra, e)
+                    f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z = _get9(work, t, _FORCE, j)
+                    _scatter_forces(buf, i0, i1, i2, i3, f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z)
+            nonlinear_counts[c] = n_nonlinear
+            n_safeguarded = 0
+            if geometric:
+                n_safeguarded = _safeguarded_elements(
+                    slow_elements[lo:lo + n_slow], tetrahedra, shape_gradients, volume_lambda, volume_mu,
+                    displacement, velocity, physical, viscous, corrected_lambda, corrected_mu,
+                    viscous_lambda, viscous_mu, safeguard_scratch[t], buf)
+            safeguard_counts[c] = n_safeguarded
+    return thread_pass
 
 
-@njit(cache=True, fastmath=FASTMATH, boundscheck=False)
+# compiled once per model (the flags are constants of the caller), with the kernel that holds it
+@njit(fastmath=FASTMATH, boundscheck=False)
 def _safeguarded_elements(elements, tetrahedra, shape_gradients, volume_lambda, volume_mu,
                           displacement, velocity, physical, viscous, corrected_lambda, corrected_mu,
                           viscous_lambda, viscous_mu, scratch, buf):

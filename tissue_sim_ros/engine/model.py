@@ -9,7 +9,7 @@ import numpy as np
 import scipy.sparse
 from numba import njit, prange
 
-from tissue_sim_ros.engine import forces
+from tissue_sim_ros.engine import compile_cache, forces
 from tissue_sim_ros.engine.material import Material, MaterialError, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.mesh import TetMesh, make_mesh, mean_ratio
 
@@ -86,10 +86,13 @@ class TensorMassModel:
         self.inversion_safeguard = bool(inversion_safeguard)
         self._n_threads = n_threads or numba.get_num_threads()
         self._allocate(self._n_threads)
-        self._assemble_tensors()
-        self.topology_version = 0
-        zeros = np.zeros((mesh.n_nodes, 3))
-        self.internal_forces(zeros, zeros)   # compile (or load) the step's kernel now, not on the step loop
+        # compile (or load) the step's kernel now, not on the step loop; on a first start, a
+        # second process compiles what a scene runs next meanwhile (compile_cache)
+        with compile_cache.start_up():
+            self._assemble_tensors()
+            self.topology_version = 0
+            zeros = np.zeros((mesh.n_nodes, 3))
+            self.internal_forces(zeros, zeros)
 
     def _element_data(self, tetrahedra, material_index):
         """The per-element arrays of ``tetrahedra`` (at start, and for elements added later)."""
@@ -312,12 +315,16 @@ class TensorMassModel:
                          self.inversion_safeguard and self.geometric)
 
     def _run_kernel(self, geometric, physical, viscous, displacement, velocity, threshold_squared, safeguard):
-        forces.element_kernel(geometric, physical, viscous)(
-            self.tetrahedra, self._element_blocks, displacement, velocity, threshold_squared,
-            self.law_kind, self.law_params, self.chunk_bounds, self._work, self._buffers,
-            self._nonlinear_counts, safeguard, self._safeguard_counts, self._slow_elements,
-            self._corrected_lambda, self._corrected_mu, self.shape_gradients, self.volume_lambda,
-            self.volume_mu, self.viscous_lambda, self.viscous_mu, self._safeguard_scratch)
+        kernel = forces.element_kernel(geometric, physical, viscous)
+        args = (self.tetrahedra, self._element_blocks, displacement, velocity, threshold_squared,
+                self.law_kind, self.law_params, self.chunk_bounds, self._work, self._buffers,
+                self._nonlinear_counts, safeguard, self._safeguard_counts, self._slow_elements,
+                self._corrected_lambda, self._corrected_mu, self.shape_gradients, self.volume_lambda,
+                self.volume_mu, self.viscous_lambda, self.viscous_mu, self._safeguard_scratch)
+        if kernel in compile_cache.LOADED:
+            kernel(*args)
+        else:     # first use in this process: the cached code, compiled apart if need be
+            compile_cache.call_compiled_apart(kernel, args, (geometric, physical, viscous))
 
     @property
     def safeguarded_count(self):
@@ -393,6 +400,7 @@ class TensorMassModel:
             return 2.0 / np.sqrt(self._element_eigenvalue_bound())
         if method != 'lanczos':
             raise ValueError(f"method = {method!r}: expected 'lanczos' or 'element_bound'")
+        compile_cache.wait_for_helper()    # it compiles the linear pass on a first start
         import scipy.sparse.linalg
         mass = self.lumped_masses()
         inv_sqrt_mass = np.repeat(np.where(mass > 0, 1.0 / np.sqrt(np.where(mass > 0, mass, 1.0)), 0.0), 3)

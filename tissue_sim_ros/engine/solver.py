@@ -170,7 +170,10 @@ class Simulation:
 
     def _warm_up(self):
         """Compile (or load from numba's cache) the step kernels at start-up: one step from rest
-        with no input changes nothing, then the state is reset."""
+        with no input changes nothing, then the state is reset. On a first start a second process
+        may be compiling them (compile_cache): wait for it, then they load."""
+        from tissue_sim_ros.engine import compile_cache
+        compile_cache.wait_for_helper()
         saved = self._prescribed
         self._prescribed = []
         self.step()
