@@ -108,7 +108,8 @@ class _Reporter(event.Listener):
         self.depth += 1
         if self.depth != 1:
             return
-        if not getattr(dispatcher.py_func, '__module__', '').startswith('tissue_sim_ros'):
+        module = getattr(getattr(dispatcher, 'py_func', None), '__module__', None) or ''
+        if not module.startswith('tissue_sim_ros'):
             self.started = None
             return
         _announce()
