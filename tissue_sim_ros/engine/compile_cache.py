@@ -224,21 +224,29 @@ def start_up():
         _State.in_start_up -= 1
 
 
+def _from_cache(kernel, args):
+    """(True, ``kernel(*args)``) when the kernel loads from the cache; (False, None) when it would
+    have to be compiled here (the reporter refuses that compile)."""
+    _State.refuse = kernel
+    try:
+        result = kernel(*args)
+    except _NotCached:
+        return False, None
+    finally:
+        _State.refuse = None
+    LOADED.add(kernel)
+    return True, result
+
+
 def call_compiled_apart(kernel, args, model):
     """``kernel(*args)`` for an element pass not yet run in this process: loaded from the cache,
     or, when the cache lacks it, compiled first in a separate process (then loaded).
 
     model: (geometric, physical, viscous), the pass's flags (forces.element_kernel)."""
     if _processes_allowed():
-        _State.refuse = kernel
-        try:
-            result = kernel(*args)
-            LOADED.add(kernel)
+        found, result = _from_cache(kernel, args)
+        if found:
             return result
-        except _NotCached:
-            pass
-        finally:
-            _State.refuse = None
         from tissue_sim_ros.engine.forces import model_name
         if model == (False, False, False) and _State.helper is not None:
             wait_for_helper()                    # the helper compiles the linear pass
