@@ -147,3 +147,19 @@ def test_the_process_of_a_first_start_gets_the_forces_of_every_later_start(tmp_p
     assert 'compiling element pass, geometric_viscous model in a separate process' in first.stderr
     assert 'compiling element pass, geometric_viscous model ...' not in first.stderr
     assert np.array_equal(np.load(tmp_path / 'forces_101.npy'), forces_of((True, False, True), u, v))
+
+
+def test_every_probed_kernel_is_refused_not_only_the_first():
+    """call_compiled_apart probes the cache by refusing the probed kernel's compile. numba ends a
+    compile event whose start raised, so a refusal must leave the reporter's nesting depth where it
+    was: counted wrongly, the first refusal worked and every later element pass of the process
+    (a second model, or a cache made stale by new sources) was compiled here, unseen. Small
+    uncached functions stand in for the element passes."""
+    from numba import njit
+    from tissue_sim_ros.engine import compile_cache
+    for offset in (1.0, 2.0, 3.0):
+        probed = njit(lambda x, offset=offset: x + offset)
+        found, _ = compile_cache._from_cache(probed, (1.0,))
+        assert not found and compile_cache.REPORTER.depth == 0
+        assert probed(1.0) == 1.0 + offset         # an ordinary call afterwards compiles it
+        assert compile_cache.REPORTER.depth == 0

@@ -99,18 +99,21 @@ class _Reporter(event.Listener):
         self.started = None
 
     def on_start(self, ev):
+        # numba calls on_end for every on_start, one that raises included (trigger_event pushes
+        # the end before it starts), so the depth is counted before a refusal: counted after it,
+        # a refusal left the depth at -1 and the next probed kernel compiled here unseen.
         dispatcher = ev.data['dispatcher']
-        if self.depth == 0 and dispatcher is _State.refuse:
+        self.depth += 1
+        if self.depth != 1:
+            return
+        self.started = None
+        if dispatcher is _State.refuse:
             _announce()
             if _State.in_start_up:
                 _start_helper()
             raise _NotCached
-        self.depth += 1
-        if self.depth != 1:
-            return
         module = getattr(getattr(dispatcher, 'py_func', None), '__module__', None) or ''
         if not module.startswith('tissue_sim_ros'):
-            self.started = None
             return
         _announce()
         if _State.in_start_up:
@@ -128,7 +131,8 @@ class _Reporter(event.Listener):
                 _say(f'compiled {_label(dispatcher)} in {time.monotonic() - start:.1f} s')
 
 
-event.register('numba:compile', _Reporter())
+REPORTER = _Reporter()
+event.register('numba:compile', REPORTER)
 
 
 def _announce():
