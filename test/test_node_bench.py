@@ -128,6 +128,9 @@ def test_background_load_spins_listens_and_stops_whatever_happens():
         with pytest.raises(KeyboardInterrupt):
             with load:
                 pids = [s.pid for s in load.spinners] + [load.listener_process.pid]
+                deadline = time.monotonic() + 10   # a loaded machine may show them late in /proc
+                while sorted(_my_spinners()) != sorted(pids[:2]) and time.monotonic() < deadline:
+                    time.sleep(0.05)
                 assert sorted(_my_spinners()) == sorted(pids[:2])
                 cpu0 = [_cpu_seconds(pid) for pid in pids[:2]]
                 deadline = time.monotonic() + 30
