@@ -1,12 +1,12 @@
-"""The one simulation driver and the node's tick schedule, checked against a second formulation
-(the scene stepped by hand), the policy's stated outcomes and the schedule's arithmetic."""
+"""The one simulation driver and the node engine's pacing, checked against a second formulation
+(the scene stepped by hand), the policy's stated outcomes and the pacing's arithmetic."""
 import numpy as np
 import pytest
 
 from tissue_sim_ros.engine.driver import SimulationDriver
 from tissue_sim_ros.engine.needle import NeedleInputError
 from tissue_sim_ros.engine.solver import SimulationDiverged
-from tissue_sim_ros.ros.tick_schedule import MAX_TICK_ADVANCE, TickSchedule
+from tissue_sim_ros.ros.engine_pacing import EnginePacing, LadderControl
 
 COARSE = {'generator': 'box', 'divisions': [6, 6, 4]}
 MS = 1_000_000
@@ -126,30 +126,61 @@ def test_a_deadline_leaves_steps_that_a_later_call_runs():
     np.testing.assert_array_equal(scene_a.displacement, scene_b.displacement)
 
 
-def test_tick_schedule_publishes_on_the_last_slice_and_after_a_skipped_one():
-    s = TickSchedule(0.02, 4)
-    period = 5 * MS
-    calls = [(k, k * period) for k in range(12) if k != 7]  # the executor skipped call 7
-    published = [k for k, now in calls if s.ends_tick(now, period, period)]
-    assert published == [3, 8, 11]  # 7 was a tick's last slice: the next call publishes it
+def test_pacing_targets_the_newest_pose_and_skips_clock_jumps():
+    p = EnginePacing(0.02, 0.8, 0.25)
+    assert p.target_ns(100 * MS, None) == 100 * MS
+    assert p.target_ns(100 * MS, 90 * MS) == 90 * MS
+    assert p.target_ns(100 * MS, 10 * MS) == 80 * MS  # at most one period behind now
+    assert p.target_ns(100 * MS, 120 * MS) == 100 * MS  # never past now
+    assert p.advance_s(0) == 0.02  # the first advance: one period
+    assert p.advance_s(5 * MS) == pytest.approx(0.005)
+    assert p.advance_s(5 * MS) == 0.0  # not later than the engine clock
+    assert p.advance_s(205 * MS) == pytest.approx(0.2)  # within max(2 periods, max lag): asked for
+    assert p.advance_s(1205 * MS) == pytest.approx(0.25) and p.skipped_s == pytest.approx(0.75)
+    lock_step = EnginePacing(0.02, 0.8, 0.25, sim_time=True)
+    lock_step.advance_s(0)
+    assert lock_step.advance_s(100 * MS) == pytest.approx(0.04)  # sim time: 2 periods at most
+    assert lock_step.deadline(1.0) is None
 
 
-def test_tick_schedule_limits_each_advance():
-    s = TickSchedule(0.02, 4)
-    assert s.advance_to(0) == s.slice_s  # the first slice
-    assert s.advance_to(5 * MS) == pytest.approx(0.005)
-    assert s.advance_to(5 * MS) == 0.0  # not later than the engine clock
-    assert s.advance_to(105 * MS) == pytest.approx(MAX_TICK_ADVANCE * 0.02)
-    assert s.dropped_time_s == pytest.approx(0.1 - MAX_TICK_ADVANCE * 0.02)
-    assert s.tick_done(0.025) and s.advance_to(205 * MS) == pytest.approx(0.02)  # after an overrun
-    assert s.slice_target_ns(100 * MS, None) == 100 * MS
-    assert s.slice_target_ns(100 * MS, 90 * MS) == 90 * MS
-    assert s.slice_target_ns(100 * MS, 10 * MS) == 80 * MS  # at most one period behind now
-    assert s.slice_target_ns(100 * MS, 120 * MS) == 100 * MS  # never past now
+def test_pacing_budget_per_tick_and_measured_cost():
+    p = EnginePacing(0.02, 0.5, 0.25)
+    assert p.deadline(10.0) == pytest.approx(10.01)  # a whole budget (10 ms of work) from now
+    p.new_window(behind=False)
+    p.spent(0.004, 0.01)  # a first advance: 4 ms of work for 10 ms simulated
+    assert p.deadline(20.013) == pytest.approx(20.019)  # the rest of the tick's budget, from now
+    assert p.demand is None
+    p.spent(0.004, 0.01)
+    p.new_window(behind=True)
+    assert p.cost_per_sim_s == pytest.approx(0.4) and p.demand == pytest.approx(0.8)
+    assert p.windows_spent == 1
+    p.spent(0.012, 0.02)   # more than the budget: the next advance starts no substep
+    assert p.deadline(30.0) == 30.0
+    for _ in range(200):  # a second of ticks at twice the cost: the average follows
+        p.new_window(behind=False)
+        p.spent(0.016, 0.02)
+    assert p.cost_per_sim_s == pytest.approx(0.8, rel=0.01)
 
 
-def test_tick_schedule_counts_missed_ticks():
-    s = TickSchedule(0.02, 4)
-    for wall in (0.0, 0.02, 0.04, 0.10, 0.12):
-        s.tick_started(wall)
-    assert s.missed_ticks == 2  # 0.04 -> 0.10 is three periods: two ticks missing
+def test_ladder_control_steps_down_after_a_second_over_and_up_after_three_with_room():
+    control = LadderControl(2, lambda level: 2.0)
+    assert control.decide(0.0, 1.5, 0.0, 0.25) is None  # over, not yet for a second
+    assert control.decide(0.99, 1.5, 0.0, 0.25) is None
+    assert control.decide(1.0, 1.5, 0.0, 0.25) == 1
+    control.changed(1.0, 1, cost_before=0.8)
+    assert control.decide(1.5, 1.5, 0.0, 0.25) is None  # settling
+    control.settled(0.5)
+    assert control.measured_ratio[1] == pytest.approx(1.6) and control.cost_ratio(1) == 1.6
+    assert control.decide(2.1, 0.5, 0.2, 0.25) is None  # the lag above half its bound is over too
+    assert control.decide(3.1, 0.5, 0.2, 0.25) == 2
+    control.changed(3.1, 2, cost_before=0.5)
+    control.settled(None)
+    assert control.cost_ratio(2) == 2.0  # not measured: the a-priori ratio
+    # room: the level above would need 0.3 x 2 = 0.6 < 0.7 of the budget, for 3 s
+    assert control.decide(4.2, 0.3, 0.0, 0.25) is None
+    assert control.decide(7.1, 0.3, 0.0, 0.25) is None
+    assert control.decide(7.2, 0.3, 0.0, 0.25) == 1
+    control.changed(7.2, 1, cost_before=None)
+    # 0.4 x 1.6 = 0.64: room again; 0.45 x 1.6 = 0.72: not
+    assert control.decide(8.3, 0.45, 0.0, 0.25) is None and control.decide(11.4, 0.45, 0.0, 0.25) is None
+    assert LadderControl(0, lambda level: 1.0).decide(5.0, 9.0, 1.0, 0.25) is None  # no rung

@@ -60,21 +60,27 @@ def test_latency_is_receipt_to_the_publish_of_the_next_tick():
     assert f['end_to_end_ms_p99'] == pytest.approx(np.percentile([16, 6, 25], 99))
 
 
-def test_diagnostic_figures_read_the_last_message():
+def test_diagnostic_figures_read_the_last_message_and_the_kernel_over_the_window():
     diagnostic_msgs = pytest.importorskip('diagnostic_msgs.msg')
+    from builtin_interfaces.msg import Time
 
-    def array(missed):
+    def array(sec, missed, kernel_s):
         status = diagnostic_msgs.DiagnosticStatus(name='tissue_sim: engine', values=[
             diagnostic_msgs.KeyValue(key='missed_ticks', value=str(missed)),
             diagnostic_msgs.KeyValue(key='ticks', value='1000'),
-            diagnostic_msgs.KeyValue(key='step_time_ms_mean', value='6.5')])
+            diagnostic_msgs.KeyValue(key='kernel_s_total', value=str(kernel_s)),
+            diagnostic_msgs.KeyValue(key='budget_use', value='0.5')])
         inputs = diagnostic_msgs.DiagnosticStatus(name='tissue_sim: input', values=[
             diagnostic_msgs.KeyValue(key='latency_ms_p99', value='12.5')])
-        return diagnostic_msgs.DiagnosticArray(status=[status, inputs])
-    f = node_bench._diagnostic_figures([array(7), array(3)])
-    assert (f['missed_ticks'], f['ticks'], f['step_time_ms_mean_last_window']) == (3, 1000, 6.5)
+        msg = diagnostic_msgs.DiagnosticArray(status=[status, inputs])
+        msg.header.stamp = Time(sec=sec)
+        return msg
+    f = node_bench._diagnostic_figures([array(10, 7, 1.0), array(11, 7, 1.5), array(20, 3, 4.0)],
+                                       window_start_ns=11 * 1_000_000_000)
+    assert (f['missed_ticks'], f['ticks'], f['budget_use']) == (3, 1000, 0.5)
+    assert f['kernel_s_in_window'] == pytest.approx(2.5)   # from the last message before the window
     assert f['node_latency_ms_p99_own'] == 12.5
-    assert f['deadline_overruns'] == -1  # not reported: said so, not invented
+    assert f['ladder_level'] == -1  # not reported: said so, not invented
     assert node_bench._diagnostic_figures([])['missed_ticks'] == -1
 
 

@@ -49,6 +49,7 @@ TOPIC_TYPES = {
     '/needle/pose': 'geometry_msgs/msg/PoseStamped',
     '/tissue_sim/reset/_service_event': 'std_srvs/srv/Trigger_Event',   # channels from the start,
     '/tissue_sim/pause/_service_event': 'std_srvs/srv/SetBool_Event',   # messages per call
+    '/tissue_sim/engine_trace': 'std_msgs/msg/Float64MultiArray',        # recorded, one per tick
 }
 _DOMAINS = iter(range(110 + os.getpid() % 40 * 2, 232))
 SCENE_OVERRIDE = os.environ.get('TISSUE_SIM_TEST_SCENE') or None
@@ -388,6 +389,7 @@ def check_log_against_received(path, received, published_poses, reset_calls=0, p
             got = [cv.stamp_to_ns(m.header.stamp) for _, m in received[key]]
             assert got, topic
             assert [s for s in logged if s >= got[0]] == got, topic
+    assert counts['/tissue_sim/engine_trace'] == counts['/needle/wrench']
     assert counts['/tissue/surface'] == len(received['surface'])
     assert counts['/needle/pose'] == published_poses
     # two events per service call: request received, response sent

@@ -141,7 +141,8 @@ def _error_line(capsys, argv):
     (['node-bench', '--duration-s', '-1'], ["--duration-s: '-1'", '>= 1']),
     (['node-bench', '--load', '-1'], ["--load: '-1'", 'whole number >= 0']),
     (['node-bench', '--load', 'two'], ["--load: 'two'"]),
-    (['node-bench', '--slices-per-tick', '0'], ["--slices-per-tick: '0'"]),
+    (['node-bench', '--threads', '-1'], ["--threads: '-1'"]),
+    (['node-bench', '--executor', 'fast'], ["--executor: invalid choice: 'fast'"]),
     (['bench', '--models', 'full', 'fastest'], ['--models fastest: unknown', 'full+visc']),
 ])
 def test_cli_refuses_impossible_values_in_one_line(capsys, argv, named):

@@ -39,13 +39,7 @@ if 'NUMBA_CPU_FEATURES' not in os.environ and 'NUMBA_CPU_NAME' not in os.environ
         os.environ['NUMBA_CPU_FEATURES'] = _features.flatten() + ',-prefer-256-bit'
 
 
-def _user_cache_dir():
-    """$XDG_CACHE_HOME/tissue_sim_ros/numba, else ~/.cache/...; None without an absolute home."""
-    base = os.environ.get('XDG_CACHE_HOME', '')
-    if not os.path.isabs(base):
-        base = os.path.join(os.path.expanduser('~'), '.cache')
-    return os.path.join(base, 'tissue_sim_ros', 'numba') if os.path.isabs(base) else None
+from tissue_sim_ros.user_cache import user_cache_dir  # noqa: E402 (stdlib only, no numba)
 
-
-if 'NUMBA_CACHE_DIR' not in os.environ and _user_cache_dir() is not None:
-    os.environ['NUMBA_CACHE_DIR'] = _user_cache_dir()
+if 'NUMBA_CACHE_DIR' not in os.environ and user_cache_dir('numba') is not None:
+    os.environ['NUMBA_CACHE_DIR'] = user_cache_dir('numba')

@@ -98,7 +98,7 @@ def _drive(args):
 def _node_bench(args):
     from tissue_sim_ros.analysis import node_bench
     node_bench.run(duration_s=args.duration_s, rate_hz=args.rate_hz, scene_file=args.scene_file,
-                   out=args.out, slices_per_tick=args.slices_per_tick, load=args.load)
+                   out=args.out, threads=args.threads, executor=args.executor, load=args.load)
 
 
 def _insert(args):
@@ -180,8 +180,10 @@ def build_parser():
                             help='measured run length [s], at least 1 (default 20)')
     node_bench.add_argument('--rate-hz', type=_POSITIVE, default=100.0, help='pose rate [Hz] (default 100)')
     node_bench.add_argument('--scene-file', type=_input_file, default=None, help='scene (default: the packaged one)')
-    node_bench.add_argument('--slices-per-tick', type=_number(1, inclusive=True, whole=True), default=None,
-                            help="the node's engine.slices_per_tick (default: its parameter file's)")
+    node_bench.add_argument('--threads', type=_number(0, inclusive=True, whole=True), default=None,
+                            help="the node's engine.threads (default: its parameter file's; 0 = auto)")
+    node_bench.add_argument('--executor', choices=['events', 'single_threaded'], default=None,
+                            help="the node's executor (default: its parameter file's)")
     node_bench.add_argument('--out', type=_output_dir, default=None,
                             help='keep the MCAP log and a JSON of the figures here')
     node_bench.add_argument('--load', type=_number(0, inclusive=True, whole=True), default=0, metavar='N',

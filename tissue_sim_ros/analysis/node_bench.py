@@ -55,12 +55,14 @@ def _cpu_seconds(pid: int) -> float | None:
 
 
 def _node_params(log_dir: Path, publish_rate_hz: float, scene_file: str | None,
-                 slices_per_tick: int | None) -> list[str]:
+                 threads: int | None, executor: str | None) -> list[str]:
     params = [f'recording.directory:={log_dir}', f'publish_rate_hz:={float(publish_rate_hz)}']
     if scene_file:
         params.append(f'scene_file:={scene_file}')
-    if slices_per_tick is not None:
-        params.append(f'engine.slices_per_tick:={int(slices_per_tick)}')
+    if threads is not None:
+        params.append(f'engine.threads:={int(threads)}')
+    if executor is not None:
+        params.append(f'executor:={executor}')
     return params
 
 
@@ -214,20 +216,35 @@ def _latencies(log: dict, wrench_rx: np.ndarray, window: _Window) -> dict:
     }
 
 
-def _diagnostic_figures(diagnostics: list) -> dict:
-    """Counters from the node's last diagnostics (engine and input status)."""
-    def values(name_part):
-        for status in (diagnostics[-1].status if diagnostics else ()):
-            if name_part in status.name:
-                return {kv.key: kv.value for kv in status.values}
-        return {}
-    engine, inputs = values('engine'), values('input')
+def _status_values(message, name_part) -> dict:
+    for status in (message.status if message is not None else ()):
+        if name_part in status.name:
+            return {kv.key: kv.value for kv in status.values}
+    return {}
+
+
+def _diagnostic_figures(diagnostics: list, window_start_ns: int | None = None) -> dict:
+    """Counters from the node's last diagnostics (engine and input status), and the engine's
+    kernel seconds over the window (from the last message before it starts: its cumulative
+    ``kernel_s_total``). -1 or NaN where the node did not report a figure."""
+    from tissue_sim_ros.ros.conversions import stamp_to_ns
+    last = diagnostics[-1] if diagnostics else None
+    engine, inputs = _status_values(last, 'engine'), _status_values(last, 'input')
+    before = [m for m in diagnostics if window_start_ns is not None
+              and stamp_to_ns(m.header.stamp) <= window_start_ns]
+    engine0 = _status_values(before[-1] if before else None, 'engine')
+    kernel = float(engine.get('kernel_s_total', 'nan')) - float(engine0.get('kernel_s_total', 'nan'))
     return {
-        'deadline_overruns': int(engine.get('deadline_overruns', -1)),
         'missed_ticks': int(engine.get('missed_ticks', -1)),
         'ticks': int(engine.get('ticks', -1)),
-        'step_time_ms_mean_last_window': float(engine.get('step_time_ms_mean', 'nan')),
-        'substeps_per_tick': int(engine.get('substeps_last', -1)),
+        'budget_use': float(engine.get('budget_use', 'nan')),
+        'lag_s': float(engine.get('lag_s', 'nan')),
+        'dropped_time_s': float(engine.get('dropped_time_s', 'nan')),
+        'ladder_level': int(engine.get('ladder_level', -1)),
+        'ladder_changes': int(engine.get('ladder_changes', -1)),
+        'engine_threads': int(engine.get('engine_threads', -1)),
+        'kernel_share_of_engine': float(engine.get('kernel_share_of_engine', 'nan')),
+        'kernel_s_in_window': kernel,
         'node_latency_ms_p99_own': float(inputs.get('latency_ms_p99', 'nan')),
     }
 
@@ -269,7 +286,7 @@ def _run_node(log_dir: Path, params: list[str], domain_id: int | None, start, ti
 def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | None = None,
             log_dir: str | Path | None = None, speed_mm_s: float = 5.0, depth_mm: float = 15.0,
             domain_id: int | None = None, publish_rate_hz: float = 50.0,
-            slices_per_tick: int | None = None, load: int = 0) -> dict:
+            threads: int | None = None, executor: str | None = None, load: int = 0) -> dict:
     """Run the node and the scripted driver for ``duration_s`` (with ``load`` busy processes and
     a listening client beside them when ``load`` > 0); the figures as a dict."""
     from tissue_sim_ros.ros.drive import insertion_trajectory, scene_start
@@ -280,13 +297,14 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
     log_dir = Path(tempfile.mkdtemp(prefix='node_bench_')) if own_dir else Path(log_dir)
     log_dir.mkdir(parents=True, exist_ok=True)
     earlier_logs = set(log_dir.glob('*.mcap'))
-    run = _run_node(log_dir, _node_params(log_dir, publish_rate_hz, scene_file, slices_per_tick),
+    run = _run_node(log_dir, _node_params(log_dir, publish_rate_hz, scene_file, threads, executor),
                     domain_id, start, times, positions, rate_hz, duration_s, load)
     path = _new_log(log_dir, earlier_logs)
     log, window = _log_timings(path), run['window']
     result = {
         'scene': scene_file or 'default (config/liver_sample.yaml)',
-        'slices_per_tick': slices_per_tick or 'default',
+        'engine_threads_asked': threads if threads is not None else 'default',
+        'executor': executor or 'default',
         'load': run['load'],
         'listener': run['listener'],
         'machine_before': run['machine'],
@@ -299,19 +317,29 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
         **_rate_and_periods(run['wrench_rx'], log['wrench_tick'], window, publish_rate_hz),
         **_latencies(log, run['wrench_rx'], window),
         'node_cpu_pct_of_one_core': window.cpu_pct(),
-        **_diagnostic_figures(run['diagnostics']),
+        **_diagnostic_figures(run['diagnostics'], window.wall0_ns),
         'mcap': str(path),
     }
+    result['kernel_share_of_node_cpu'] = _kernel_share(result, window)
     if own_dir:
         shutil.rmtree(log_dir, ignore_errors=True)
         result['mcap'] = '(deleted)'
     return result
 
 
+def _kernel_share(r: dict, window: _Window) -> float:
+    """The force kernel's CPU over the node's: kernel wall seconds in the window times the
+    engine's threads (each thread busy in the kernel's parallel loops; an upper bound), over
+    the node process's CPU seconds."""
+    if window.cpu0 is None or window.cpu1 is None or window.cpu1 <= window.cpu0:
+        return float('nan')
+    return r['kernel_s_in_window'] * max(r['engine_threads'], 1) / (window.cpu1 - window.cpu0)
+
+
 def report(r: dict) -> str:
     g = GOALS
     lines = [
-        f'node bench: {r["scene"]}, engine slices per tick {r["slices_per_tick"]}, '
+        f'node bench: {r["scene"]}, engine threads {r["engine_threads"]}, executor {r["executor"]}, '
         f'{r["duration_s"]:.1f} s measured, poses at {r["pose_rate_hz"]:g} Hz '
         f'({r["poses_sent"]} sent, {r["poses_logged"]} logged by the node), node up in {r["startup_s"]:.1f} s',
         f'  load beside the node {r["load"]}; before the run: {r["machine_before"]}',
@@ -323,10 +351,12 @@ def report(r: dict) -> str:
         f'  latency receipt->wrench  p50 {r["latency_ms_p50"]:.2f} ms, p99 {r["latency_ms_p99"]:.2f} ms, max '
         f'{r["latency_ms_max"]:.2f} ms   (goal p99 <= {g["latency_p99_ms"]:g} ms)',
         f'  end to end sent->received p50 {r["end_to_end_ms_p50"]:.2f} ms, p99 {r["end_to_end_ms_p99"]:.2f} ms',
-        f'  node CPU             {r["node_cpu_pct_of_one_core"]:.0f} % of one core',
-        f'  overruns             {r["deadline_overruns"]} deadline overruns, {r["missed_ticks"]} missed ticks of '
-        f'{r["ticks"]} ticks; step {r["step_time_ms_mean_last_window"]:.2f} ms mean, '
-        f'{r["substeps_per_tick"]} substeps per tick',
+        f'  node CPU             {r["node_cpu_pct_of_one_core"]:.0f} % of one core; the force kernel '
+        f'{100 * r["kernel_share_of_node_cpu"]:.0f} % of it ({100 * r["kernel_share_of_engine"]:.0f} % of the '
+        f'engine thread\'s work)',
+        f'  engine               budget use {r["budget_use"]:.2f}, lag {1e3 * r["lag_s"]:.1f} ms, '
+        f'{r["dropped_time_s"]:.3g} s dropped, ladder level {r["ladder_level"]} ({r["ladder_changes"]} changes); '
+        f'{r["missed_ticks"]} missed ticks of {r["ticks"]}',
     ]
     listener = r.get('listener') or {}
     if listener:
@@ -336,10 +366,11 @@ def report(r: dict) -> str:
 
 
 def run(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | None = None,
-        out: str | None = None, slices_per_tick: int | None = None, load: int = 0) -> dict:
+        out: str | None = None, threads: int | None = None, executor: str | None = None,
+        load: int = 0) -> dict:
     """Measure and print; with ``out``, keep the MCAP log there and write node_bench.json."""
     result = measure(duration_s=duration_s, rate_hz=rate_hz, scene_file=scene_file, log_dir=out,
-                     slices_per_tick=slices_per_tick, load=load)
+                     threads=threads, executor=executor, load=load)
     print(report(result))
     if out:
         (Path(out) / 'node_bench.json').write_text(json.dumps(result, indent=2))

@@ -74,6 +74,7 @@ class SimulationDriver:
         self.divergences = 0
         self.refusals = 0
         self.simulated_s = 0.0     # time advanced since start; resets do not rewind it
+        self.dropped_s = 0.0       # time asked for and dropped by drop_lag
         self.force = np.zeros(3)   # the last finite wrench
         self.torque = np.zeros(3)
         self._deformed = np.empty_like(scene.rest_positions)
@@ -93,6 +94,18 @@ class SimulationDriver:
     @property
     def dt(self) -> float:
         return float(self.scene.dt)
+
+    @property
+    def lag_s(self) -> float:
+        """Simulated time asked for but not yet simulated [s] (what deadlines left)."""
+        return max(0.0, self.scene.target_time - self.scene.time)
+
+    def drop_lag(self, max_lag_s: float) -> float:
+        """Keep the lag at most ``max_lag_s``: the excess is dropped (counted in ``dropped_s``);
+        returns what was dropped now."""
+        dropped = self.scene.drop_behind(max_lag_s)
+        self.dropped_s += dropped
+        return dropped
 
     @property
     def behind(self) -> bool:

@@ -510,7 +510,8 @@ def element_kernel(geometric, physical, viscous):
     # that compile different models at once (compile_cache) must not write one index together
     # (an entry can be lost, or point at another model's code).
     kernel.__qualname__ = f'element_kernel.<locals>.kernel_{model_name(geometric, physical, viscous)}'
-    return njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False)(kernel)
+    # nogil: the node's publishing thread runs while its engine thread is in the pass
+    return njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False, nogil=True)(kernel)
 
 
 @functools.lru_cache(maxsize=None)
@@ -657,7 +658,7 @@ def take_node_force(buffers, chunk_node_lo, chunk_node_hi, i):
     return fx, fy, fz
 
 
-@njit(cache=True, parallel=True, boundscheck=False)
+@njit(cache=True, parallel=True, boundscheck=False, nogil=True)
 def reduce_buffers(buffers, chunk_node_lo, chunk_node_hi, out):
     """out[i] = the node force gathered from the chunk buffers (which are left cleared)."""
     for i in prange(out.shape[0]):

@@ -127,10 +127,6 @@ class TensorMassModel:
             raise TypeError(f'physical = {physical!r}: expected a MeanRatioLaw or None')
         if viscosity is not None and not isinstance(viscosity, Viscosity):
             raise TypeError(f'viscosity = {viscosity!r}: expected a Viscosity or None')
-        if not (isinstance(nonlinearity_threshold, (int, float)) and np.isfinite(nonlinearity_threshold)
-                and nonlinearity_threshold >= 0):
-            raise ValueError(f'nonlinearity_threshold = {nonlinearity_threshold!r}: expected a finite '
-                             'displacement-gradient norm >= 0')
         self.geometric = geometric
         self.physical_law = physical
         self.physical = physical is not None and physical.kind != forces.LAW_NONE
@@ -140,7 +136,15 @@ class TensorMassModel:
         self.viscosity = viscosity
         self.viscous = viscosity is not None
         self._set_viscous_arrays()
-        self.nonlinearity_threshold = float(nonlinearity_threshold)
+        self.set_nonlinearity_threshold(nonlinearity_threshold)
+
+    def set_nonlinearity_threshold(self, threshold):
+        """Elements with |H|_F below ``threshold`` take the linear path from the next force
+        evaluation on (a run-time argument of the kernel: nothing recompiles)."""
+        if not (isinstance(threshold, (int, float)) and np.isfinite(threshold) and threshold >= 0):
+            raise ValueError(f'nonlinearity_threshold = {threshold!r}: expected a finite '
+                             'displacement-gradient norm >= 0')
+        self.nonlinearity_threshold = float(threshold)
         self.threshold_squared = self.nonlinearity_threshold ** 2
 
     def _set_viscous_arrays(self):
@@ -157,6 +161,20 @@ class TensorMassModel:
         if self.viscosity.lambda_v > 0:
             ratios.append(self.viscous_lambda / np.maximum(self.volume_lambda, 1e-300))
         return float(max(r.max() for r in ratios))
+
+    @property
+    def n_threads(self) -> int:
+        return self._n_threads
+
+    def set_threads(self, n_threads: int) -> None:
+        """Lay the element pass out for ``n_threads`` workers (per-thread buffers and chunks; the
+        caller runs it with numba.set_num_threads(n_threads)). Not on the step loop: it allocates.
+        The forces differ from another layout's only by the order of the sums (about 1e-16)."""
+        if int(n_threads) != n_threads or n_threads < 1:
+            raise ValueError(f'n_threads = {n_threads!r}: expected a whole number >= 1')
+        if int(n_threads) != self._n_threads:
+            self._n_threads = int(n_threads)
+            self._allocate(self._n_threads)
 
     def _allocate(self, n_workers):
         n = self.mesh.n_nodes
@@ -442,7 +460,7 @@ def _element_stiffness(shape_gradients, volume_lambda, volume_mu):
     return stiff.transpose(0, 1, 3, 2, 4).reshape(-1, 12, 12)
 
 
-@njit(cache=True, parallel=True, fastmath=forces.FASTMATH, boundscheck=False)
+@njit(cache=True, parallel=True, fastmath=forces.FASTMATH, boundscheck=False, nogil=True)
 def _strain_energy(tetrahedra, shape_gradients, volume_lambda, volume_mu, displacement, geometric):
     """Sum of V (lambda/2 tr(E)^2 + mu E:E) with E = sym(H) (+ H^T H / 2 if geometric); inverted count."""
     energy = 0.0

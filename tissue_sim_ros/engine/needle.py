@@ -283,10 +283,10 @@ class NeedleTissue:
     def _inverse_mass(self):
         """(n, 3) inverse mass of each free DOF, 0 for held ones; rebuilt when the masses change."""
         sim = self.simulation
-        if self._mass_version != (sim._topology_version, sim.dt):
+        if self._mass_version != (sim.mass_version, sim.dt):
             self._inverse_mass_dofs = np.where(sim.dof_kind == 0, sim.inverse_mass[:, None], 0.0)
             self._force_scale = 1.0 + sim.dt * sim.damping_rate
-            self._mass_version = (sim._topology_version, sim.dt)
+            self._mass_version = (sim.mass_version, sim.dt)
             self._mass_generation += 1
         return self._inverse_mass_dofs
 
@@ -323,7 +323,7 @@ class NeedleTissue:
         """The bonded contact's step: release when it would pull back, else hold; puncture."""
         patch, sim = self.patch, self.simulation
         if patch.scale_generation != self._mass_generation:
-            patch.set_force_scale(self._force_scale, self._mass_generation)
+            patch.set_masses(inverse_mass, self._force_scale, self._mass_generation)
         n = len(patch.offsets)
         total = patch.solve(self.rest, sim.displacement, self._tip, self.rotation, dt)
         advancing = float(self._travel @ self.axis) > 0.0

@@ -86,16 +86,13 @@ class ContactPatch:
         self.weights = weights
         self.offsets = offsets                                  # (s, 3) in the needle frame
         self.region = region
-        w_scaled = weights[None, :, :] * inverse_mass[nodes].T[:, None, :]    # (3, s, j)
-        system = np.einsum('rsj,tj->rst', w_scaled, weights)
-        self.pseudo_inverse = np.stack([np.linalg.pinv(system[r], rcond=1e-10, hermitian=True)
-                                        for r in range(3)])
+        self._factor(inverse_mass)
         n = len(offsets)
         self.targets = np.zeros((n, 3))
         self.residual = np.zeros((n, 3))
         self.multipliers = np.zeros((n, 3))
         self.sample_forces = np.zeros((n, 3))
-        self.sample_scale = np.zeros(n)          # sum_j w_sj (1 + dt gamma_j), set by set_force_scale
+        self.sample_scale = np.zeros(n)          # sum_j w_sj (1 + dt gamma_j), set by set_masses
         self.scale_generation = -1
         self.total = np.zeros(3)
         self.work = 0.0
@@ -110,7 +107,18 @@ class ContactPatch:
                   sample_weights.ravel())
         return cls(unique, weights, offsets, inverse_mass, region)
 
-    def set_force_scale(self, force_scale, generation):
+    def _factor(self, inverse_mass):
+        """The pseudo-inverse of W M^-1 W^T per axis, for the current masses."""
+        w_scaled = self.weights[None, :, :] * inverse_mass[self.nodes].T[:, None, :]    # (3, s, j)
+        system = np.einsum('rsj,tj->rst', w_scaled, self.weights)
+        self.pseudo_inverse = np.stack([np.linalg.pinv(system[r], rcond=1e-10, hermitian=True)
+                                        for r in range(3)])
+
+    def set_masses(self, inverse_mass, force_scale, generation):
+        """New masses or time step (a topology change, the node's degradation ladder): the
+        constraint system refactored, the force scale of each sample updated."""
+        if self.scale_generation >= 0:          # the constructor factored the first masses
+            self._factor(inverse_mass)
         self.sample_scale[:] = self.weights @ force_scale[self.nodes]
         self.scale_generation = generation
 

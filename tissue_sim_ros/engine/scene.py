@@ -144,6 +144,7 @@ class Scene:
     def __init__(self, spec, text='', base_dir='.', mesh_frame_id='world'):
         self.spec = apply_schema('', spec, SCHEMA)
         self.text = text
+        self.base_dir = Path(base_dir)
         self.mesh_frame_id = mesh_frame_id
         s = self.spec
         try:
@@ -203,6 +204,10 @@ class Scene:
         spec = merge(spec or {}, overrides)
         return cls(spec, text=text, base_dir=path.parent)
 
+    def copy(self):
+        """A new scene from the same keys (at rest, its own arrays)."""
+        return Scene(self.spec, text=self.text, base_dir=self.base_dir, mesh_frame_id=self.mesh_frame_id)
+
     # -- stepping ---------------------------------------------------------------------------------
     @property
     def dt(self):
@@ -259,6 +264,16 @@ class Scene:
             needle.set_pose(position, orientation)
             needle.set_pose(position, orientation)   # no step: no velocity from a pose change
         return steps
+
+    def drop_behind(self, max_behind_s):
+        """Owe the simulation at most ``max_behind_s`` [s]: a running target time further ahead
+        of it is pulled back (the needle then reaches its pose in that much less simulated time).
+        Returns the simulated seconds dropped. The node's rule when its engine cannot keep up."""
+        excess = self._target_time - self.simulation.time - max_behind_s
+        if excess <= 0.0:
+            return 0.0
+        self._target_time -= excess
+        return excess
 
     @property
     def target_time(self):

@@ -11,6 +11,7 @@ Degrees of freedom are free, fixed, or prescribed (a displacement given as a fun
 per node and per axis, so a frictionless plate can drive z alone.
 """
 import math
+import time
 
 import numpy as np
 from numba import njit, prange
@@ -36,7 +37,7 @@ class SimulationDiverged(RuntimeError):
             f'({time_step / critical_time_step:.2f}x)')
 
 
-@njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False)
+@njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False, nogil=True)
 def _advance_free(displacement, velocity, buffers, chunk_node_lo, chunk_node_hi, force, external,
                   inverse_mass, damping_rate, dof_kind, dt, displacement_limit):
     """Gather each node's force from the element pass's buffers (into ``force``) and advance its
@@ -165,6 +166,7 @@ class Simulation:
         self.velocity = np.zeros((n, 3))
         self.internal_force = np.zeros((n, 3))
         self.external_forces = np.zeros((n, 3))
+        self.kernel_s = 0.0     # wall time in the force kernel (element pass + node update), all steps
         self.reset()
         self._warm_up()
 
@@ -187,6 +189,7 @@ class Simulation:
         self.inverse_mass = np.where(massless, 0.0, 1.0 / np.where(massless, 1.0, self.mass))
         self.dof_kind[massless] = FIXED
         self._topology_version = self.model.topology_version
+        self.mass_version = getattr(self, 'mass_version', -1) + 1   # what depends on masses rebuilds
 
     # -- set-up -------------------------------------------------------------------------------
     def fix(self, nodes, axes='xyz'):
@@ -200,6 +203,21 @@ class Simulation:
         mask = _axes_mask(axes, 'prescribed')
         self.dof_kind[np.ix_(idx, np.flatnonzero(mask))] = PRESCRIBED
         self._prescribed.append(_Prescribed(idx, mask, displacement_at))
+
+    def rescale_masses(self, mass_scaling):
+        """Change the mass scaling at run time (the node's degradation ladder): node masses scale
+        by ``mass_scaling`` / the current one and the time step by its square root, so the step
+        keeps its fraction of the critical step (which grows as sqrt(mass)). Velocities are kept;
+        the kinetic energy this changes counts as work put in (the watchdog's budget)."""
+        if not (isinstance(mass_scaling, (int, float)) and math.isfinite(mass_scaling) and mass_scaling >= 1.0):
+            raise ValueError(f'mass_scaling = {mass_scaling!r}: expected a finite factor >= 1')
+        ratio = float(mass_scaling) / self.mass_scaling
+        kinetic = 0.5 * float(np.sum(self.mass[:, None] * self.velocity ** 2))
+        self.mass_scaling = float(mass_scaling)
+        self._update_masses()
+        self.input_work += (ratio - 1.0) * kinetic
+        self.dt *= math.sqrt(ratio)
+        self._critical = None
 
     def critical_time_step(self):
         """Estimated critical (largest stable) time step [s] of the linearised model, cached.
@@ -242,12 +260,14 @@ class Simulation:
             check = (self.step_count + 1) % self.check_interval == 0
             if check:   # energy at u_n, matched with the velocity at t_n from the advance
                 strain, inverted = model.strain_energy(self.displacement)
+            kernel0 = time.perf_counter()
             model.accumulate_forces(self.displacement, self.velocity)
             work, kinetic, bad = _advance_free(self.displacement, self.velocity, *model.force_buffers,
                                                self.internal_force,
                                                self.external_forces, self.inverse_mass,
                                                self.damping_rate, self.dof_kind, dt,
                                                self.displacement_limit)
+            self.kernel_s += time.perf_counter() - kernel0
             t_next = self.time + dt
             for p in self._prescribed:
                 np.copyto(p.targets, p.displacement_at(t_next))

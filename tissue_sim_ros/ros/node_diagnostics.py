@@ -1,9 +1,10 @@
 """The node's rolling statistics and its /diagnostics content (no rclpy: plain values).
 
-Three statuses: ``<node>: engine`` (state, timing, real-time factor, overruns, missed ticks,
-divergences, the needle's phase), ``<node>: input`` (poses received, accepted, each bad-input kind
-counted, latency) and, when recording, ``<node>: recording``. Rates and maxima are over the window
-since the previous diagnostics message; percentiles over the last ten seconds of ticks.
+Three statuses: ``<node>: engine`` (state, tick timing, real-time factor, lag, budget use,
+the degradation ladder, the engine's cost and the kernel's share of it, divergences, the
+needle's phase), ``<node>: input`` (poses received, accepted, each bad-input kind counted,
+latency) and, when recording, ``<node>: recording``. Rates and maxima are over the window since
+the previous diagnostics message; percentiles over the last ten seconds of ticks.
 """
 from __future__ import annotations
 
@@ -37,105 +38,104 @@ class Ring:
 
 
 class NodeStats:
-    """Per-tick and per-advance rings (``rings``, ten seconds of them) and the window since the
+    """The publishing side's rings (``rings``, ten seconds of ticks) and the window since the
     last diagnostics message."""
 
-    def __init__(self, publish_rate_hz: float, slices: int):
+    def __init__(self, publish_rate_hz: float):
+        self.period_s = 1.0 / publish_rate_hz
         window = int(math.ceil(publish_rate_hz * 10))
         self.rings = {name: Ring(window) for name in
-                      ('tick_work_s', 'step_s', 'tick_interval_s', 'latency_s', 'substeps', 'input_s')}
-        # per engine advance: the node-clock time it went to, the time it advanced, its substeps
-        self.rings['slice_ns'] = Ring(window * slices, np.int64)  # ns: beyond float64
-        self.rings['advance_s'] = Ring(window * slices)
-        self.rings['advance_steps'] = Ring(window * slices, np.int64)
-        self.rings['advances_at_tick'] = Ring(window, np.int64)  # advances made before each tick
+                      ('tick_interval_s', 'publish_work_s', 'latency_s', 'input_s')}
+        self.missed_ticks = 0
+        self.missed_for_input = 0     # missed ticks the node's own input handling caused
+        self.input_s = 0.0            # time in pose callbacks since the last tick
+        self._last_tick_wall: float | None = None
         self.window: dict = {}
-        self.new_window(0.0, None, 0)
 
-    def new_window(self, simulated_s: float, clock_ns: int | None, bad_total: int) -> None:
-        self.window = {'ticks': 0, 'step_s': 0.0, 'step_max_s': 0.0, 'overruns': 0,
-                       'wall0': time.perf_counter(), 'sim0': simulated_s, 'clock0': clock_ns,
-                       'bad0': bad_total}
+    def new_window(self, engine, clock_ns: int | None, bad_total: int) -> None:
+        self.window = {'ticks': 0, 'missed0': self.missed_ticks, 'wall0': time.perf_counter(),
+                       'clock0': clock_ns, 'stepped0': engine.stepped_s,
+                       'busy0': engine.pacing.busy_s, 'kernel0': engine.driver.scene.simulation.kernel_s,
+                       'dropped0': engine.driver.dropped_s, 'bad0': bad_total}
 
-    # -- the current tick's accumulators ---------------------------------------------------------
-
-    tick_step_s = 0.0   # engine time of this tick's slices
-    tick_substeps = 0
-    tick_work_s = 0.0   # slices' whole work before the publishing one
-    input_s = 0.0       # time on received poses since the last tick
-    last_substeps = 0   # substeps of the last running tick
-
-    def advanced(self, to_ns: int, advance_s: float, substeps: int, step_s: float) -> None:
-        """One engine advance of a slice: to node time ``to_ns`` by ``advance_s``."""
-        self.rings['slice_ns'].add(to_ns)
-        self.rings['advance_s'].add(advance_s)
-        self.rings['advance_steps'].add(substeps)
-        self.tick_step_s += step_s
-        self.tick_substeps += substeps
-
-    def tick_started(self, interval: float | None) -> None:
+    def tick_started(self, wall: float) -> None:
+        """A tick's callback began at ``wall`` (perf_counter s): its interval, missed ticks
+        (a gap of more than 1.5 periods), and among them those input handling caused (it took
+        more than half a period of the gap)."""
+        last, self._last_tick_wall = self._last_tick_wall, wall
         self.rings['input_s'].add(self.input_s)
-        self.input_s = 0.0
-        if interval is not None:
+        if last is not None:
+            interval = wall - last
             self.rings['tick_interval_s'].add(interval)
+            if interval > 1.5 * self.period_s:
+                missed = int(round(interval / self.period_s)) - 1
+                self.missed_ticks += missed
+                if self.input_s > 0.5 * self.period_s:
+                    self.missed_for_input += missed
+        self.input_s = 0.0
 
-    def tick(self, work_s: float, overran: bool, running: bool) -> None:
-        """A tick published after ``work_s`` of its slices' work; ``running``: neither paused
-        nor held (the engine's figures count only then)."""
-        step_s = self.tick_step_s
-        if running:
-            self.last_substeps = self.tick_substeps
-            self.rings['step_s'].add(step_s)
-            self.rings['substeps'].add(self.tick_substeps)
-        self.tick_step_s, self.tick_substeps, self.tick_work_s = 0.0, 0, 0.0
-        self.rings['tick_work_s'].add(work_s)
-        self.rings['advances_at_tick'].add(self.rings['advance_s'].count)
-        w = self.window
-        w['ticks'] += 1
-        w['step_s'] += step_s
-        w['step_max_s'] = max(w['step_max_s'], step_s)
-        w['overruns'] += int(overran)
+    def tick_done(self, work_s: float) -> None:
+        self.rings['publish_work_s'].add(work_s)
+        self.window['ticks'] = self.window.get('ticks', 0) + 1
 
 
-def diagnostics_statuses(name: str, now_ns: int, *, stats: NodeStats, schedule, driver, pose_input,
-                         paused: bool, ticks: int, recorder=None) -> list:
+def diagnostics_statuses(name: str, now_ns: int, *, stats: NodeStats, engine, pose_input,
+                         ticks: int, recorder=None) -> list:
     """The DiagnosticStatus tuples (name, level, message, values) of this moment."""
-    w = stats.window
+    return [_engine_status(name, now_ns, stats, engine, ticks),
+            _input_status(name, now_ns, stats, pose_input)] + \
+        ([] if recorder is None else [_recording_status(name, recorder)])
+
+
+def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
+    w, driver, pacing = stats.window, engine.driver, engine.pacing
     scene = driver.scene
-    elapsed = max(time.perf_counter() - w['wall0'], 1e-9)
-    sim_now = float(scene.time)
+    wall = max(time.perf_counter() - w['wall0'], 1e-9)
     # engine time per node-clock time (with use_sim_time, per simulated /clock time)
-    clock_elapsed = elapsed if w['clock0'] is None else (now_ns - w['clock0']) / NS_PER_S
-    rtf = (driver.simulated_s - w['sim0']) / clock_elapsed if clock_elapsed > 0 else float('nan')
-    ticks_in_window = max(w['ticks'], 1)
-    step_mean = w['step_s'] / ticks_in_window
-    period = schedule.period_s
+    clock = wall if w['clock0'] is None else (now_ns - w['clock0']) / NS_PER_S
+    rtf = (engine.stepped_s - w['stepped0']) / clock if clock > 0 else float('nan')
+    busy = pacing.busy_s - w['busy0']
+    kernel = scene.simulation.kernel_s - w['kernel0']
     intervals = stats.rings['tick_interval_s'].array()
-    deviation = np.abs(intervals - period) if intervals.size else np.zeros(1)
-    if driver.held:
-        level, state = 'ERROR', 'diverged, held until ~/reset'
-    elif w['overruns'] or (w['ticks'] and not paused and not rtf >= 0.95):
-        level, state = 'WARN', f'{w["overruns"]} deadline overruns in the last {elapsed:.3g} s'
+    deviation = np.abs(intervals - stats.period_s) if intervals.size else np.zeros(1)
+    dropped = driver.dropped_s - w['dropped0']
+    ladder = engine.ladder
+    if driver.held or engine.failure is not None:
+        level = 'ERROR'
+        state = 'diverged, held until ~/reset' if driver.held else f'engine thread stopped: {engine.failure!r}'
+    elif dropped > 0 or driver.lag_s > 0.5 * pacing.max_lag_s or stats.missed_ticks > w['missed0']:
+        level, state = 'WARN', (f'behind: lag {driver.lag_s * 1e3:.0f} ms, {dropped:.3g} s dropped, '
+                                f'{stats.missed_ticks - w["missed0"]} missed ticks in the last {wall:.3g} s')
+    elif ladder is not None and ladder.level > 0:
+        level, state = 'WARN', f'degraded: ladder level {ladder.level} ({ladder.rung.name})'
     else:
-        level, state = 'OK', 'paused' if paused else 'running'
-    engine = {
-        'state': 'held' if driver.held else 'paused' if paused else 'running',
-        'simulated_time_s': sim_now,
+        level, state = 'OK', 'paused' if engine.paused else 'running'
+    values = {
+        'state': 'held' if driver.held else 'paused' if engine.paused else 'running',
+        'engine_thread': 'running' if engine.failure is None else f'stopped: {engine.failure!r}',
+        'simulated_time_s': float(scene.time),
         'ticks': ticks,
-        'tick_period_s': period,
-        'step_time_ms_mean': step_mean * 1e3,
-        'step_time_ms_max': w['step_max_s'] * 1e3,
-        'tick_work_ms_p99': stats.rings['tick_work_s'].percentile(99) * 1e3,
+        'tick_period_s': stats.period_s,
         'tick_period_deviation_ms_p99': float(np.percentile(deviation, 99)) * 1e3,
-        'substeps_last': stats.last_substeps,
-        'engine_dt_s': float(scene.dt),
-        'engine_time_behind_s': driver.target_time - sim_now,
+        'publish_work_ms_p99': stats.rings['publish_work_s'].percentile(99) * 1e3,
+        'missed_ticks': stats.missed_ticks,
+        'missed_ticks_for_input': stats.missed_for_input,
         'real_time_factor': rtf,
-        'compute_load': step_mean / period,
-        'deadline_overruns': schedule.deadline_overruns,
-        'missed_ticks': schedule.missed_ticks,
-        'missed_ticks_for_input': schedule.missed_for_input,
-        'dropped_time_s': schedule.dropped_time_s,
+        'lag_s': driver.lag_s,
+        'max_lag_s': pacing.max_lag_s,
+        'dropped_time_s': driver.dropped_s,
+        'skipped_time_s': pacing.skipped_s,
+        'budget_use': float('nan') if pacing.demand is None else pacing.demand,
+        'budget_ms_per_tick': pacing.budget_s * 1e3,
+        'budget_windows_spent_behind': pacing.windows_spent,
+        'engine_busy_fraction': busy / wall,
+        'kernel_share_of_engine': kernel / busy if busy > 0 else float('nan'),
+        'engine_busy_s_total': pacing.busy_s,
+        'kernel_s_total': scene.simulation.kernel_s,
+        'engine_threads': engine.threads,
+        'engine_dt_s': float(scene.dt),
+        'mass_scaling': float(scene.simulation.mass_scaling),
+        'nonlinearity_threshold': float(scene.model.nonlinearity_threshold),
         'divergences': driver.divergences,
         'stability': 'held after divergence' if driver.held else 'stable',
         'phase': str(scene.phase),
@@ -143,24 +143,19 @@ def diagnostics_statuses(name: str, now_ns: int, *, stats: NodeStats, schedule, 
         'topology_version': int(scene.topology_version),
         'punctures': len(scene.puncture_events),
     }
-    statuses = [(f'{name}: engine', level, state, engine),
-                _input_status(name, now_ns, stats, pose_input, elapsed)]
-    if recorder is not None:
-        st = recorder.stats()
-        statuses.append((f'{name}: recording', 'WARN' if st.messages_dropped else 'OK',
-                         str(recorder.path),
-                         {'messages_written': st.messages_written,
-                          'messages_dropped': st.messages_dropped,
-                          'messages_unsaved': st.messages_unsaved,
-                          'chunks_closed': st.chunks_closed,
-                          'bytes_written': st.bytes_written}))
-    return statuses
+    if ladder is not None:
+        error = ladder.predicted_error()
+        values.update({'ladder_level': ladder.level, 'ladder_rung': ladder.rung.name,
+                       'ladder_changes': engine.ladder_changes,
+                       'ladder_predicted_error': 'not measured yet' if error is None else error})
+    return f'{name}: engine', level, state, values
 
 
-def _input_status(name, now_ns, stats, pose_input, elapsed) -> tuple:
+def _input_status(name, now_ns, stats, pose_input) -> tuple:
     age = pose_input.age_s(now_ns)
     stale = pose_input.stale(now_ns)
     bad_new = pose_input.bad_total - stats.window['bad0']
+    wall = max(time.perf_counter() - stats.window['wall0'], 1e-9)
     values = {'poses_received': pose_input.received, 'poses_accepted': pose_input.accepted,
               'last_pose_age_s': 'none yet' if age is None else age, 'stale': stale,
               'latency_ms_p50': stats.rings['latency_s'].percentile(50) * 1e3,
@@ -168,7 +163,7 @@ def _input_status(name, now_ns, stats, pose_input, elapsed) -> tuple:
               'input_work_ms_per_tick_max': float(stats.rings['input_s'].array().max(initial=0.0)) * 1e3}
     values.update({f'bad_input.{k}': v for k, v in pose_input.counts.items()})
     if bad_new:
-        level, message = 'WARN', f'{bad_new} bad poses in the last {elapsed:.3g} s'
+        level, message = 'WARN', f'{bad_new} bad poses in the last {wall:.3g} s'
     elif stale:
         level, message = 'WARN', f'no pose for {age:.3g} s: holding the last one'
     elif age is None:
@@ -176,3 +171,11 @@ def _input_status(name, now_ns, stats, pose_input, elapsed) -> tuple:
     else:
         level, message = 'OK', 'receiving'
     return f'{name}: input', level, message, values
+
+
+def _recording_status(name, recorder) -> tuple:
+    st = recorder.stats()
+    return (f'{name}: recording', 'WARN' if st.messages_dropped else 'OK', str(recorder.path),
+            {'messages_written': st.messages_written, 'messages_dropped': st.messages_dropped,
+             'messages_unsaved': st.messages_unsaved, 'chunks_closed': st.chunks_closed,
+             'bytes_written': st.bytes_written})

@@ -16,7 +16,17 @@ from rclpy.signals import SignalHandlerOptions
 
 from tissue_sim_ros.ros.parameters import ConfigError
 
-__all__ = ['run']
+__all__ = ['make_executor', 'run']
+
+
+def make_executor(kind: str, context=None):
+    """'events': rclpy's EventsExecutor (callbacks dispatched from C++; the node's tick costs a
+    fraction of the SingleThreadedExecutor's, which rebuilds its wait set in Python at every
+    wake), or 'single_threaded'."""
+    if kind == 'events':
+        from rclpy.experimental import EventsExecutor
+        return EventsExecutor(context=context)
+    return SingleThreadedExecutor(context=context)
 
 
 def run(node_class, help_text, argv=None) -> int:
@@ -37,8 +47,11 @@ def run(node_class, help_text, argv=None) -> int:
         except ConfigError as exc:
             print(f'tissue_sim_node: {exc}', file=sys.stderr)
             return 2
-        executor = SingleThreadedExecutor()
+        executor = make_executor(node.config.executor)
         executor.add_node(node)
+        # the engine thread and the executor share the GIL: a thread waiting for it gets it within
+        # 1 ms (Python's default lets a running thread keep it for 5 ms, a late tick)
+        sys.setswitchinterval(0.001)
         # the start-up's objects (numba, rclpy, the scene) move out of the collector's reach: a
         # full collection walked them all, a 40-60 ms stall of the tick every few seconds
         gc.collect()

@@ -1,0 +1,326 @@
+"""The node's engine on its own thread: poses in, the latest state out, never waited for.
+
+The ROS side (:mod:`~tissue_sim_ros.ros.node`) only hands received poses over (:meth:`submit`),
+calls :meth:`tick` on its timer and publishes :meth:`latest`, whatever the engine's progress:
+the tick never waits for the physics. The engine thread (no rclpy) wakes on a pose, a tick or a
+request, decodes at most ``MAX_POSES_PER_CYCLE`` of the newest poses, advances the
+:class:`~tissue_sim_ros.engine.driver.SimulationDriver` as :mod:`~tissue_sim_ros.ros.engine_pacing`
+says (toward the newest pose's stamp, within each tick's budget of wall time), keeps its lag
+within the bound (dropping the excess), steps the degradation ladder, and leaves the state in a
+triple buffer for the publisher: the publisher reads one buffer while the engine fills another,
+with no copy and no wait under the lock but a swap of indices. The element pass and the node
+update release the GIL (numba ``nogil``), so the publishing thread runs while the engine works.
+
+Services reach the engine as requests run on its thread between advances (:meth:`call`), so the
+engine's state is only ever touched by one thread. Every advance, reset, ladder change and drop
+is written to the trace (:mod:`~tissue_sim_ros.ros.engine_trace`) the node records for replay.
+
+With ``use_sim_time`` the node is lock-step instead: :meth:`tick` waits until the engine has
+simulated up to the tick (no wall-clock budget), so each wrench shows the state at its stamp.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+
+import numpy as np
+
+from tissue_sim_ros.ros.engine_pacing import SETTLE_S, EnginePacing, LadderControl
+from tissue_sim_ros.ros.engine_trace import DROP, LEVEL, RESET, advance_row, event_row
+from tissue_sim_ros.ros.pose_receiver import PoseReceiver
+
+__all__ = ['EngineLoop', 'Snapshot', 'MAX_POSES_PER_CYCLE']
+
+#: Received poses decoded per engine cycle at most, the newest; older ones waiting count as
+#: backlog (they are recorded all the same). A 1 kHz stream brings about 10 per cycle.
+MAX_POSES_PER_CYCLE = 64
+
+
+class Snapshot:
+    """The engine state a tick publishes (one of three buffers; see :class:`EngineLoop`)."""
+
+    def __init__(self, n_nodes: int):
+        self.index = 0                       # advances done when it was taken
+        self.force = np.zeros(3)
+        self.torque = np.zeros(3)
+        self.displacement = np.zeros((n_nodes, 3))
+        self.time_s = 0.0
+        self.phase = 'approach'
+        self.tip_depth_m = 0.0
+        self.punctures = 0
+        self.topology_version = 0
+        self.held = False
+
+
+class _TripleBuffer:
+    """The engine writes ``back``, :meth:`publish` makes it the newest; :meth:`latest` gives the
+    publisher the newest, which the engine does not touch until the publisher asks again."""
+
+    def __init__(self, n_nodes: int):
+        self.slots = [Snapshot(n_nodes) for _ in range(3)]
+        self._back, self._ready, self._front = 0, 1, 2
+        self._fresh = False
+        self._lock = threading.Lock()
+
+    @property
+    def back(self) -> Snapshot:
+        return self.slots[self._back]
+
+    def publish(self) -> None:
+        with self._lock:
+            self._back, self._ready = self._ready, self._back
+            self._fresh = True
+
+    def latest(self) -> Snapshot:
+        with self._lock:
+            if self._fresh:
+                self._front, self._ready = self._ready, self._front
+                self._fresh = False
+            return self.slots[self._front]
+
+
+class EngineLoop:
+    """The engine thread (see the module docstring).
+
+    ``now_ns()``: the node clock; ``decode(bytes) -> (position, orientation, frame, stamp_ns)``;
+    ``log_once(kind, text, level)`` and ``log(level, text)``: the node's logger, from this thread.
+    ``ladder``: a DegradationLadder (None: no ladder). ``slow_down(substeps) -> s``: tests make
+    the engine slower by sleeping that long after an advance (as a larger scene would take).
+    """
+
+    def __init__(self, driver, pose_input, *, period_s: float, now_ns, decode, log_once, log,
+                 budget_fraction: float = 0.8, max_lag_s: float = 0.25, ladder=None,
+                 threads: int = 1, sim_time: bool = False, slow_down=None):
+        self.driver, self.input = driver, pose_input
+        self.pacing = EnginePacing(period_s, budget_fraction, max_lag_s, sim_time)
+        self.ladder = ladder
+        self.control = LadderControl(0 if ladder is None else ladder.bottom,
+                                     lambda level: ladder.rungs[level].cost_ratio, ladder is not None)
+        self.threads, self.sim_time, self.slow_down = int(threads), bool(sim_time), slow_down
+        self._now_ns, self._decode, self._log_once, self._log = now_ns, decode, log_once, log
+        self.receiver = PoseReceiver(limit=MAX_POSES_PER_CYCLE)
+        self._snapshots = _TripleBuffer(driver.scene.rest_positions.shape[0])
+        self._trace: list = []
+        self._receipts: deque = deque()          # (receipt ns, advance index) of accepted poses
+        self._requests: deque = deque()
+        self._wake, self._stop = threading.Event(), threading.Event()
+        self._cond = threading.Condition()
+        self._tick_seq = self._window_seq = self._served_seq = 0
+        self.paused = False
+        self.advances = 0
+        self.stepped_s = 0.0                      # simulated seconds actually stepped
+        self.ladder_changes = 0
+        self._settle_at: float | None = None
+        self.failure: BaseException | None = None
+        self._publish_state()
+        self._thread = threading.Thread(target=self._run, name='tissue_sim-engine', daemon=True)
+
+    # -- the ROS side ---------------------------------------------------------------------------
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        self._stop.set()
+        self._wake.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout_s)
+        with self._cond:
+            self._cond.notify_all()
+
+    def submit(self, receipt_ns: int, data: bytes) -> None:
+        """A received pose (bytes as received), for the engine's next cycle."""
+        self.receiver.add(receipt_ns, data)
+        self._wake.set()
+
+    def tick(self, wait: bool = False, timeout_s: float = 10.0) -> None:
+        """A tick: a new budget window; with ``wait`` (sim time), return once the engine has
+        simulated up to now."""
+        with self._cond:
+            self._tick_seq += 1
+            seq = self._tick_seq
+        self._wake.set()
+        if wait and self._thread.is_alive():
+            with self._cond:
+                self._cond.wait_for(lambda: self._served_seq >= seq or self._stop.is_set(), timeout_s)
+
+    def latest(self) -> Snapshot:
+        """The newest state (read it before the next call: the engine may then reuse it)."""
+        return self._snapshots.latest()
+
+    def take_trace(self) -> list:
+        """The trace rows since the previous call."""
+        with self._cond:
+            rows, self._trace = self._trace, []
+        return rows
+
+    def take_receipts(self, index: int) -> list[int]:
+        """Receipt times [ns] of the accepted poses the state of advance ``index`` includes."""
+        taken = []
+        while self._receipts and self._receipts[0][1] <= index:
+            taken.append(self._receipts.popleft()[0])
+        return taken
+
+    def call(self, job, timeout_s: float = 5.0):
+        """Run ``job()`` on the engine thread between advances and return its result (at once
+        when the thread does not run)."""
+        if not self._thread.is_alive():
+            return job()
+        done, box = threading.Event(), {}
+
+        def run():
+            try:
+                box['result'] = job()
+            except BaseException as exc:  # noqa: BLE001 - handed back to the caller
+                box['error'] = exc
+            finally:
+                done.set()
+        self._requests.append(run)
+        self._wake.set()
+        if not done.wait(timeout_s):
+            raise TimeoutError(f'the engine thread did not answer within {timeout_s:g} s')
+        if 'error' in box:
+            raise box['error']
+        return box['result']
+
+    def reset(self) -> None:
+        """Tissue at rest, needle at its initial pose (on the engine thread, traced)."""
+        def job():
+            self.driver.reset()
+            self.input.reset(self.driver.needle_pose)
+            self.advances += 1                   # a new state (the trace's index)
+            self._record(event_row(RESET, self.advances))
+            self._publish_state()
+        self.call(job)
+
+    # -- the engine thread ----------------------------------------------------------------------
+
+    def _run(self) -> None:
+        import numba
+        numba.set_num_threads(self.threads)
+        try:
+            while not self._stop.is_set():
+                self._wake.wait(self.pacing.period_s)
+                self._wake.clear()
+                self._cycle()
+        except BaseException as exc:  # noqa: BLE001 - a bug: said at ERROR, the node publishes on
+            self.failure = exc
+            self._log('error', f'the engine thread stopped: {type(exc).__name__}: {exc}; the last '
+                               'state is published from now on')
+        finally:
+            with self._cond:
+                self._served_seq = self._tick_seq
+                self._cond.notify_all()
+
+    def _cycle(self) -> None:
+        while self._requests:
+            self._requests.popleft()()
+        seq = self._tick_seq
+        if seq > self._window_seq:
+            self._window_seq = seq
+            self.pacing.new_window(self.driver.behind)
+        now_ns = self._now_ns()
+        if self.sim_time and now_ns == 0:         # no /clock yet: nothing has happened
+            return
+        for receipt in self.receiver.decode_into(self.input, self._decode, self._log_once):
+            self._receipts.append((receipt, self.advances + 1))
+        if self.paused or self.driver.held:
+            self.pacing.hold(now_ns)
+        else:
+            newest = self.input.newest()
+            to_ns = self.pacing.target_ns(now_ns, None if newest is None else newest[0])
+            advance_s = self.pacing.advance_s(to_ns)
+            if advance_s > 0.0 or self.driver.behind:
+                self._advance(advance_s)
+            self._step_ladder()
+        if not self.driver.behind:
+            with self._cond:
+                self._served_seq = seq
+                self._cond.notify_all()
+
+    def _advance(self, advance_s: float) -> None:
+        driver, pacing = self.driver, self.pacing
+        target = self.input.pose_at(pacing.engine_clock_ns) or (None, None)
+        wall0 = time.perf_counter()
+        outcome = driver.advance(advance_s, target[0], target[1],
+                                 deadline=pacing.deadline(wall0))
+        if self.slow_down is not None:
+            time.sleep(self.slow_down(outcome.substeps))
+        simulated = outcome.substeps * driver.dt
+        pacing.spent(time.perf_counter() - wall0, simulated)
+        self.stepped_s += simulated
+        self.advances += 1
+        self._record(advance_row(self.advances, advance_s, target[0], target[1], outcome.substeps,
+                                 pacing.engine_clock_ns))
+        if outcome.refused is not None:
+            self.input.count('engine_refused')
+            self._log_once('engine_refused', 'the engine refused the needle pose, holding the '
+                           f'needle: {outcome.refused}', 'warning')
+        if outcome.diverged is not None:
+            self._diverged(outcome.diverged)
+        if not self.sim_time and driver.drop_lag(pacing.max_lag_s) > 0.0:
+            self._record(event_row(DROP, self.advances, pacing.max_lag_s))
+            self._log_once('lag', f'the engine is more than engine.max_lag_s = {pacing.max_lag_s:g} s '
+                           'behind the poses: the excess is dropped (the needle then moves faster '
+                           'in simulated time)', 'warning')
+        self._publish_state()
+
+    def _diverged(self, exc) -> None:
+        then = ('hold: the last finite wrench is republished until ~/reset' if self.driver.held else
+                f'reset: tissue back at rest, needle at its initial pose (divergence '
+                f'{self.driver.divergences})')
+        self._log('error', f'simulation diverged: {exc}; on_divergence = {then}')
+        if not self.driver.held:
+            self.input.reset(self.driver.needle_pose)
+
+    def _step_ladder(self) -> None:
+        control, pacing = self.control, self.pacing
+        if not control.enabled or self.ladder.predicted_errors is None:
+            return                   # (until the ladder's probe is done: it loads the machine)
+        now = time.perf_counter()
+        if self._settle_at is not None and now >= self._settle_at and pacing.cost_per_sim_s:
+            control.settled(pacing.cost_per_sim_s)
+            self._settle_at = None
+        level = control.decide(now, pacing.demand, self.driver.lag_s, pacing.max_lag_s)
+        if level is None:
+            return
+        demand, before, was = pacing.demand, pacing.cost_per_sim_s, self.ladder.level
+        self.ladder.set_level(level)
+        control.changed(now, level, before)
+        pacing.reset_cost()
+        self._settle_at = now + SETTLE_S
+        self.ladder_changes += 1
+        self._record(event_row(LEVEL, self.advances, level))
+        why = (f'cannot keep real time (budget use {demand:.2f}, lag {self.driver.lag_s * 1e3:.0f} ms)'
+               if level > was else f'has room again (budget use {demand:.2f})')
+        error = self.ladder.predicted_error()
+        self._log_once(f'ladder {was}->{level}',
+                       f'the engine {why}: ladder level {was} -> {level}: {self.ladder.rung.name}; '
+                       'predicted axial-force error ' + ('not measured yet' if error is None else
+                                                          f'{100 * error:.1f} % (NRMSE)') +
+                       ' against the scene as configured', 'warning' if level > was else 'info')
+
+    def _record(self, row: tuple) -> None:
+        with self._cond:
+            self._trace.append(row)
+
+    def _publish_state(self) -> None:
+        driver, scene = self.driver, self.driver.scene
+        snap = self._snapshots.back
+        snap.index = self.advances
+        snap.force[:] = driver.force
+        snap.torque[:] = driver.torque
+        np.copyto(snap.displacement, scene.displacement)
+        snap.time_s = float(scene.time)
+        snap.phase = str(scene.phase)
+        snap.tip_depth_m = float(scene.tip_depth)
+        snap.punctures = len(scene.puncture_events)
+        snap.topology_version = int(scene.topology_version)
+        snap.held = bool(driver.held)
+        self._snapshots.publish()
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+

@@ -1,0 +1,16 @@
+"""The per-user cache directory of the package: $XDG_CACHE_HOME/tissue_sim_ros/<name>, else
+~/.cache/tissue_sim_ros/<name>. One known place for what is worth keeping between runs (numba's
+compiled kernels, the degradation ladder's measured errors per scene) instead of the installed
+package's directory, which may be read-only on a ROS install. Standard library only: it is read
+before numba is first imported."""
+import os
+
+__all__ = ['user_cache_dir']
+
+
+def user_cache_dir(name: str) -> str | None:
+    """The directory for ``name`` (not created here); None without an absolute home."""
+    base = os.environ.get('XDG_CACHE_HOME', '')
+    if not os.path.isabs(base):
+        base = os.path.join(os.path.expanduser('~'), '.cache')
+    return os.path.join(base, 'tissue_sim_ros', name) if os.path.isabs(base) else None
