@@ -6,7 +6,7 @@ import pytest
 from tissue_sim_ros.engine.driver import SimulationDriver
 from tissue_sim_ros.engine.needle import NeedleInputError
 from tissue_sim_ros.engine.solver import SimulationDiverged
-from tissue_sim_ros.ros.engine_pacing import EnginePacing, LadderControl
+from tissue_sim_ros.ros.engine_pacing import RATIO_TRUST, EnginePacing, LadderControl
 
 COARSE = {'generator': 'box', 'divisions': [6, 6, 4]}
 MS = 1_000_000
@@ -163,24 +163,28 @@ def test_pacing_budget_per_tick_and_measured_cost():
 
 
 def test_ladder_control_steps_down_after_a_second_over_and_up_after_three_with_room():
-    control = LadderControl(2, lambda level: 2.0)
+    control = LadderControl(2, lambda level: 2.0 if level == 2 else 1.25, started_s=-10.0)
     assert control.decide(0.0, 1.5, 0.0, 0.25) is None  # over, not yet for a second
     assert control.decide(0.99, 1.5, 0.0, 0.25) is None
     assert control.decide(1.0, 1.5, 0.0, 0.25) == 1
     control.changed(1.0, 1, cost_before=0.8)
-    assert control.decide(1.5, 1.5, 0.0, 0.25) is None  # settling
-    control.settled(0.5)
-    assert control.measured_ratio[1] == pytest.approx(1.6) and control.cost_ratio(1) == 1.6
-    assert control.decide(2.1, 0.5, 0.2, 0.25) is None  # the lag above half its bound is over too
+    assert control.decide(1.5, 1.5, 0.0, 0.25, cost=0.7) is None  # settling
+    assert control.decide(2.1, 0.5, 0.2, 0.25, cost=0.7) is None  # settled: the ratio measured
+    assert control.measured_ratio[1] == pytest.approx(0.8 / 0.7)
+    # the lag above half its bound is over too
     assert control.decide(3.1, 0.5, 0.2, 0.25) == 2
     control.changed(3.1, 2, cost_before=0.5)
-    control.settled(None)
-    assert control.cost_ratio(2) == 2.0  # not measured: the a-priori ratio
-    # room: the level above would need 0.3 x 2 = 0.6 < 0.7 of the budget, for 3 s
-    assert control.decide(4.2, 0.3, 0.0, 0.25) is None
-    assert control.decide(7.1, 0.3, 0.0, 0.25) is None
-    assert control.decide(7.2, 0.3, 0.0, 0.25) == 1
-    control.changed(7.2, 1, cost_before=None)
-    # 0.4 x 1.6 = 0.64: room again; 0.45 x 1.6 = 0.72: not
-    assert control.decide(8.3, 0.45, 0.0, 0.25) is None and control.decide(11.4, 0.45, 0.0, 0.25) is None
+    assert control.decide(4.2, 0.3, 0.0, 0.25, cost=0.1) is None
+    assert control.measured_ratio[2] == pytest.approx(2.0 * RATIO_TRUST)  # 5x measured: held to 1.5x
+    assert control.cost_ratio(2) == 3.0
+    # room: the level above would need 0.2 x 3 = 0.6 < 0.7 of the budget, for 3 s
+    assert control.decide(4.3, 0.2, 0.0, 0.25) is None
+    assert control.decide(7.2, 0.2, 0.0, 0.25) is None
+    assert control.decide(7.3, 0.2, 0.0, 0.25) == 1
+    control.changed(7.3, 1, cost_before=None)
+    # 0.6 x 1.14 = 0.69: room again; 0.62 x 1.14 = 0.71: not
+    assert control.decide(8.4, 0.62, 0.0, 0.25) is None and control.decide(11.5, 0.62, 0.0, 0.25) is None
     assert LadderControl(0, lambda level: 1.0).decide(5.0, 9.0, 1.0, 0.25) is None  # no rung
+    fresh = LadderControl(2, lambda level: 2.0, started_s=100.0)   # the start-up's grace
+    assert fresh.decide(100.0, 5.0, 0.0, 0.25) is None and fresh.decide(102.9, 5.0, 0.0, 0.25) is None
+    assert fresh.decide(103.0, 5.0, 0.0, 0.25) is None and fresh.decide(104.0, 5.0, 0.0, 0.25) == 1

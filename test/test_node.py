@@ -895,6 +895,7 @@ def test_a_slow_engine_costs_no_tick_and_the_ladder_steps_down_and_back_up(harne
     monkeypatch.setattr(engine_pacing, 'DOWN_AFTER_S', 0.5)
     monkeypatch.setattr(engine_pacing, 'UP_AFTER_S', 1.0)
     monkeypatch.setattr(engine_pacing, 'SETTLE_S', 0.5)
+    monkeypatch.setattr(engine_pacing, 'START_GRACE_S', 0.5)
     slow = {'on': True}
     scene = make_scene()
     per_substep = 1.5 * 0.8 * scene.dt    # 1.5 times what the budget (80 % of real time) allows

@@ -328,9 +328,9 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
 
 
 def _kernel_share(r: dict, window: _Window) -> float:
-    """The force kernel's CPU over the node's: kernel wall seconds in the window times the
-    engine's threads (each thread busy in the kernel's parallel loops; an upper bound), over
-    the node process's CPU seconds."""
+    """The force kernel's CPU over the node's: the engine thread's CPU seconds in the kernel
+    over the window, times the engine's threads (each busy in the kernel's parallel loops: an
+    estimate above one thread), over the node process's CPU seconds."""
     if window.cpu0 is None or window.cpu1 is None or window.cpu1 <= window.cpu0:
         return float('nan')
     return r['kernel_s_in_window'] * max(r['engine_threads'], 1) / (window.cpu1 - window.cpu0)

@@ -19,6 +19,7 @@ nanoseconds, or anything with ``to_msg()`` (``rclpy.time.Time``).
 from __future__ import annotations
 
 import array
+import struct
 import sys
 from collections.abc import Iterable, Mapping, Sequence
 
@@ -35,6 +36,7 @@ __all__ = [
     'DIAGNOSTIC_LEVELS',
     'POINT_CLOUD_FIELDS',
     'PointCloudBuffer',
+    'SurfaceMarkerBytes',
     'decimation_stride',
     'diagnostic_array_msg',
     'header',
@@ -410,6 +412,40 @@ def surface_marker_msg(
     msg.color = ColorRGBA(r=r, g=g, b=b, a=a)
     msg.points = _point_list(corners)
     return msg
+
+
+class SurfaceMarkerBytes:
+    """The surface marker as CDR bytes, built without a Python object per point: the marker of
+    :func:`surface_marker_msg` is serialized once per topology with sentinel corners, and each
+    :meth:`serialized` call writes the corners (float64, the TRIANGLE_LIST order) and the stamp
+    into those bytes. 5.7 ms per marker of 3366 points (build 1.8, serialize 3.9) becomes a
+    numpy gather. ``serialize``: rclpy's serialize_message (passed in)."""
+
+    _SENTINEL = 1.2345678901234567e-301
+
+    def __init__(self, triangles, n_vertices: int, frame_id: str, max_triangles: int, serialize):
+        tri = _triangles('triangles', triangles, n_vertices)
+        self.corners = np.ascontiguousarray(tri[::decimation_stride(tri.shape[0], int(max_triangles))]
+                                            .reshape(-1), dtype=np.int64)
+        sentinel = np.full((max(n_vertices, 1), 3), self._SENTINEL)
+        data = bytearray(serialize(surface_marker_msg(sentinel, triangles, frame_id, 0, max_triangles)))
+        start = data.find(np.float64(self._SENTINEL).tobytes())
+        count = len(self.corners)
+        if data[:2] != b'\x00\x01' or start < 4 or \
+                int.from_bytes(data[start - 4:start], 'little') != count:
+            raise ValueError('unexpected Marker serialization (not little-endian CDR)')
+        self._data = data
+        self._points = np.frombuffer(data, dtype=np.float64, count=3 * count, offset=start).reshape(count, 3)
+
+    def serialized(self, positions, stamp) -> bytearray:
+        """The marker's bytes with ``positions`` (n, 3) and ``stamp`` (valid until the next call)."""
+        corners = np.take(positions, self.corners, axis=0)
+        if not np.isfinite(corners).all():
+            raise ValueError('positions: surface vertices are not finite; refusing to publish')
+        self._points[:] = corners
+        t = _as_stamp(stamp)
+        self._data[4:12] = struct.pack('<iI', t.sec, t.nanosec)
+        return self._data
 
 
 # --------------------------------------------------------------------------------------------

@@ -26,7 +26,7 @@ from collections import deque
 
 import numpy as np
 
-from tissue_sim_ros.ros.engine_pacing import SETTLE_S, EnginePacing, LadderControl
+from tissue_sim_ros.ros.engine_pacing import EnginePacing, LadderControl
 from tissue_sim_ros.ros.engine_trace import DROP, LEVEL, RESET, advance_row, event_row
 from tissue_sim_ros.ros.pose_receiver import PoseReceiver
 
@@ -111,7 +111,6 @@ class EngineLoop:
         self.advances = 0
         self.stepped_s = 0.0                      # simulated seconds actually stepped
         self.ladder_changes = 0
-        self._settle_at: float | None = None
         self.failure: BaseException | None = None
         self._publish_state()
         self._thread = threading.Thread(target=self._run, name='tissue_sim-engine', daemon=True)
@@ -119,6 +118,7 @@ class EngineLoop:
     # -- the ROS side ---------------------------------------------------------------------------
 
     def start(self) -> None:
+        self.control.started_s = time.perf_counter()
         self._thread.start()
 
     def stop(self, timeout_s: float = 10.0) -> None:
@@ -277,19 +277,16 @@ class EngineLoop:
     def _step_ladder(self) -> None:
         control, pacing = self.control, self.pacing
         if not control.enabled or self.ladder.predicted_errors is None:
-            return                   # (until the ladder's probe is done: it loads the machine)
+            return         # (nor while the ladder's probe runs: it loads the machine)
         now = time.perf_counter()
-        if self._settle_at is not None and now >= self._settle_at and pacing.cost_per_sim_s:
-            control.settled(pacing.cost_per_sim_s)
-            self._settle_at = None
-        level = control.decide(now, pacing.demand, self.driver.lag_s, pacing.max_lag_s)
+        level = control.decide(now, pacing.demand, self.driver.lag_s, pacing.max_lag_s,
+                               pacing.cost_per_sim_s)
         if level is None:
             return
         demand, before, was = pacing.demand, pacing.cost_per_sim_s, self.ladder.level
         self.ladder.set_level(level)
         control.changed(now, level, before)
         pacing.reset_cost()
-        self._settle_at = now + SETTLE_S
         self.ladder_changes += 1
         self._record(event_row(LEVEL, self.advances, level))
         why = (f'cannot keep real time (budget use {demand:.2f}, lag {self.driver.lag_s * 1e3:.0f} ms)'

@@ -23,20 +23,25 @@ received poses.
 :class:`LadderControl` decides when the degradation ladder steps down (the demand above 1, or
 the lag above half its bound, for ``DOWN_AFTER_S``) and back up (the demand the level above
 would have, the demand now times that rung's cost ratio, below ``UP_BELOW`` for ``UP_AFTER_S``);
-after a change it waits ``SETTLE_S`` and measures the rung's real cost ratio.
+after a change it waits ``SETTLE_S`` and measures the rung's real cost ratio (kept within
+``RATIO_TRUST`` of the a-priori one); nothing is decided in the first ``START_GRACE_S``.
 """
 from __future__ import annotations
 
 from tissue_sim_ros.units import NS_PER_S
 
 __all__ = ['EnginePacing', 'LadderControl', 'COST_TIME_CONSTANT_S', 'DOWN_AFTER_S', 'UP_AFTER_S',
-           'UP_BELOW', 'SETTLE_S']
+           'UP_BELOW', 'SETTLE_S', 'RATIO_TRUST', 'START_GRACE_S']
 
 COST_TIME_CONSTANT_S = 1.0
 DOWN_AFTER_S = 1.0
 UP_AFTER_S = 3.0
 UP_BELOW = 0.7
 SETTLE_S = 1.0
+#: a measured cost ratio is kept within this factor of the rung's a-priori one
+RATIO_TRUST = 1.5
+#: no ladder decision this long after the engine starts (imports, first page faults, a cold cache)
+START_GRACE_S = 3.0
 
 
 class EnginePacing:
@@ -127,12 +132,14 @@ class EnginePacing:
 
 class LadderControl:
     """When the degradation ladder steps (see the module docstring). ``rung_cost_ratio(level)``:
-    the a-priori cost ratio of a level against the one above it."""
+    the a-priori cost ratio of a level against the one above it; ``started_s``: when the engine
+    started (the decisions' clock, perf_counter s)."""
 
-    def __init__(self, bottom: int, rung_cost_ratio, enabled: bool = True):
+    def __init__(self, bottom: int, rung_cost_ratio, enabled: bool = True, started_s: float = 0.0):
         self.bottom = int(bottom)
         self.enabled = bool(enabled) and self.bottom > 0
         self._a_priori = rung_cost_ratio
+        self.started_s = float(started_s)
         self.measured_ratio: dict[int, float] = {}
         self.level = 0
         self._over_since: float | None = None
@@ -143,11 +150,16 @@ class LadderControl:
     def cost_ratio(self, level: int) -> float:
         return self.measured_ratio.get(level, self._a_priori(level))
 
-    def decide(self, now_s: float, demand: float | None, lag_s: float, max_lag_s: float) -> int | None:
-        """The level to switch to now, or None."""
-        if not self.enabled or demand is None:
+    def decide(self, now_s: float, demand: float | None, lag_s: float, max_lag_s: float,
+               cost: float | None = None) -> int | None:
+        """The level to switch to now, or None; ``cost``: the measured cost per simulated second
+        (after a change has settled it gives the rung's measured ratio)."""
+        if not self.enabled or now_s < self.started_s + START_GRACE_S:
             return None
         if self._changed_at is not None and now_s - self._changed_at < SETTLE_S:
+            return None
+        self._settled(cost)
+        if demand is None:
             return None
         over = demand > 1.0 or lag_s > 0.5 * max_lag_s
         self._over_since = (self._over_since if self._over_since is not None else now_s) if over else None
@@ -167,8 +179,12 @@ class LadderControl:
         self._changed_at = now_s
         self._over_since = self._under_since = None
 
-    def settled(self, cost_now: float | None) -> None:
-        """The cost measured at the new level after settling: the rung's measured ratio."""
+    def _settled(self, cost_now: float | None) -> None:
+        """The cost at the new level after settling: the rung's measured ratio, kept within
+        RATIO_TRUST of the a-priori one (a step down in a passing slowdown, the machine busy for
+        a moment, would otherwise measure a ratio that never lets the ladder back up)."""
         if self._cost_before is not None and cost_now:
-            self.measured_ratio[self.level] = self._cost_before / cost_now
-        self._cost_before = None
+            a_priori = self._a_priori(self.level)
+            ratio = self._cost_before / cost_now
+            self.measured_ratio[self.level] = min(max(ratio, a_priori / RATIO_TRUST), a_priori * RATIO_TRUST)
+            self._cost_before = None

@@ -111,7 +111,7 @@ class TissueSimNode(Node):
             sim_time=self._sim_time, slow_down=slow_down)
         self._stats = NodeStats(cfg.publish_rate_hz)
         self.ticks, self._service_calls = 0, 0
-        self._topology_version, self._triangles = None, None
+        self._topology_version, self._marker = None, None
         self._positions = np.empty_like(self.scene.rest_positions)
         self.wrench_pub = self.create_publisher(WrenchStamped, 'needle/wrench', WRENCH_QOS)
         self.nodes_pub = self.create_publisher(PointCloud2, 'tissue/nodes', NODES_QOS)
@@ -183,11 +183,12 @@ class TissueSimNode(Node):
         return self.get_clock().now().nanoseconds
 
     def _publish(self, publisher, msg, now_ns: int | None = None, record: bool = True) -> None:
-        """Publish; when recording, serialize once and publish and record the same bytes."""
+        """Publish a message or its CDR bytes; when recording, serialize once and publish and
+        record the same bytes."""
         if self._recorder is None or not record:
             publisher.publish(msg)
             return
-        data = serialize_message(msg)
+        data = msg if isinstance(msg, bytes) else serialize_message(msg)
         publisher.publish(data)
         self._recorder.write(publisher.topic_name, data, self._now_ns() if now_ns is None else now_ns)
 
@@ -248,15 +249,15 @@ class TissueSimNode(Node):
     def _publish_surface(self, now_ns: int) -> None:
         scene = self.scene
         self._topology_version = scene.topology_version
-        self._triangles = scene.surface_triangles()
-        self._publish(self.surface_pub, cv.surface_mesh_msg(scene.rest_positions, self._triangles),
-                      now_ns)
+        triangles = scene.surface_triangles()
+        self._publish(self.surface_pub, cv.surface_mesh_msg(scene.rest_positions, triangles), now_ns)
+        if self.marker_pub is not None:
+            self._marker = cv.SurfaceMarkerBytes(triangles, len(scene.rest_positions),
+                                                 self.config.frame_id, self.config.marker_max_triangles,
+                                                 serialize_message)
 
     def _publish_marker(self, now_ns: int) -> None:
-        if self._triangles is not None:
-            self._publish(self.marker_pub, cv.surface_marker_msg(
-                self._positions, self._triangles, self.config.frame_id, now_ns,
-                max_triangles=self.config.marker_max_triangles), now_ns)
+        self._publish(self.marker_pub, bytes(self._marker.serialized(self._positions, now_ns)), now_ns)
 
     def _on_reset(self, request, response):
         self.engine.reset()
