@@ -219,14 +219,16 @@ class NeedleTissue:
                                    f'max_jump_m = {self.geometry.max_jump_m * 1e3:.4g} mm')
         return position, orientation
 
-    def set_pose(self, position, orientation):
-        """Move the needle (already validated) for the coming step."""
+    def set_pose(self, position, orientation=None):
+        """Move the needle (already validated) for the coming step; ``orientation`` None: the
+        same orientation (a translation: the rotation is not recomputed)."""
         self._previous_position[:] = self.position
         self._previous_axis[:] = self.axis
         self.position[:] = position
-        self.orientation[:] = orientation
-        self.rotation[:] = rotation_matrix(orientation)
-        self.axis[:] = self.rotation[:, 2]
+        if orientation is not None:
+            self.orientation[:] = orientation
+            self.rotation[:] = rotation_matrix(orientation)
+            self.axis[:] = self.rotation[:, 2]
         self._update_tip()
 
     # -- stepping ---------------------------------------------------------------------------------

@@ -244,6 +244,7 @@ class Scene:
         # call goes on from there at the same speed.
         start_t, end_t = sim.time, self._target_time + duration
         self._target_time = end_t
+        turning = not np.array_equal(start_q, orientation)     # else a translation: no slerp
         steps = 0
         step_wall = 0.0
         while sim.time + sim.dt <= end_t + 1e-9 * sim.dt:
@@ -254,7 +255,7 @@ class Scene:
                 if now + step_wall > deadline:
                     return steps
             s = min(1.0, (sim.time + sim.dt - start_t) / (end_t - start_t))
-            needle.set_pose(start_p + s * (position - start_p), slerp(start_q, orientation, s))
+            needle.set_pose(start_p + s * (position - start_p), slerp(start_q, orientation, s) if turning else None)
             sim.step(1)
             needle.after_step(sim.dt)
             steps += 1

@@ -110,6 +110,7 @@ class EngineLoop:
         self.paused = False
         self.advances = 0
         self.stepped_s = 0.0                      # simulated seconds actually stepped
+        self.busy_cpu_s = 0.0                     # the engine thread's CPU time in advances
         self.ladder_changes = 0
         self.failure: BaseException | None = None
         self._publish_state()
@@ -242,12 +243,13 @@ class EngineLoop:
     def _advance(self, advance_s: float) -> None:
         driver, pacing = self.driver, self.pacing
         target = self.input.pose_at(pacing.engine_clock_ns) or (None, None)
-        wall0 = time.perf_counter()
+        wall0, cpu0 = time.perf_counter(), time.thread_time()
         outcome = driver.advance(advance_s, target[0], target[1],
                                  deadline=pacing.deadline(wall0))
         if self.slow_down is not None:
             time.sleep(self.slow_down(outcome.substeps))
         simulated = outcome.substeps * driver.dt
+        self.busy_cpu_s += time.thread_time() - cpu0
         pacing.spent(time.perf_counter() - wall0, simulated)
         self.stepped_s += simulated
         self.advances += 1

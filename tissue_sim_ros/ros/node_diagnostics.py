@@ -55,7 +55,8 @@ class NodeStats:
     def new_window(self, engine, clock_ns: int | None, bad_total: int) -> None:
         self.window = {'ticks': 0, 'missed0': self.missed_ticks, 'wall0': time.perf_counter(),
                        'clock0': clock_ns, 'stepped0': engine.stepped_s,
-                       'busy0': engine.pacing.busy_s, 'kernel0': engine.driver.scene.simulation.kernel_s,
+                       'busy0': engine.pacing.busy_s, 'cpu0': engine.busy_cpu_s,
+                       'kernel0': engine.driver.scene.simulation.kernel_s,
                        'dropped0': engine.driver.dropped_s, 'bad0': bad_total}
 
     def tick_started(self, wall: float) -> None:
@@ -95,6 +96,7 @@ def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
     clock = wall if w['clock0'] is None else (now_ns - w['clock0']) / NS_PER_S
     rtf = (engine.stepped_s - w['stepped0']) / clock if clock > 0 else float('nan')
     busy = pacing.busy_s - w['busy0']
+    busy_cpu = engine.busy_cpu_s - w['cpu0']
     kernel = scene.simulation.kernel_s - w['kernel0']
     intervals = stats.rings['tick_interval_s'].array()
     deviation = np.abs(intervals - stats.period_s) if intervals.size else np.zeros(1)
@@ -129,8 +131,9 @@ def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
         'budget_ms_per_tick': pacing.budget_s * 1e3,
         'budget_windows_spent_behind': pacing.windows_spent,
         'engine_busy_fraction': busy / wall,
-        'kernel_share_of_engine': kernel / busy if busy > 0 else float('nan'),
+        'kernel_share_of_engine': kernel / busy_cpu if busy_cpu > 0 else float('nan'),
         'engine_busy_s_total': pacing.busy_s,
+        'engine_cpu_s_total': engine.busy_cpu_s,
         'kernel_s_total': scene.simulation.kernel_s,
         'engine_threads': engine.threads,
         'engine_dt_s': float(scene.dt),
