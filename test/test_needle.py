@@ -366,7 +366,7 @@ def test_insert_command_writes_the_csv_and_plot(tmp_path):
                                'cutting_force_n': 0.2}).spec
     scene_file = tmp_path / 'scene.yaml'
     scene_file.write_text(yaml.safe_dump(spec))
-    cli.main(['insert', '--scene', str(scene_file), '--speed-mm-s', '10', '--depth-mm', '4',
+    cli.main(['insert', '--scene', str(scene_file), '--speed-mm-s', '10', '--travel-mm', '4',
               '--out', str(tmp_path)])
     with open(tmp_path / 'insertion.csv') as f:
         rows = list(csv.reader(f))

@@ -38,3 +38,59 @@ def test_a_scene_file_that_is_not_a_mapping_is_refused_by_name(tmp_path):
     path.write_text('- 1\n- 2\n')
     with pytest.raises(SceneError, match=r"list.yaml': expected a mapping of scene keys .* found a list"):
         Scene.from_file(path)
+
+
+def test_set_overrides_reach_the_scene_as_the_file_would():
+    """--set KEY=VALUE: the same scene as writing the value in the file (the keys compared, and
+    the model built from them), regions picked by index or by name."""
+    from tissue_sim_ros.engine.scene_overrides import apply_overrides
+    regions = [{'name': 'liver'}, {'name': 'capsule', 'select': {'above_z_m': -0.002}}]
+    by_set = Scene.from_file(None, mesh=COARSE, regions=regions, sets=[
+        'regions[capsule].membrane.rupture_force_n=2.1', 'regions[0].young_modulus_pa=20000',
+        'model.geometric=false', 'needle.initial_position_m=[0.001, 0.0, 0.16]'])
+    in_file = Scene.from_file(None, mesh=COARSE, model={'geometric': False},
+                              needle={'initial_position_m': [0.001, 0.0, 0.16]},
+                              regions=[{'name': 'liver', 'young_modulus_pa': 20000.0},
+                                       {'name': 'capsule', 'select': {'above_z_m': -0.002},
+                                        'membrane': {'rupture_force_n': 2.1}}])
+    assert by_set.spec == in_file.spec
+    assert not by_set.model.geometric and by_set.spec['regions'][1]['membrane']['rupture_force_n'] == 2.1
+    assert apply_overrides({}, ['solver.mass_scaling=100']) == {'solver': {'mass_scaling': 100}}
+
+
+@pytest.mark.parametrize('override, words', [
+    ('model.geometrc=true', ['model.geometrc', 'known keys here: geometric']),
+    ('regions[kidney].young_modulus_pa=1', ["no region named 'kidney'", "'liver'"]),
+    ('regions[3].young_modulus_pa=1', ['regions[3]', '1 region(s)']),
+    ('regions.young_modulus_pa=1', ['regions is a list', 'regions[0]']),
+    ('mesh=3', ['mesh is a section', 'generator']),
+    ('solver.mass_scaling', ['expected KEY=VALUE']),
+    ('solver.mass_scaling=-1', ['solver.mass_scaling = -1', '> 0']),     # the file's own check
+    ('solver.mass_scaling=[1', ['not valid YAML']),
+])
+def test_a_bad_override_is_refused_naming_it(override, words):
+    with pytest.raises(SceneError) as info:
+        Scene.from_file(None, mesh=COARSE, sets=[override])
+    for word in words:
+        assert word in str(info.value), str(info.value)
+
+
+@pytest.mark.parametrize('gap', [0.0005, 0.004, 0.02])
+def test_start_gap_puts_the_tip_that_far_above_the_surface(gap):
+    """needle.start_gap_m: the tip moves along the axis to that distance from the surface; the
+    distance is measured by the tip itself: driving it gap + 1 mm makes contact, gap - 0.2 mm
+    does not."""
+    from tissue_sim_ros.engine.driver import SimulationDriver
+    scene = Scene.from_file(None, mesh=COARSE, needle={'start_gap_m': gap})
+    assert scene.start_gap_m == pytest.approx(gap, abs=1e-12)
+    position, orientation = scene.needle_pose
+    axis = scene.needle.axis.copy()
+    driver = SimulationDriver(scene)
+    for travel, touches in ((gap - 0.0002, False), (gap + 0.001, True)):
+        driver.reset()
+        pushed = 0.0                      # the largest axial force the tissue put on the needle
+        steps = max(1, int(max(travel, 0.0) / 0.002) + 1)
+        for k in range(1, steps + 1):
+            driver.advance(0.02, position + max(travel, 0.0) * k / steps * axis, orientation)
+            pushed = max(pushed, -float(driver.force @ axis))
+        assert (pushed > 1e-6) == touches, (travel, pushed)

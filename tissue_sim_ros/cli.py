@@ -39,6 +39,30 @@ _POSITIVE = _number(0)
 _NON_NEGATIVE = _number(0, inclusive=True)
 
 
+def _add_travel_or_depth(parser, *, default_help):
+    """--travel-mm (tip travel from the start pose) or --depth-mm (depth below the tissue
+    surface): the same two names in every command."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument('--travel-mm', type=_POSITIVE, default=None,
+                       help='tip travel from its start pose along the needle axis [mm]')
+    group.add_argument('--depth-mm', type=_NON_NEGATIVE, default=None,
+                       help=f'tip depth below the tissue surface [mm] ({default_help})')
+
+
+def _travel_and_depth(args, *, default_travel_mm=None, default_depth_mm=None):
+    """(travel, depth) in mm, exactly one of them not None (the defaults when neither given)."""
+    if args.travel_mm is None and args.depth_mm is None:
+        return default_travel_mm, default_depth_mm
+    return args.travel_mm, args.depth_mm
+
+
+def _add_scene_sets(parser):
+    parser.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
+                        help='change a scene key (repeatable), as `tissue-sim scene-keys` names '
+                             'them; a region by index or name: regions[0].young_modulus_pa=20000, '
+                             'regions[liver].membrane.rupture_force_n=2.1')
+
+
 def _input_file(text):
     """An argparse type: a file that exists (not a directory)."""
     path = Path(text)
@@ -87,9 +111,26 @@ def _bench(args):
     bench.run(sizes=args.sizes, models=args.models)
 
 
+def _depth_below_surface(args, start_height_mm, default_depth_mm, scene_file=None):
+    """--depth-mm, or --travel-mm less the tip's start height above the surface."""
+    travel, depth = _travel_and_depth(args, default_depth_mm=default_depth_mm)
+    if depth is not None:
+        return depth
+    if travel is None:
+        raise CommandError('one of --travel-mm and --depth-mm is required')
+    if start_height_mm is None:
+        from tissue_sim_ros.ros.drive import scene_start
+        start_height_mm = scene_start(scene_file).gap_m * 1e3
+    if travel < start_height_mm:
+        raise CommandError(f'--travel-mm {travel:g}: less than the tip\'s start height above the '
+                           f'tissue ({start_height_mm:.3g} mm); the needle would not reach it')
+    return travel - start_height_mm
+
+
 def _drive(args):
     from tissue_sim_ros.ros.drive import run_drive
-    code = run_drive(args.speed_mm_s, args.depth_mm, start_height_mm=args.start_height_mm,
+    depth = _depth_below_surface(args, args.start_height_mm, None, args.scene_file)
+    code = run_drive(args.speed_mm_s, depth, start_height_mm=args.start_height_mm,
                      rate_hz=args.rate_hz, hold_s=args.hold_s, scene_file=args.scene_file)
     if code:
         sys.exit(code)
@@ -103,12 +144,14 @@ def _node_bench(args):
 
 def _insert(args):
     from tissue_sim_ros.analysis.insertion import main
-    main(args.scene, args.speed_mm_s, args.depth_mm, args.out)
+    travel, depth = _travel_and_depth(args, default_travel_mm=35.0)
+    main(args.scene, args.speed_mm_s, args.out, travel_mm=travel, depth_mm=depth, hold_s=args.hold_s,
+         sets=args.set)
 
 
 def _demo(args):
     from tissue_sim_ros.analysis.demo import run
-    run(args.out, args.speed_mm_s, args.depth_mm)
+    run(args.out, args.speed_mm_s, _depth_below_surface(args, None, 15.0))
 
 
 def _scene_keys(args):
@@ -148,14 +191,17 @@ def build_parser():
     insert.add_argument('--scene', type=_input_file, default=None,
                         help='scene YAML (default: the packaged liver sample)')
     insert.add_argument('--speed-mm-s', type=_POSITIVE, default=3.0, help='needle speed [mm/s] (default 3)')
-    insert.add_argument('--depth-mm', type=_POSITIVE, default=35.0,
-                        help='tip travel from its start pose [mm] (default 35; the default scene starts 9 mm above the tissue)')
+    _add_travel_or_depth(insert, default_help='default: --travel-mm 35; the default scene starts '
+                                              '9 mm above the tissue')
+    insert.add_argument('--hold-s', type=_NON_NEGATIVE, default=0.0,
+                        help='pause at the deepest point before retracting [s] (default 0)')
+    _add_scene_sets(insert)
     insert.add_argument('--out', type=_output_dir, default='out', help='output directory for insertion.csv and .png (default: out)')
     insert.set_defaults(run=_insert)
     demo = commands.add_parser('demo', help='the main job: node + scripted insertion + MCAP read back, summary and plot')
     demo.add_argument('--out', type=_output_dir, default='out', help='output directory (default: out)')
     demo.add_argument('--speed-mm-s', type=_POSITIVE, default=5.0, help='needle speed [mm/s] (default 5)')
-    demo.add_argument('--depth-mm', type=_NON_NEGATIVE, default=15.0, help='depth below the surface [mm] (default 15)')
+    _add_travel_or_depth(demo, default_help='default 15')
     demo.set_defaults(run=_demo)
     keys = commands.add_parser('scene-keys', help='list every scene-file key with its default and meaning')
     keys.set_defaults(run=_scene_keys)
@@ -168,7 +214,7 @@ def build_parser():
     recover.set_defaults(run=_recover)
     drive = commands.add_parser('drive', help='publish a scripted needle insertion and retraction on needle/pose')
     drive.add_argument('--speed-mm-s', type=_POSITIVE, required=True, help='needle speed [mm/s]')
-    drive.add_argument('--depth-mm', type=_NON_NEGATIVE, required=True, help='tip depth below the entry surface [mm]')
+    _add_travel_or_depth(drive, default_help='one of the two is required')
     drive.add_argument('--start-height-mm', type=_NON_NEGATIVE, default=None,
                        help="tip height above the surface at the start [mm] (default: the scene's)")
     drive.add_argument('--rate-hz', type=_POSITIVE, default=100.0, help='pose rate [Hz] (default 100)')

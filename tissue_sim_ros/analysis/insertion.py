@@ -1,9 +1,10 @@
 """A straight needle insertion and retraction on a scene, without ROS; CSV, plot, data comparison.
 
 The needle moves along its initial axis at constant speed by ``travel`` metres (insertion, from
-its start pose), then back (retraction), in ticks of ``tick`` seconds (the node's 50 Hz by
-default). Depth in the CSV and plot is this travel of the tip from its start pose, the abscissa
-of Okamura et al. (2004), whose liver sample was touched about 9 mm after the start.
+its start pose), holds, then comes back (retraction), in ticks of ``tick`` seconds (the node's
+50 Hz by default). ``depth_m`` in the CSV and the plot's abscissa is this travel of the tip from
+its start pose, the abscissa of Okamura et al. (2004), whose liver sample was touched about 9 mm
+after the start (the command takes ``--travel-mm`` for it, or ``--depth-mm`` below the surface).
 """
 import csv
 import sys
@@ -37,23 +38,27 @@ class InsertionResult:
         return float(self.time[-1] / self.wall_time) if self.wall_time > 0 else float('inf')
 
 
-def run_insertion(scene, speed, travel, *, tick=0.02, retract=True, progress=None):
-    """Insert the scene's needle by ``travel`` [m] at ``speed`` [m/s] along its axis, then
-    retract it; returns an InsertionResult sampled once per tick. ``progress``: a file to print
-    a progress line to every simulated second (None: quiet)."""
+def run_insertion(scene, speed, travel, *, hold_s=0.0, tick=0.02, retract=True, progress=None):
+    """Insert the scene's needle by ``travel`` [m] at ``speed`` [m/s] along its axis, hold
+    ``hold_s`` [s] at the deepest point, then retract it; returns an InsertionResult sampled once
+    per tick. ``progress``: a file to print a progress line to every simulated second (None:
+    quiet)."""
     if not (speed > 0 and np.isfinite(speed)):
         raise ValueError(f'speed = {speed!r}: expected a finite speed > 0 m/s')
     if not (travel > 0 and np.isfinite(travel)):
         raise ValueError(f'travel = {travel!r}: expected a finite distance > 0 m')
+    if not (hold_s >= 0 and np.isfinite(hold_s)):
+        raise ValueError(f'hold_s = {hold_s!r}: expected a finite time >= 0 s')
     from tissue_sim_ros.engine.driver import SimulationDriver
     start = scene.needle_pose[0]
     axis = scene.needle.axis.copy()
-    legs = [(0.0, travel)] + ([(travel, 0.0)] if retract else [])
+    legs = [(0.0, travel, travel / speed)] + ([(travel, travel, hold_s)] if hold_s > 0 else []) + \
+        ([(travel, 0.0, travel / speed)] if retract else [])
     times, depths, retracting, t = [], [], [], 0.0
-    for begin, end in legs:
-        n_ticks = max(1, int(np.ceil(abs(end - begin) / (speed * tick) - 1e-9)))
+    for begin, end, duration in legs:
+        n_ticks = max(1, int(np.ceil(duration / tick - 1e-9)))
         for k in range(1, n_ticks + 1):
-            t += abs(end - begin) / n_ticks / speed
+            t += duration / n_ticks
             times.append(t)
             depths.append(begin + (end - begin) * k / n_ticks)
             retracting.append(end < begin)
@@ -115,19 +120,26 @@ def plot_insertion(result, path, *, reference=True, title='needle insertion'):
                               reference=reference, marks_m=marks)
 
 
-def main(scene_file, speed_mm_s, depth_mm, out, *, tick=0.02, stream=sys.stdout, overrides=None):
-    """The `tissue-sim insert` command: run, print a summary, write insertion.csv and .png."""
+def main(scene_file, speed_mm_s, out, *, travel_mm=None, depth_mm=None, hold_s=0.0, sets=(),
+         tick=0.02, stream=None, overrides=None):
+    """The `tissue-sim insert` command: run, print a summary, write insertion.csv and .png.
+    ``travel_mm``: tip travel from the start pose, or ``depth_mm``: depth below the surface (the
+    scene's start gap added); ``sets``: ``KEY=VALUE`` scene overrides."""
     from tissue_sim_ros.engine.scene import Scene
+    stream = sys.stdout if stream is None else stream
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    scene = Scene.from_file(scene_file, **(overrides or {}))
+    scene = Scene.from_file(scene_file, sets=sets, **(overrides or {}))
+    if (travel_mm is None) == (depth_mm is None):
+        raise ValueError('give one of travel_mm (tip travel) and depth_mm (depth below the surface)')
+    travel = travel_mm * 1e-3 if travel_mm is not None else scene.start_gap_m + depth_mm * 1e-3
     model = scene.model
     kind = ('full' if model.geometric and model.physical else 'geometric' if model.geometric
             else 'physical' if model.physical else 'linear') + ('+visc' if model.viscous else '')
     print(f'scene {scene_file or "(default liver sample)"}: {scene.mesh.n_elements} tetrahedra, '
           f'{kind} model, dt = {scene.dt * 1e3:.3f} ms (mass scaling {scene.simulation.mass_scaling:g})',
           file=stream)
-    result = run_insertion(scene, speed_mm_s * 1e-3, depth_mm * 1e-3, tick=tick, progress=stream)
+    result = run_insertion(scene, speed_mm_s * 1e-3, travel, hold_s=hold_s, tick=tick, progress=stream)
     write_csv(result, out / 'insertion.csv')
     plot_insertion(result, out / 'insertion.png', title=f'insertion at {speed_mm_s:g} mm/s, {kind} model')
     for event in result.puncture_events:

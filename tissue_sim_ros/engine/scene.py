@@ -21,6 +21,8 @@ from tissue_sim_ros.engine.mesh import box_mesh, graded_box_mesh, load_mesh, mak
 from tissue_sim_ros.engine.model import TensorMassModel
 from tissue_sim_ros.engine.needle import (Friction, Membrane, NeedleGeometry, NeedleTissue,
                                           RegionInteraction, slerp)
+from tissue_sim_ros.engine.pose import needle_axis
+from tissue_sim_ros.engine.scene_overrides import apply_overrides
 from tissue_sim_ros.engine.scene_schema import SCHEMA, SceneError, apply_schema, describe_keys  # noqa: F401
 from tissue_sim_ros.engine.solver import Simulation
 
@@ -87,6 +89,32 @@ def _fixed_nodes(mesh, faces):
     for f in faces:
         mask |= on[f]
     return mask
+
+
+def surface_gap(mesh, tip, axis):
+    """Distance [m] from ``tip`` along ``axis`` to the rest surface of ``mesh`` (inf: none)."""
+    from tissue_sim_ros.engine.needle_kernels import first_surface_hit
+    hit, t, _, _, _ = first_surface_hit(mesh.rest_positions, np.zeros_like(mesh.rest_positions),
+                                        np.ascontiguousarray(mesh.surface_triangles(), dtype=np.int64),
+                                        np.asarray(tip, dtype=float), np.asarray(axis, dtype=float),
+                                        0.0, np.inf)
+    return float(t) if hit >= 0 else float('inf')
+
+
+def _start_position(mesh, needle):
+    """needle.initial_position_m, moved along the axis so that the tip is needle.start_gap_m
+    above the surface when that key is given."""
+    position = np.asarray(needle['initial_position_m'], dtype=float)
+    if needle['start_gap_m'] is None:
+        return position
+    from tissue_sim_ros.engine.pose import validate_pose
+    position, orientation = validate_pose(position, needle['initial_orientation_xyzw'], 'needle.initial_pose')
+    axis = needle_axis(orientation)
+    gap = surface_gap(mesh, position + needle['length_m'] * axis, axis)
+    if not np.isfinite(gap):
+        raise SceneError(f"needle.start_gap_m = {needle['start_gap_m']!r}: the needle's axis from "
+                         f'initial_position_m {position.tolist()} meets no tissue surface')
+    return position + (gap - needle['start_gap_m']) * axis
 
 
 def _region_material(k, region):
@@ -174,7 +202,7 @@ class Scene:
                                       n['max_jump_m'])
             self.needle = NeedleTissue(self.simulation, element_region,
                                        [_region_interaction(r) for r in s['regions']], geometry,
-                                       n['initial_position_m'], n['initial_orientation_xyzw'])
+                                       _start_position(self.mesh, n), n['initial_orientation_xyzw'])
         except SceneError:
             raise
         except ValueError as exc:        # MaterialError, MeshError, NeedleInputError...
@@ -186,9 +214,10 @@ class Scene:
         warm_up()
 
     @classmethod
-    def from_file(cls, path=None, **overrides):
+    def from_file(cls, path=None, sets=(), **overrides):
         """Load a scene YAML (default: the packaged liver sample); ``overrides`` replace top-level
-        sections key by key, e.g. model={'viscosity_mu_pa_s': 0.0}."""
+        sections key by key, e.g. model={'viscosity_mu_pa_s': 0.0}; ``sets``: ``KEY=VALUE``
+        strings applied after them (the ``--set`` of the commands, :mod:`.scene_overrides`)."""
         path = Path(path) if path is not None else default_scene_path()
         try:
             text = path.read_text()
@@ -201,7 +230,7 @@ class Scene:
         if spec is not None and not isinstance(spec, dict):
             raise SceneError(f'scene_file = {str(path)!r}: expected a mapping of scene keys at the top '
                              f'level, found a {type(spec).__name__}')
-        spec = merge(spec or {}, overrides)
+        spec = apply_overrides(merge(spec or {}, overrides), sets)
         return cls(spec, text=text, base_dir=path.parent)
 
     def copy(self):
@@ -300,6 +329,13 @@ class Scene:
     @property
     def tip_depth(self):
         return self.needle.tip_depth()
+
+    @property
+    def start_gap_m(self):
+        """Tip to tissue surface along the axis at the needle's initial pose [m] (rest mesh)."""
+        position, orientation = self.needle._initial_pose
+        axis = needle_axis(orientation)
+        return surface_gap(self.mesh, position + self.needle.geometry.length_m * axis, axis)
 
     @property
     def needle_pose(self):

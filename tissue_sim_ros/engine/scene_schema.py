@@ -88,6 +88,9 @@ SCHEMA = {
         'length_m': (0.15, 'float+', 'needle length, base to tip [m]'),
         'initial_position_m': ([0.0, 0.0, 0.159], 'vec3', 'base position at start and reset [m]'),
         'initial_orientation_xyzw': ([1.0, 0.0, 0.0, 0.0], 'quat', 'base orientation (axis +z) at start'),
+        'start_gap_m': (None, 'float0', 'tip distance above the tissue surface along the axis at start '
+                                        'and reset [m]; null: initial_position_m as given, else that '
+                                        'position moved along the axis to this gap'),
         'shaft_point_spacing_m': (0.001, 'float+', 'tissue points along the shaft, one per this advance [m]'),
         'max_jump_m': (DEFAULT_MAX_JUMP_M, 'float+', 'largest base or tip move accepted in one advance() call [m]'),
     },

@@ -13,9 +13,10 @@ entry surface, holds ``--hold-s``, and comes back up to the start pose at the sa
 are published at ``--rate-hz`` stamped with the publishing time, then the command waits until
 the node has acknowledged them (reliable QoS) and exits.
 
-The entry surface is the highest rest vertex within one needle diameter of the needle axis
-(the top face for the default block); the start pose is computed from the scene file, which is
-loaded (not stepped) for that.
+The entry surface is where the needle axis meets the tissue surface under the tip
+(``Scene.start_gap_m``); the start pose is computed from the scene file, which is loaded (not
+stepped) for that. ``--travel-mm`` gives the tip's travel from the start pose instead of
+``--depth-mm`` (travel = start height + depth).
 """
 from __future__ import annotations
 
@@ -49,24 +50,13 @@ def _axis(orientation) -> np.ndarray:
 
 
 def scene_start(scene_file: str | None = None) -> DriveStart:
-    """The needle's initial pose and its tip's distance to the entry surface in a scene."""
+    """The needle's initial pose and its tip's distance to the surface along the axis in a scene
+    (``Scene.start_gap_m``, the rule every command uses)."""
     from tissue_sim_ros.engine.scene import Scene
     scene = Scene.from_file(scene_file or None)
     position, orientation = scene.needle_pose
-    needle = scene.spec['needle']
-    length = float(needle['length_m'])
-    axis = _axis(orientation)
-    tip = position + length * axis
-    rest = scene.rest_positions
-    # vertices within one diameter of the axis line; the entry point is the one the tip meets first
-    rel = rest - tip
-    along = rel @ axis
-    radial = np.linalg.norm(rel - along[:, None] * axis, axis=1)
-    near = radial <= max(float(needle['diameter_m']), 1e-9)
-    if not near.any():
-        near = radial <= radial.min() + 1e-12
-    gap = float(along[near].min())
-    return DriveStart(position, orientation, axis, length, gap, scene.mesh_frame_id)
+    return DriveStart(position, orientation, _axis(orientation), float(scene.spec['needle']['length_m']),
+                      scene.start_gap_m, scene.mesh_frame_id)
 
 
 def insertion_trajectory(start: DriveStart, speed_m_s: float, depth_m: float, hold_s: float,
