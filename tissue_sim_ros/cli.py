@@ -159,6 +159,11 @@ def _scene_keys(args):
     print('\n'.join(describe_keys()))
 
 
+def _replay(args):
+    from tissue_sim_ros.analysis.replay import main
+    main(args.log, args.out, args.scene, args.set)
+
+
 def _recover(args):
     from tissue_sim_ros.io.mcap_recovery import RecoverError, recover_log
     try:
@@ -212,6 +217,16 @@ def build_parser():
                          help='the repaired copy, a new file (default: LOG.recovered.mcap '
                               'beside the log; none for a complete log)')
     recover.set_defaults(run=_recover)
+    replay = commands.add_parser('replay', help='run a recorded node log through the engine again: '
+                                 'the same wrenches (exact), or the same motion through --scene/--set')
+    replay.add_argument('log', type=_input_file, metavar='LOG.mcap', help='a log the node recorded (or '
+                        'any rosbag2 MCAP with needle/wrench and needle/pose)')
+    replay.add_argument('--out', type=_output_dir, default='out/replay',
+                        help='output directory: replay.mcap, .csv, .png, .json, .md (default out/replay)')
+    replay.add_argument('--scene', type=_input_file, default=None,
+                        help="another scene for the same motion (default: the log's own scene)")
+    _add_scene_sets(replay)
+    replay.set_defaults(run=_replay)
     drive = commands.add_parser('drive', help='publish a scripted needle insertion and retraction on needle/pose')
     drive.add_argument('--speed-mm-s', type=_POSITIVE, required=True, help='needle speed [mm/s]')
     _add_travel_or_depth(drive, default_help='one of the two is required')
@@ -248,8 +263,10 @@ def _input_errors():
     from tissue_sim_ros.engine.scene import SceneError
     from tissue_sim_ros.engine.solver import SimulationDiverged
     from tissue_sim_ros.ros.node_process import NodeProcessError
+    from tissue_sim_ros.analysis.replay import ReplayError
+    from tissue_sim_ros.io.mcap_reader import TruncatedLogError
     return (SceneError, MeshError, MaterialError, NeedleInputError, SimulationDiverged,
-            NodeProcessError, CommandError, OSError)
+            NodeProcessError, CommandError, ReplayError, TruncatedLogError, OSError)
 
 
 def _describe(exc):

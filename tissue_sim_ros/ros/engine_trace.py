@@ -93,15 +93,22 @@ class TraceReplayer:
     """A recorded engine trace run through a driver again: the same advances (each with the
     substeps the node ran), resets, ladder levels and drops, in the same order, so the state
     after each is the node's, bit for bit with the same scene, threads and kernels.
-    ``ladder``: the scene's DegradationLadder (needed when the trace changes levels)."""
+    ``ladder``: the scene's DegradationLadder (needed when the trace changes levels);
+    ``keep_displacement``: keep the displacement of the published states too."""
 
-    def __init__(self, driver, ladder=None):
-        self.driver, self.ladder = driver, ladder
+    def __init__(self, driver, ladder=None, keep_displacement=False):
+        self.driver, self.ladder, self.keep_displacement = driver, ladder, keep_displacement
         self.index = 0
-        self._wrenches = {0: (driver.force.copy(), driver.torque.copy())}
+        self._states = {0: self._state()}
+
+    def _state(self):
+        driver = self.driver
+        return (driver.force.copy(), driver.torque.copy(),
+                driver.displacement.copy() if self.keep_displacement else None)
 
     def apply(self, tick: TickTrace):
-        """Run one tick's rows; the (force, torque) of the state that tick published."""
+        """Run one tick's rows; (force, torque, displacement or None) of the state that tick
+        published."""
         driver = self.driver
         for row in tick.rows:
             kind, index = int(row[0]), int(row[1])
@@ -120,8 +127,8 @@ class TraceReplayer:
                 driver.drop_lag(float(row[10]))
             if kind in (ADVANCE, RESET):
                 self.index = index
-                self._wrenches[index] = (driver.force.copy(), driver.torque.copy())
-        published = self._wrenches[tick.published_index]
-        for old in [k for k in self._wrenches if k < tick.published_index]:
-            del self._wrenches[old]
+                self._states[index] = self._state()
+        published = self._states[tick.published_index]
+        for old in [k for k in self._states if k < tick.published_index]:
+            del self._states[old]
         return published

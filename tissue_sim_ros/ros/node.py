@@ -166,7 +166,8 @@ class TissueSimNode(Node):
 
     def _start_recording(self) -> None:
         self._recorder = open_node_log(self.config, scene_text=getattr(self.scene, 'text', ''),
-                                       node_name=self.get_name(),
+                                       scene_spec=getattr(self.scene, 'spec', None),
+                                       engine_threads=self.engine.threads, node_name=self.get_name(),
                                        node_fqn=self.get_fully_qualified_name(),
                                        topics=node_log_topics(self, cv.qos_to_dict))
 

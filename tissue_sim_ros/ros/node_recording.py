@@ -42,12 +42,20 @@ def node_log_topics(node, qos_to_dict) -> list:
                                             (node.pause_srv, 'std_srvs/srv/SetBool_Event'))]
 
 
-def open_node_log(config, *, scene_text: str, node_name: str, node_fqn: str, topics):
+def open_node_log(config, *, scene_text: str, node_name: str, node_fqn: str, topics,
+                  scene_spec: dict | None = None, engine_threads: int | None = None):
     """A McapRecorder for this run in ``config.recording_directory`` with the run's metadata;
-    ``topics``: (resolved topic, ROS type, QoS as a dict) of every channel it will hold."""
+    ``topics``: (resolved topic, ROS type, QoS as a dict) of every channel it will hold.
+    ``scene_spec``: every scene key as the engine used it (the file's text may not say all: a
+    scene given to the node in code, defaults), ``engine_threads``: the engine's numba threads:
+    what ``tissue-sim replay`` needs besides the trace."""
+    import yaml
+
     from tissue_sim_ros.io.mcap_log import McapRecorder
     metadata = {
         'scene': str(scene_text),
+        'scene_spec': yaml.safe_dump(scene_spec, sort_keys=False) if scene_spec is not None else '',
+        'engine_threads': '' if engine_threads is None else str(int(engine_threads)),
         'scene_file': config.scene_file or '(packaged default)',
         'parameters': parameters_yaml(config.values, node_name),
         'node': node_fqn,
