@@ -159,6 +159,33 @@ def _scene_keys(args):
     print('\n'.join(describe_keys()))
 
 
+def _compare(args):
+    from tissue_sim_ros.analysis.compare import main
+    if bool(args.data_spec) == bool(args.files):
+        raise CommandError('give --data-spec SPEC.yaml or data files (with column options), not both')
+    options = {'time.column': _column(args.time_column), 'time.unit': args.time_unit,
+               'time.rate_hz': args.rate_hz, 'force.column': _column(args.force_column),
+               'force.columns': None if args.force_columns is None else [_column(c) for c in args.force_columns],
+               'force.unit': args.force_unit, 'force.sign': args.force_sign, 'force.reduce': args.reduce,
+               'force.direction': args.direction,
+               'position.column': _column(args.position_column), 'position.unit': args.position_unit,
+               'position.sign': args.position_sign if args.position_column is not None else None,
+               'motion.speed_mm_s': args.speed_mm_s, 'motion.travel_mm': args.motion_travel_mm,
+               'motion.start_s': args.start_s, 'motion.hold_s': args.hold_s,
+               'motion.retract': True if args.retract else None,
+               'file_name.pattern': args.file_pattern}
+    main(data_spec=args.data_spec, files=args.files, options=options, scene_file=args.scene,
+         sets=args.set, align=args.align, gap_mm=args.start_gap_mm, per_trial=args.per_trial,
+         tick_ms=args.tick_ms, workers=args.jobs, scheduler=args.scheduler, out=args.out)
+
+
+def _column(text):
+    """A column option: a 0-based index when it is a whole number, else a header name."""
+    if text is None:
+        return None
+    return int(text) if text.strip().isdigit() else text
+
+
 def _replay(args):
     from tissue_sim_ros.analysis.replay import main
     main(args.log, args.out, args.scene, args.set)
@@ -217,6 +244,52 @@ def build_parser():
                          help='the repaired copy, a new file (default: LOG.recovered.mcap '
                               'beside the log; none for a complete log)')
     recover.set_defaults(run=_recover)
+    compare = commands.add_parser('compare', help='simulate the measured motion of load-cell trials and '
+                                  'report how far the model is from the data, beside the data\'s spread')
+    compare.add_argument('files', nargs='*', metavar='FILE', help='data files (CSV/TSV/text or MCAP) '
+                         'read with the column options below; or give --data-spec')
+    compare.add_argument('--data-spec', type=_input_file, default=None, metavar='SPEC.yaml',
+                         help='a data description of the whole study (README: compare with your '
+                              'load-cell data)')
+    compare.add_argument('--scene', type=_input_file, default=None, help='scene YAML (default: the packaged one)')
+    _add_scene_sets(compare)
+    compare.add_argument('--align', choices=['contact', 'xcorr', 'depth'], default='contact',
+                         help='contact: same time since contact; xcorr: then the lag of best '
+                              'correlation (<= 0.5 s); depth: force against depth, insertion only')
+    compare.add_argument('--start-gap-mm', type=_NON_NEGATIVE, default=None,
+                         help="the data's travel at contact [mm] (default: found in the force)")
+    compare.add_argument('--per-trial', action='store_true',
+                         help="simulate every trial's own motion (default: one simulation per speed)")
+    compare.add_argument('--tick-ms', type=_POSITIVE, default=10.0, help='simulation sampling [ms] (default 10)')
+    compare.add_argument('--jobs', type=_number(1, inclusive=True, whole=True), default=None,
+                         help='simulations in parallel (default: the cores)')
+    compare.add_argument('--scheduler', default=None, metavar='ADDRESS',
+                         help='run the simulations on a Dask distributed cluster at ADDRESS')
+    compare.add_argument('--out', type=_output_dir, default='out/compare', help='output directory (default out/compare)')
+    columns = compare.add_argument_group('columns of the data files (without --data-spec)')
+    columns.add_argument('--time-column', default=None, help='time column: header name or 0-based index')
+    columns.add_argument('--time-unit', default=None, help='s, ms, us, ns (default s)')
+    columns.add_argument('--rate-hz', type=_POSITIVE, default=None, help='sample rate when there is no time column')
+    columns.add_argument('--force-column', default=None, help='the axial force column')
+    columns.add_argument('--force-columns', nargs=3, default=None, metavar=('FX', 'FY', 'FZ'),
+                         help='three force columns, reduced by --reduce')
+    columns.add_argument('--force-unit', default=None, help='N, mN, kN, gf, kgf, lbf, ozf (default N)')
+    columns.add_argument('--force-sign', type=int, choices=[1, -1], default=None,
+                         help='+1 or -1: makes the force positive while the tissue resists')
+    columns.add_argument('--reduce', choices=['norm', 'projection'], default=None)
+    columns.add_argument('--direction', type=float, nargs=3, default=None, metavar=('X', 'Y', 'Z'),
+                         help='--reduce projection: the needle axis in the sensor frame')
+    columns.add_argument('--position-column', default=None, help='needle travel column (optional)')
+    columns.add_argument('--position-unit', default=None, help='m, mm, um, cm, in (default m)')
+    columns.add_argument('--position-sign', type=int, choices=[1, -1], default=1)
+    columns.add_argument('--speed-mm-s', type=_POSITIVE, default=None, help='without a position: stage speed')
+    columns.add_argument('--motion-travel-mm', type=_POSITIVE, default=None, help='without a position: stage travel')
+    columns.add_argument('--start-s', type=_NON_NEGATIVE, default=None, help='without a position: stage start time')
+    columns.add_argument('--hold-s', type=_NON_NEGATIVE, default=None, help='without a position: pause at depth')
+    columns.add_argument('--retract', action='store_true', help='without a position: the stage came back')
+    columns.add_argument('--file-pattern', default=None,
+                         help='a regular expression with named groups speed and repeat, searched in the file names')
+    compare.set_defaults(run=_compare)
     replay = commands.add_parser('replay', help='run a recorded node log through the engine again: '
                                  'the same wrenches (exact), or the same motion through --scene/--set')
     replay.add_argument('log', type=_input_file, metavar='LOG.mcap', help='a log the node recorded (or '
@@ -265,8 +338,11 @@ def _input_errors():
     from tissue_sim_ros.ros.node_process import NodeProcessError
     from tissue_sim_ros.analysis.replay import ReplayError
     from tissue_sim_ros.io.mcap_reader import TruncatedLogError
+    from tissue_sim_ros.io.data_spec_keys import DataSpecError
+    from tissue_sim_ros.io.trial import DataError
     return (SceneError, MeshError, MaterialError, NeedleInputError, SimulationDiverged,
-            NodeProcessError, CommandError, ReplayError, TruncatedLogError, OSError)
+            NodeProcessError, CommandError, ReplayError, TruncatedLogError, DataError, DataSpecError,
+            OSError)
 
 
 def _describe(exc):
