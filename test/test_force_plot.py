@@ -1,12 +1,12 @@
 """The one force-against-travel plot (insert and demo): what it draws is the data it was given,
-split into insertion and retraction, over the measured bovine-liver trace."""
+split into insertion and retraction; and the comparison with the bovine liver through compare's
+machinery."""
 import numpy as np
 import pytest
 
 matplotlib = pytest.importorskip('matplotlib')
 
 from tissue_sim_ros.analysis.force_plot import plot_force_against_travel  # noqa: E402
-from tissue_sim_ros.analysis.insertion import DATA_DIR, okamura_main_trace  # noqa: E402
 
 
 @pytest.fixture
@@ -40,16 +40,31 @@ def test_the_plot_draws_insertion_retraction_marks_and_the_measurement(tmp_path,
     np.testing.assert_allclose(lines['out'][1], [-0.2, 0.0])
     marks = [x for label, (x, _) in lines.items() if label.startswith('_')]
     assert len(marks) == 1 and np.allclose(marks[0], 7.0)
-    if DATA_DIR.exists():
-        depth, force = okamura_main_trace()
-        (measured,) = [v for k, v in lines.items() if k.startswith('bovine liver')]
-        np.testing.assert_allclose(measured[0], depth * 1e3)
-        np.testing.assert_allclose(measured[1], force)
+    assert sorted(k for k in lines if not k.startswith('_')) == ['in', 'out']
 
 
-def test_without_reference_only_the_run_is_drawn(tmp_path, drawn):
-    plot_force_against_travel(tmp_path / 'f.png', [0.0, 0.001], [0.0, 0.1], [False, False],
-                              title='t', reference=False)
-    (lines, _), = drawn
-    assert sorted(lines) == ['simulated, insertion', 'simulated, retraction']
-    assert lines['simulated, retraction'][0].size == 0
+def test_the_bovine_liver_compared_with_itself_has_no_error_and_the_same_punctures(tmp_path, drawn):
+    """compare_with_reference, given the reference's own trace as the 'simulation' (time, travel
+    with another origin, force): NRMSE 0 over the insertion, every puncture at the same depth, and
+    the plot draws the data and the curve on one depth axis."""
+    from tissue_sim_ros.analysis.compare import compare_with_reference
+    from tissue_sim_ros.analysis.reference_data import SPEED_M_S, bovine_liver_trace
+    depth, force = bovine_liver_trace()
+    comparison = compare_with_reference(depth / SPEED_M_S, depth + 0.004, force,
+                                        plot=tmp_path / 'self.png', label='itself')
+    assert comparison.errors['nrmse'] == pytest.approx(0.0, abs=1e-6)   # travel rounding at the drops
+    assert comparison.errors['count'] > 50
+    assert [p.travel_m for p in comparison.simulated_punctures] == pytest.approx(
+        [p.travel_m for p in comparison.measured_punctures], abs=1e-9)
+    (lines, title), = drawn
+    assert 'NRMSE 0.000' in title and 'itself' in lines
+
+
+def test_the_committed_bovine_liver_study_is_what_the_digitized_file_makes(tmp_path):
+    """data/okamura2004_bovine_liver/{study.yaml, liver_3mm_s_trace1.csv} are written by
+    reference_data from the digitized file: made afresh, they are byte for byte the same."""
+    from tissue_sim_ros.analysis.reference_data import DATA_DIR, write_bovine_liver_study
+    made = write_bovine_liver_study(tmp_path)
+    for name in ('study.yaml', 'liver_3mm_s_trace1.csv'):
+        assert (tmp_path / name).read_bytes() == (DATA_DIR / name).read_bytes(), name
+    assert made == tmp_path / 'study.yaml'

@@ -316,3 +316,28 @@ def main(*, data_spec=None, files=(), options=None, scene_file=None, sets=(), al
               f"noise floor {fmt(group['noise_floor_nrmse'])}", file=stream)
     print(f"wrote {', '.join(report['outputs'].values())}", file=stream)
     return report
+
+
+def compare_with_reference(time_s, travel_m, axial_force_n, *, study=None, plot=None,
+                           title='', label='simulation'):
+    """A simulated insertion (time [s], tip travel [m] from any origin, axial force [N]) against
+    a study's first trial, by depth since each curve's own contact, the insertion only (the
+    motions may differ in speed and depth). ``study``: its data description (default: the
+    bovine liver of the default scene). Writes ``plot`` (force against depth) when given.
+    Returns the TrialComparison."""
+    from tissue_sim_ros.analysis.compare_report import plot_comparison
+    from tissue_sim_ros.analysis.measured_motion import measured_motion
+    from tissue_sim_ros.analysis.reference_data import study_path
+    from tissue_sim_ros.io.data_spec import load_trials
+    trial = load_trials(study or study_path())[0]
+    motion = measured_motion(trial)
+    curve = SimulatedCurve(np.asarray(time_s, dtype=float), np.asarray(travel_m, dtype=float),
+                           np.asarray(axial_force_n, dtype=float))
+    comparison = compare_trial(trial, motion, curve, align='depth')
+    if plot is not None:
+        shown = _at_its_contact(curve, trial.axial_force_n)
+        plot_comparison(plot, [{'title': title or f'{Path(trial.file).name}: NRMSE '
+                                f'{comparison.errors.get("nrmse", float("nan")):.3f} (insertion)',
+                                'comparisons': [comparison], 'simulations': [(shown, comparison)]}],
+                        'depth', simulation_label=label)
+    return comparison

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['SCHEMA', 'report_dict', 'write_report']
+__all__ = ['SCHEMA', 'plot_comparison', 'report_dict', 'study_panels', 'write_report']
 
 SCHEMA = 'tissue_sim_ros/compare/1'
 NORMALISER = "each trial's measured axial-force range (max - min)"
@@ -130,23 +130,44 @@ def _write_csv(path: Path, comparisons) -> None:
                                  '' if not math.isfinite(c.simulated_n[k]) else f'{c.simulated_n[k]:.6g}'])
 
 
-def _plot(path: Path, study: dict, by: str) -> None:
+def study_panels(study: dict) -> list[dict]:
+    """One panel per speed of a study: its title, its trials' comparisons, its simulations."""
+    panels, plan, comparisons = [], study['plan'], study['comparisons']
+    for group in study['speeds']:
+        members = [i for i, c in enumerate(comparisons) if str(c.file) in group['files']]
+        jobs = sorted({plan.job_of_trial[i] for i in members})
+        speed = group['speed_m_s']
+        title = (f"{'unknown speed' if speed is None else f'{speed * 1e3:g} mm/s'}: {len(members)} "
+                 f"trial(s), model NRMSE {group['nrmse_mean']:.3f}"
+                 + (f", noise floor {group['noise_floor_nrmse']:.3f}"
+                    if math.isfinite(group['noise_floor_nrmse']) else ''))
+        panels.append({'title': title, 'comparisons': [comparisons[i] for i in members],
+                       'simulations': [(study['curves'][j], comparisons[plan.representative[j]]) for j in jobs]})
+    return panels
+
+
+def plot_comparison(path, panels: list[dict], by: str, *, simulation_label: str = 'simulation') -> None:
+    """Force against depth (``by='depth'``) or time since contact, a panel per entry of ``panels``
+    (``title``; ``comparisons``: the trials; ``simulations``: (SimulatedCurve, the comparison
+    whose simulated punctures it shows)): each trial thin, with repeats their mean and one
+    standard deviation as a band, the simulation line, punctures marked (circles: data, crosses:
+    simulation)."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
     from tissue_sim_ros.analysis.repeat_statistics import ForceCurve, mean_and_spread
-    speeds = study['speeds']
-    comparisons = study['comparisons']
-    fig, axes = plt.subplots(1, len(speeds), figsize=(5.5 * len(speeds), 4.2), squeeze=False)
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4.2), squeeze=False)
     scale = 1e3 if by == 'depth' else 1.0
-    for ax, group in zip(axes[0], speeds):
-        members = [c for c in comparisons if str(c.file) in group['files']]
+
+    def x_of(c, indices=None):
+        x = c.travel_since_contact_m if by == 'depth' else c.time_since_contact_s
+        return x * scale if indices is None else x[indices] * scale
+    for ax, panel in zip(axes[0], panels):
+        members = panel['comparisons']
         for c in members:
-            x = (c.travel_since_contact_m if by == 'depth' else c.time_since_contact_s) * scale
-            ax.plot(x, c.measured_n, color='0.7', lw=0.6)
-            ax.plot([p.travel_m * scale if by == 'depth' else c.time_since_contact_s[p.index]
-                     for p in c.measured_punctures], [p.force_n for p in c.measured_punctures],
+            ax.plot(x_of(c), c.measured_n, color='0.7', lw=0.6)
+            ax.plot(x_of(c, [p.index for p in c.measured_punctures]), [p.force_n for p in c.measured_punctures],
                     'o', mfc='none', color='0.35', ms=5)
         if len(members) >= 2:
             curves = [ForceCurve(c.time_since_contact_s, c.measured_n,
@@ -157,22 +178,12 @@ def _plot(path: Path, study: dict, by: str) -> None:
             ax.fill_between(grid * scale, mean - std, mean + std, color='C0', alpha=0.25,
                             label='data: mean ± 1 s.d.')
             ax.plot(grid * scale, mean, color='C0', lw=1.2)
-        jobs = sorted({study['plan'].job_of_trial[i] for i, c in enumerate(comparisons)
-                       if str(c.file) in group['files']})
-        for n, job in enumerate(jobs):
-            curve = study['curves'][job]
+        for n, (curve, shown) in enumerate(panel['simulations']):
             x = curve.travel_since_contact_m if by == 'depth' else curve.time_since_contact_s
-            ax.plot(x * scale, curve.axial_force_n, color='C3', lw=1.3,
-                    label='simulation' if n == 0 else None)
-            member = comparisons[study['plan'].representative[job]]
-            ax.plot([p.travel_m * scale if by == 'depth' else member.time_since_contact_s[p.index]
-                     for p in member.simulated_punctures],
-                    [p.force_n for p in member.simulated_punctures], 'x', color='C3', ms=7)
-        speed = group['speed_m_s']
-        ax.set_title(f"{'unknown speed' if speed is None else f'{speed * 1e3:g} mm/s'}: {len(members)} "
-                     f"trial(s), model NRMSE {group['nrmse_mean']:.3f}"
-                     + (f", noise floor {group['noise_floor_nrmse']:.3f}" if math.isfinite(group['noise_floor_nrmse']) else ''),
-                     fontsize=9)
+            ax.plot(x * scale, curve.axial_force_n, color='C3', lw=1.3, label=simulation_label if n == 0 else None)
+            ax.plot(x_of(shown, [p.index for p in shown.simulated_punctures]),
+                    [p.force_n for p in shown.simulated_punctures], 'x', color='C3', ms=7)
+        ax.set_title(panel['title'], fontsize=9)
         ax.set_xlabel('depth since contact [mm]' if by == 'depth' else 'time since contact [s]')
         ax.set_ylabel('axial force [N]')
         ax.grid(alpha=0.3)
@@ -192,6 +203,7 @@ def write_report(out, study: dict, *, scene_label: str, overrides=(), align: str
     (out / 'report.json').write_text(json.dumps(report, indent=2))
     (out / 'report.md').write_text(_markdown(report))
     _write_csv(out / 'comparison.csv', study['comparisons'])
-    _plot(out / 'compare_depth.png', study, 'depth')
-    _plot(out / 'compare_time.png', study, 'time')
+    panels = study_panels(study)
+    plot_comparison(out / 'compare_depth.png', panels, 'depth')
+    plot_comparison(out / 'compare_time.png', panels, 'time')
     return report

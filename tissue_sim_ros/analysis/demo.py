@@ -54,6 +54,7 @@ def _drive_node(out, logs, speed_mm_s, depth_mm):
 
 def run(out='out', speed_mm_s=5.0, depth_mm=15.0):
     """Node, scripted insertion, log read back: print the figures, plot, return them."""
+    from tissue_sim_ros.analysis.compare import compare_with_reference
     from tissue_sim_ros.analysis.force_plot import plot_force_against_travel
     from tissue_sim_ros.io.mcap_log import summarize_log
     out = Path(out).resolve()
@@ -83,6 +84,10 @@ def run(out='out', speed_mm_s=5.0, depth_mm=15.0):
     plot_force_against_travel(out / 'node_insertion.png', travel, axial, ~inserting,
                               title=f'tissue_sim_node, insertion at {speed_mm_s:g} mm/s',
                               labels=('node, insertion (from the MCAP log)', 'node, retraction'))
-    print(f'wrote {out / "node_insertion.png"}')
+    comparison = compare_with_reference(t, travel, axial, plot=out / 'node_vs_bovine_liver.png',
+                                        label='node (from the MCAP log)')
+    print(f'against the bovine-liver insertion (Okamura et al. 2004, 3 mm/s), by depth since contact: '
+          f'NRMSE {comparison.errors.get("nrmse", float("nan")):.3f} over the insertion')
+    print(f'wrote {out / "node_insertion.png"} and {out / "node_vs_bovine_liver.png"}')
     return {'log': log, 'rate_hz': rate, 'peak_axial_n': float(axial.max()), 'puncture_travel_m': float(travel[k])}
 

@@ -16,7 +16,6 @@ import numpy as np
 
 CSV_HEADER = ('time_s', 'depth_m', 'force_x_n', 'force_y_n', 'force_z_n', 'torque_x_nm', 'torque_y_nm',
               'torque_z_nm', 'axial_force_n', 'phase')
-DATA_DIR = Path(__file__).resolve().parents[2] / 'data' / 'okamura2004_bovine_liver'
 
 
 @dataclass
@@ -92,32 +91,12 @@ def write_csv(result, path):
                              f'{result.axial_force[k]:.6g}', result.phase[k]])
 
 
-def okamura_main_trace():
-    """The longest digitized bovine-liver trace (segment 1 of depth_force_digitized.csv),
-    sorted by depth: (depth [m], axial force [N])."""
-    data = np.loadtxt(DATA_DIR / 'depth_force_digitized.csv', delimiter=',')
-    restarts = np.flatnonzero(np.diff(data[:, 0]) < -0.01) + 1     # the depth jumps back to ~0
-    first = data[:restarts[0]] if len(restarts) else data
-    return first[np.argsort(first[:, 0], kind='stable')].T
-
-
-def pre_puncture_nrmse(result, rupture_depth=0.019, contact_depth=0.009):
-    """RMS of (simulated - measured) axial force over the measured points between contact and
-    capsule rupture, divided by the measured force range there; and the point count."""
-    depth, force = okamura_main_trace()
-    keep = (depth >= contact_depth) & (depth <= rupture_depth)
-    inserting = ~result.retracting
-    simulated = np.interp(depth[keep], result.depth[inserting], result.axial_force[inserting])
-    error = simulated - force[keep]
-    return float(np.sqrt(np.mean(error ** 2)) / np.ptp(force[keep])), int(keep.sum())
-
-
-def plot_insertion(result, path, *, reference=True, title='needle insertion'):
-    """Axial force against travel of a run (puncture events dashed) over the bovine-liver data."""
+def plot_insertion(result, path, *, title='needle insertion'):
+    """Axial force against travel of a run, puncture events dashed."""
     from tissue_sim_ros.analysis.force_plot import plot_force_against_travel
     marks = [np.interp(event['time_s'], result.time, result.depth) for event in result.puncture_events]
     plot_force_against_travel(path, result.depth, result.axial_force, result.retracting, title=title,
-                              reference=reference, marks_m=marks)
+                              marks_m=marks)
 
 
 def main(scene_file, speed_mm_s, out, *, travel_mm=None, depth_mm=None, hold_s=0.0, sets=(),
@@ -142,6 +121,16 @@ def main(scene_file, speed_mm_s, out, *, travel_mm=None, depth_mm=None, hold_s=0
     result = run_insertion(scene, speed_mm_s * 1e-3, travel, hold_s=hold_s, tick=tick, progress=stream)
     write_csv(result, out / 'insertion.csv')
     plot_insertion(result, out / 'insertion.png', title=f'insertion at {speed_mm_s:g} mm/s, {kind} model')
+    if scene_file is None:              # the default scene models the bovine liver: compare with it
+        from tissue_sim_ros.analysis.compare import compare_with_reference
+        comparison = compare_with_reference(result.time, result.depth, result.axial_force,
+                                            plot=out / 'insertion_vs_bovine_liver.png')
+        e = comparison.errors
+        print(f'against the bovine-liver insertion (Okamura et al. 2004, 3 mm/s), by depth since '
+              f'contact: NRMSE {e.get("nrmse", float("nan")):.3f} over the insertion, first '
+              f'puncture {1e3 * comparison.events.get("first_puncture_travel_error_m", float("nan")):+.2f} mm '
+              f'and {comparison.events.get("first_puncture_force_error_n", float("nan")):+.3f} N off; wrote '
+              f'{out / "insertion_vs_bovine_liver.png"}', file=stream)
     for event in result.puncture_events:
         print(f'puncture of {event["region"]} at travel {np.interp(event["time_s"], result.time, result.depth) * 1e3:.2f} mm, '
               f'axial force {event["axial_force_n"]:.3f} N', file=stream)
