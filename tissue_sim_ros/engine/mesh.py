@@ -318,6 +318,26 @@ def face_elements(tetrahedra, triangles, n_nodes: int | None = None) -> np.ndarr
     return found // 4
 
 
+def element_neighbours(tetrahedra, n_nodes: int | None = None) -> np.ndarray:
+    """(m, 4) int64: across face k of element e (the face opposite its vertex k), the element
+    that shares it, or -1 on the boundary. For walking from element to element (point location)."""
+    tetrahedra = np.asarray(tetrahedra).astype(np.int64, copy=False)
+    m = len(tetrahedra)
+    faces = np.sort(tetrahedra[:, _FACE_VERTICES], axis=2).reshape(-1, 3)   # face 4 e + k
+    if n_nodes is None:
+        n_nodes = int(tetrahedra.max(initial=-1)) + 1
+    keys = _sorted_face_keys(faces, n_nodes)
+    if keys is None:
+        keys = _face_rows(faces)
+    order = np.argsort(keys, kind='stable')
+    same = keys[order[1:]] == keys[order[:-1]]          # an interior face: two consecutive rows
+    first, second = order[:-1][same], order[1:][same]
+    neighbours = np.full(4 * m, -1, dtype=np.int64)
+    neighbours[first] = second // 4
+    neighbours[second] = first // 4
+    return neighbours.reshape(m, 4)
+
+
 def _faces_seen_once(faces: np.ndarray, n_nodes: int) -> np.ndarray:
     """Indices (ascending) of the rows of ``faces`` (f, 3) whose vertex set occurs exactly once."""
     faces_sorted = np.sort(faces, axis=1)

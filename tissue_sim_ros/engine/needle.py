@@ -63,9 +63,9 @@ import math
 
 import numpy as np
 
-from tissue_sim_ros.engine.mesh import face_elements
+from tissue_sim_ros.engine.mesh import element_neighbours, face_elements
 from tissue_sim_ros.engine.needle_contact import ContactPatch, disc_offsets, end_samples
-from tissue_sim_ros.engine.needle_kernels import (first_surface_hit, locate_point, needle_kinematics,
+from tissue_sim_ros.engine.needle_kernels import (first_surface_hit, follow_rigid_samples, locate_point, needle_kinematics,
                                                   put_axis_points, put_rigid_points, put_rows, shaft_solve,
                                                   wrench_about)
 from tissue_sim_ros.engine.needle_parameters import Friction, Membrane, NeedleGeometry, RegionInteraction
@@ -101,6 +101,7 @@ class NeedleTissue:
         self.point_weights = np.zeros((capacity, 4))
         self.point_forces = np.zeros((capacity, 3))
         self.point_depths = np.zeros(capacity)
+        self.point_shares = np.zeros(capacity)
         self.applied_forces = np.zeros((self.mesh.n_nodes, 3))
         n_disc = len(self.disc_offsets)
         self.tip_nodes = np.zeros((n_disc, 4), dtype=np.int64)     # cutting: material points at the tip
@@ -108,8 +109,11 @@ class NeedleTissue:
         self.tip_offsets = np.zeros((n_disc, 3))
         self.tip_forces = np.zeros((n_disc, 3))
         self.tip_depths = np.zeros(n_disc)
+        self._unit_shares = np.ones(n_disc)
+        self.tip_elements = np.full(n_disc, -1, dtype=np.int64)   # where each sample was last found
+        self._weights = np.zeros(4)
         # the cutting law in shaft_solve's terms: static limit per sample (set per step), push only
-        self._cutting_law = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.inf])
+        self._cutting_law = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.inf, 0.0, 0.0])
         self._friction_laws = [r.friction.as_array() for r in self.regions]
         # per-step work arrays (no allocation in the step loop)
         self._tip = np.zeros(3)
@@ -133,6 +137,7 @@ class NeedleTissue:
         self.surface_triangles = np.ascontiguousarray(triangles, dtype=np.int64)
         self.surface_nodes = np.unique(self.surface_triangles)
         self.surface_owner = face_elements(self.tetrahedra, triangles, self.mesh.n_nodes)
+        self._neighbours = element_neighbours(self.tetrahedra, self.mesh.n_nodes)
 
     def reset(self):
         """Needle back at its initial pose, out of the tissue, no forces."""
@@ -253,22 +258,23 @@ class NeedleTissue:
             self._enforce_patch(inverse_mass, dt)
         if self.n_points:
             n = self.n_points
-            length = self.geometry.length_m - float(self.point_depths[:n].min())
-            segment = max(length, 0.0) / n
             self.friction_force = shaft_solve(
                 self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.point_nodes,
                 self.point_weights, n, self.position, self.axis, self._base_velocity, self._axis_rate,
-                dt, segment, self._friction_laws[self.region], 2, self.point_forces, self.point_depths,
-                self.applied_forces)
+                dt, self.geometry.length_m, self._friction_laws[self.region], 2, self.point_forces,
+                self.point_depths, self.point_shares, self.applied_forces)
             start = self._add_applied(n)
             put_axis_points(self.position, self.axis, self.point_depths, n, self._applied_points, start)
             put_rows(self.point_forces, n, self._applied_point_forces, start)
+            if self.patch is None:
+                self._follow_tip_samples()
             if self.patch is None and self.n_tip:
                 self._cutting_law[0] = self.regions[self.region].cutting_force_n / self.n_tip
                 self.cutting_force = shaft_solve(
                     self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.tip_nodes,
                     self.tip_weights, self.n_tip, self.position, self.axis, self._base_velocity, self._axis_rate,
-                    dt, 1.0, self._cutting_law, 0, self.tip_forces, self.tip_depths, self.applied_forces)
+                    dt, 0.0, self._cutting_law, 0, self.tip_forces, self.tip_depths, self._unit_shares,
+                    self.applied_forces)
                 start = self._add_applied(self.n_tip)
                 put_rigid_points(self._tip, self.rotation, self.tip_offsets, self.n_tip, self._applied_points, start)
                 put_rows(self.tip_forces, self.n_tip, self._applied_point_forces, start)
@@ -386,6 +392,17 @@ class NeedleTissue:
             return
         self.region = region
         self._add_point(self.tetrahedra[element], weights)
+
+    def _follow_tip_samples(self):
+        """The cutting samples are the material under the needle end now: found again every step
+        (walking from where each was found last), so the cutting force moves with the tip from
+        element to element continuously (barycentric weights agree across a shared face). Found
+        only at each new shaft point, they stayed with the tissue in between and the force built
+        up again after each: a dip of up to 9 % every shaft point spacing."""
+        self.n_tip = follow_rigid_samples(self.rest, self.simulation.displacement, self.tetrahedra,
+                                          self._neighbours, self._tip, self.rotation, self.disc_offsets,
+                                          self.tip_elements, self.tip_offsets, self.tip_nodes,
+                                          self.tip_weights, self._weights)
 
     def _locate_tip_samples(self):
         """The material points under the needle end (disc samples) that take the cutting force."""

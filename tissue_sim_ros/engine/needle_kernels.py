@@ -9,8 +9,8 @@ modified-Karnopp friction (:func:`shaft_solve`, Okamura et al. 2004), and the re
 import numpy as np
 from numba import njit
 
-__all__ = ['first_surface_hit', 'locate_point', 'patch_solve', 'patch_apply', 'needle_kinematics',
-           'put_rigid_points', 'put_axis_points', 'put_rows', 'wrench_about', 'shaft_solve']
+__all__ = ['first_surface_hit', 'locate_point', 'locate_walk', 'follow_rigid_samples', 'patch_solve', 'patch_apply', 'needle_kinematics',
+           'put_rigid_points', 'put_axis_points', 'put_rows', 'wrench_about', 'length_shares', 'shaft_solve']
 
 
 # -- geometric queries (numba) ------------------------------------------------------------------
@@ -99,6 +99,78 @@ def locate_point(rest, displacement, tetrahedra, point, tolerance):
             weights[3] = l3
             return e, weights
     return -1, weights
+
+
+@njit(cache=True)
+def locate_walk(rest, displacement, tetrahedra, neighbours, start, point, max_steps, weights):
+    """Element of the deformed mesh containing ``point``, walking from element ``start`` across
+    the face opposite the most negative barycentric coordinate (a point that moved a little is
+    found in a few steps, not by a search of the whole mesh); its barycentric weights in
+    ``weights``. Returns the element, -1 when the walk leaves the mesh through its boundary, -2
+    when it did not arrive within ``max_steps`` (the caller then searches: :func:`locate_point`)."""
+    e = start
+    px, py, pz = point[0], point[1], point[2]
+    for _ in range(max_steps):
+        i0, i1, i2, i3 = tetrahedra[e, 0], tetrahedra[e, 1], tetrahedra[e, 2], tetrahedra[e, 3]
+        x0 = rest[i0, 0] + displacement[i0, 0]
+        y0 = rest[i0, 1] + displacement[i0, 1]
+        z0 = rest[i0, 2] + displacement[i0, 2]
+        ax, ay, az = rest[i1, 0] + displacement[i1, 0] - x0, rest[i1, 1] + displacement[i1, 1] - y0, rest[i1, 2] + displacement[i1, 2] - z0
+        bx, by, bz = rest[i2, 0] + displacement[i2, 0] - x0, rest[i2, 1] + displacement[i2, 1] - y0, rest[i2, 2] + displacement[i2, 2] - z0
+        cx, cy, cz = rest[i3, 0] + displacement[i3, 0] - x0, rest[i3, 1] + displacement[i3, 1] - y0, rest[i3, 2] + displacement[i3, 2] - z0
+        rx, ry, rz = px - x0, py - y0, pz - z0
+        det = ax * (by * cz - bz * cy) - bx * (ay * cz - az * cy) + cx * (ay * bz - az * by)
+        if abs(det) < 1e-300:
+            return -2
+        l1 = (rx * (by * cz - bz * cy) - bx * (ry * cz - rz * cy) + cx * (ry * bz - rz * by)) / det
+        l2 = (ax * (ry * cz - rz * cy) - rx * (ay * cz - az * cy) + cx * (ay * rz - az * ry)) / det
+        l3 = (ax * (by * rz - bz * ry) - bx * (ay * rz - az * ry) + rx * (ay * bz - az * by)) / det
+        l0 = 1.0 - l1 - l2 - l3
+        worst, k = l0, 0
+        if l1 < worst:
+            worst, k = l1, 1
+        if l2 < worst:
+            worst, k = l2, 2
+        if l3 < worst:
+            worst, k = l3, 3
+        if worst >= -1e-9:
+            weights[0], weights[1], weights[2], weights[3] = l0, l1, l2, l3
+            return e
+        e = neighbours[e, k]
+        if e < 0:
+            return -1
+    return -2
+
+
+@njit(cache=True)
+def follow_rigid_samples(rest, displacement, tetrahedra, neighbours, origin, rotation, offsets, elements,
+                         found_offsets, found_nodes, found_weights, weights):
+    """The material under points fixed in the needle frame (``origin + R offsets[k]``), found
+    again: each by a walk from ``elements[k]`` (where it was found last; updated), or by a search
+    when the walk fails. Writes the found points' offsets, element nodes and weights compactly;
+    returns how many were inside the mesh."""
+    n = 0
+    point = np.empty(3)
+    for k in range(offsets.shape[0]):
+        for r in range(3):
+            point[r] = (origin[r] + rotation[r, 0] * offsets[k, 0] + rotation[r, 1] * offsets[k, 1]
+                        + rotation[r, 2] * offsets[k, 2])
+        e = -2
+        if elements[k] >= 0:
+            e = locate_walk(rest, displacement, tetrahedra, neighbours, elements[k], point, 64, weights)
+        if e == -2:
+            e, found = locate_point(rest, displacement, tetrahedra, point, 0.0)
+            for j in range(4):
+                weights[j] = found[j]
+        elements[k] = e
+        if e >= 0:
+            for r in range(3):
+                found_offsets[n, r] = offsets[k, r]
+            for j in range(4):
+                found_nodes[n, j] = tetrahedra[e, j]
+                found_weights[n, j] = weights[j]
+            n += 1
+    return n
 
 
 # -- per-step constraint kernels (numba, no allocation) ----------------------------------------
@@ -201,16 +273,37 @@ def wrench_about(points, forces, n, base, force, torque):
 
 
 @njit(cache=True)
+def length_shares(depths, n, tip_depth, shares):
+    """The inserted length each shaft point stands for, by the trapezoid rule along the axis
+    (points in insertion order: their axial coordinates ``depths`` from the base increase):
+    half the way to each neighbour, the deepest one to the tip at ``tip_depth``. The shares sum
+    to the inserted length, tip_depth - depths[0], whatever the points: a new point at the tip
+    takes its share from the one before it, so the total friction does not jump when points are
+    added (it did with equal shares: a dip every spacing)."""
+    if n == 1:
+        shares[0] = max(tip_depth - depths[0], 0.0)
+        return
+    shares[0] = max(0.5 * (depths[1] - depths[0]), 0.0)
+    for k in range(1, n - 1):
+        shares[k] = max(0.5 * (depths[k + 1] - depths[k - 1]), 0.0)
+    shares[n - 1] = max(tip_depth - 0.5 * (depths[n - 2] + depths[n - 1]), 0.0)
+
+
+@njit(cache=True)
 def shaft_solve(rest, displacement, velocity, inverse_mass, force_scale, point_nodes, point_weights, n_points,
-                 base, axis, base_velocity, axis_rate, dt, segment_length, friction, sweeps,
-                 point_forces, point_depths, applied_forces):
-    """Hold each shaft point on the needle axis (Gauss-Seidel sweeps of the mass-weighted
-    projection), then apply the implicit modified-Karnopp friction along the axis.
+                 base, axis, base_velocity, axis_rate, dt, tip_depth, friction, sweeps,
+                 point_forces, point_depths, shares, applied_forces):
+    """Hold each point on the needle axis (Gauss-Seidel sweeps of the mass-weighted projection),
+    then apply the implicit modified-Karnopp friction along the axis.
 
     force_scale: (n,) 1 + dt gamma_i. The solver's implicit damping divides whatever force acts
     in a step by it, so a correction Delta u made after the step stands for the force
     (1 + dt gamma_i) m_i Delta u_i / dt^2 (and an impulse J for (1 + dt gamma_i) J / dt).
-    friction = (D_ins, C_ins, b_ins, D_ret, C_ret, b_ret, stick_band) per unit length.
+    friction = (D_ins, C_ins, b_ins, D_ret, C_ret, b_ret, stick_band, C0_ins, C0_ret): per unit
+    length, then constant terms [N] for the whole inserted length. ``tip_depth`` > 0: each point
+    stands for its :func:`length_shares` of the inserted length (``shares``, written) and the
+    constant terms are shared in proportion; ``tip_depth`` <= 0: each point stands for a unit
+    length and no constant term (the cutting samples: the law's own limits per sample).
     Writes each point's force on the tissue (point_forces) and its axial coordinate from the base
     (point_depths); returns the total friction force on the tissue along the axis.
     """
@@ -244,10 +337,21 @@ def shaft_solve(rest, displacement, velocity, inverse_mass, force_scale, point_n
                         f = force_scale[i] * point_weights[s, k] * lam / (dt * dt)
                         applied_forces[i, r] += f
                         point_forces[s, r] += f
+    for s in range(n_points):
+        along = 0.0
+        for k in range(4):
+            i = point_nodes[s, k]
+            for r in range(3):
+                along += point_weights[s, k] * (rest[i, r] + displacement[i, r] - base[r]) * axis[r]
+        point_depths[s] = along
+    inserted = 0.0
+    if tip_depth > 0.0 and n_points > 0:
+        length_shares(point_depths, n_points, tip_depth, shares)
+        inserted = max(tip_depth - point_depths[0], 0.0)
     total_friction = 0.0
     stick_half = 0.5 * friction[6]
     for s in range(n_points):
-        along = 0.0
+        along = point_depths[s]
         tissue_velocity = 0.0
         inverse_effective = 0.0
         scale = 0.0                                  # force per impulse / dt at this point
@@ -256,10 +360,8 @@ def shaft_solve(rest, displacement, velocity, inverse_mass, force_scale, point_n
             w = point_weights[s, k]
             scale += w * force_scale[i]
             for r in range(3):
-                along += w * (rest[i, r] + displacement[i, r] - base[r]) * axis[r]
                 tissue_velocity += w * velocity[i, r] * axis[r]
                 inverse_effective += w * w * inverse_mass[i, r] * axis[r] * axis[r]
-        point_depths[s] = along
         if inverse_effective <= 0.0:
             continue
         needle_velocity = 0.0
@@ -268,15 +370,17 @@ def shaft_solve(rest, displacement, velocity, inverse_mass, force_scale, point_n
         relative = needle_velocity - tissue_velocity
         stop = relative / inverse_effective                    # impulse that ends the slip
         if relative >= 0.0:
-            static, coulomb, viscous = friction[0], friction[1], friction[2]
+            static, coulomb, viscous, constant = friction[0], friction[1], friction[2], friction[7]
         else:
-            static, coulomb, viscous = friction[3], friction[4], friction[5]
+            static, coulomb, viscous, constant = friction[3], friction[4], friction[5], friction[8]
+        segment = shares[s] if tip_depth > 0.0 else 1.0
+        fixed = constant * segment / inserted if inserted > 0.0 else 0.0   # the constant's share
         if abs(relative) <= stick_half:
-            limit = static * segment_length * dt / scale
+            limit = (static * segment + fixed) * dt / scale
             impulse = min(max(stop, -limit), limit)
         else:
-            magnitude = (segment_length * (coulomb + viscous * abs(relative)) * dt
-                         / (scale + segment_length * viscous * inverse_effective * dt))
+            magnitude = ((segment * (coulomb + viscous * abs(relative)) + fixed) * dt
+                         / (scale + segment * viscous * inverse_effective * dt))
             impulse = magnitude if relative > 0.0 else -magnitude
             if abs(impulse) > abs(stop):
                 impulse = stop
