@@ -21,7 +21,7 @@ def test_a_time_step_above_the_critical_step_is_refused_naming_both():
     check: the same scene with a null step runs at time_step_safety x that estimate)."""
     ok = Scene.from_file(None, mesh=COARSE)
     critical = float(ok.simulation.critical_time_step())
-    assert ok.dt == pytest.approx(0.8 * critical, rel=1e-12)
+    assert ok.dt == pytest.approx(ok.spec['solver']['time_step_safety'] * critical, rel=1e-12)
     Scene.from_file(None, mesh=COARSE, solver={'time_step_s': 0.99 * critical})  # below: accepted
     for factor in (1.01, 3.1, 5.0):
         with pytest.raises(SceneError) as info:

@@ -9,9 +9,10 @@ import numpy as np
 import scipy.sparse
 from numba import njit, prange
 
-from tissue_sim_ros.engine import compile_cache, forces
+from tissue_sim_ros.engine import compile_cache, critical_step, forces
 from tissue_sim_ros.engine.material import Material, MaterialError, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.mesh import TetMesh, make_mesh, mean_ratio
+from tissue_sim_ros.engine.relaxation import relaxation_for
 
 _LOCAL_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
 
@@ -60,6 +61,9 @@ class TensorMassModel:
     geometric: St Venant-Kirchhoff (Green-Lagrange strain) instead of small strain.
     physical: a MeanRatioLaw of Lamé corrections (None: no correction).
     viscosity: Kelvin-Voigt Viscosity (None: elastic only).
+    relaxation: a PronySeries, or its terms as a list of ``{relative_modulus, time_constant_s}``
+    mappings, relaxing the deviatoric stress (relaxation.py); None or empty: no relaxation and no
+    cost. Its internal variables advance only when ``accumulate_forces`` is given a time step.
     nonlinearity_threshold: elements whose displacement gradient norm |H|_F is below it take
     the linear path (0: every element is non-linear, the full model exactly).
     inversion_safeguard: with the geometric model, continue the principal stresses linearly below
@@ -72,7 +76,7 @@ class TensorMassModel:
     """
 
     def __init__(self, mesh: TetMesh, material, *, geometric=False, physical=None, viscosity=None,
-                 nonlinearity_threshold=0.0, inversion_safeguard=True, n_threads=None):
+                 nonlinearity_threshold=0.0, inversion_safeguard=True, n_threads=None, relaxation=None):
         if not isinstance(mesh, TetMesh):
             raise TypeError(f'mesh: expected a TetMesh, got {type(mesh).__name__}')
         self.mesh = mesh
@@ -84,6 +88,7 @@ class TensorMassModel:
         self._options_linear()
         self._set_options(geometric, physical, viscosity, nonlinearity_threshold)
         self.inversion_safeguard = bool(inversion_safeguard)
+        self.relaxation = relaxation_for(relaxation, len(self.tetrahedra))
         self._n_threads = n_threads or numba.get_num_threads()
         self._allocate(self._n_threads)
         # compile (or load) the step's kernel now, not on the step loop; on a first start, a
@@ -193,6 +198,8 @@ class TensorMassModel:
         # 16 spare doubles a row: two threads' rows never share a cache line (sharing one made
         # the St Venant-Kirchhoff pass no faster on 2 threads than on 1)
         self._work = np.zeros((n_workers, forces.N_WORK * forces.BLOCK + 16))
+        if self.relaxation is not None:
+            self.relaxation.allocate(n_workers)
         self._pack_element_blocks()
 
     def _pack_element_blocks(self):
@@ -261,6 +268,8 @@ class TensorMassModel:
                    self.element_tags[elements].copy())
         keep = np.ones(len(self.tetrahedra), dtype=bool)
         keep[elements] = False
+        if self.relaxation is not None:
+            self.relaxation.keep(keep)
         for name in ('tetrahedra', 'shape_gradients', 'volumes', 'edge_gram', 'volume_lambda',
                      'volume_mu', 'mean_ratio_scale', 'element_mass', 'element_material',
                      'element_tags', 'element_edges'):
@@ -286,6 +295,8 @@ class TensorMassModel:
         self.element_material = np.concatenate([self.element_material, material_index])
         self.element_tags = np.concatenate([self.element_tags, tags])
         self.element_edges = np.concatenate([self.element_edges, new_edges])
+        if self.relaxation is not None:
+            self.relaxation.add(len(new))
         self._topology_changed()
 
     def _edge_indices(self, pairs):
@@ -325,12 +336,24 @@ class TensorMassModel:
         forces.reduce_buffers(self._buffers, self.chunk_node_lo, self.chunk_node_hi, out)
         return out
 
-    def accumulate_forces(self, displacement, velocity=None):
-        """Run the element pass into the per-chunk buffers (see ``force_buffers``) without reducing."""
+    def accumulate_forces(self, displacement, velocity=None, time_step=None):
+        """Run the element pass into the per-chunk buffers (see ``force_buffers``) without reducing.
+
+        ``time_step`` [s]: a time step reached ``displacement``, ``time_step`` after the previous
+        one (0: the first since reset): the relaxation's internal variables advance to it (the
+        solver's step gives it). None: they are used as they are (a probe, a test).
+        """
         viscous = self.viscous and velocity is not None
         self._run_kernel(self.geometric, self.physical, viscous, displacement,
                          velocity if viscous else self._zero_velocity, self.threshold_squared,
                          self.inversion_safeguard and self.geometric)
+        if self.relaxation is not None:
+            self.relaxation.accumulate(self, displacement, time_step)
+
+    def reset_relaxation(self):
+        """Forget the relaxation history (the rest state); nothing without relaxation."""
+        if self.relaxation is not None:
+            self.relaxation.reset()
 
     def _run_kernel(self, geometric, physical, viscous, displacement, velocity, threshold_squared, safeguard):
         kernel = forces.element_kernel(geometric, physical, viscous)
@@ -399,65 +422,25 @@ class TensorMassModel:
     def strain_energy(self, displacement):
         """Elastic energy [J] and the number of inverted elements (det F <= 0) at ``displacement``.
 
-        Linear model: sum V (lambda/2 tr(eps)^2 + mu eps:eps) = u.K u / 2.
+        Linear model: sum V (lambda/2 tr(eps)^2 + mu eps:eps) = u.K u / 2. With relaxation, the
+        stored (free) energy: the relaxed part of mu left out, the energy the Maxwell branches
+        hold added (relaxation.py), so it never exceeds the work put in.
         """
-        return _strain_energy(self.tetrahedra, self.shape_gradients, self.volume_lambda,
-                              self.volume_mu, displacement, self.geometric)
+        energy, inverted = _strain_energy(self.tetrahedra, self.shape_gradients, self.volume_lambda,
+                                          self.volume_mu, displacement, self.geometric)
+        if self.relaxation is not None:
+            energy += self.relaxation.energy_change(self, displacement)
+        return energy, inverted
 
     def critical_time_step(self, method='lanczos'):
-        """Critical (largest stable) explicit time step [s] of the linearised model, 2 / omega_max.
-
-        'lanczos': omega_max^2, the largest eigenvalue of M^-1/2 K M^-1/2, by scipy's ARPACK
-        Lanczos on the force kernel, for the unconstrained body (constraints only lower it, so the
-        result is safe for any boundary conditions). 'element_bound': the element eigenvalue
-        inequality, max over elements of the largest eigenvalue of M_e^-1 K_e (lumped M_e = rho V / 4
-        per vertex), a guaranteed upper bound on omega_max^2, hence a smaller, always-safe step.
-        Stiffening under deformation (non-linear models) lowers the limit: keep a safety margin.
-        """
+        """Critical (largest stable) explicit time step [s] of the linearised model, 2 / omega_max
+        (critical_step.py: 'lanczos', the estimate; 'element_bound', a guaranteed lower bound).
+        Stiffening under deformation (non-linear models) lowers the limit: keep a safety margin."""
         if method == 'element_bound':
-            return 2.0 / np.sqrt(self._element_eigenvalue_bound())
+            return critical_step.element_bound(self)
         if method != 'lanczos':
             raise ValueError(f"method = {method!r}: expected 'lanczos' or 'element_bound'")
-        compile_cache.wait_for_helper()    # it compiles the linear pass on a first start
-        import scipy.sparse.linalg
-        mass = self.lumped_masses()
-        inv_sqrt_mass = np.repeat(np.where(mass > 0, 1.0 / np.sqrt(np.where(mass > 0, mass, 1.0)), 0.0), 3)
-        u = np.empty((self.mesh.n_nodes, 3))
-        f = np.empty((self.mesh.n_nodes, 3))
-
-        def apply(x):
-            u.ravel()[:] = inv_sqrt_mass * x.ravel()
-            self.linear_forces(u, out=f)
-            return -inv_sqrt_mass * f.ravel()
-
-        n_dofs = 3 * self.mesh.n_nodes
-        operator = scipy.sparse.linalg.LinearOperator((n_dofs, n_dofs), matvec=apply, dtype=float)
-        start = np.random.default_rng(0).normal(size=n_dofs)
-        largest = scipy.sparse.linalg.eigsh(operator, k=1, which='LA', v0=start, tol=1e-6,
-                                            return_eigenvectors=False)[0]
-        return 2.0 / np.sqrt(largest * (1.0 + 1e-6))
-
-    def _element_eigenvalue_bound(self):
-        largest = 0.0
-        step = 20000
-        for start in range(0, self.mesh.n_elements, step):
-            stiff = _element_stiffness(self.shape_gradients[start:start + step],
-                                       self.volume_lambda[start:start + step],
-                                       self.volume_mu[start:start + step])
-            eig = np.linalg.eigvalsh(stiff)[:, -1] / (self.element_mass[start:start + step] / 4.0)
-            largest = max(largest, float(eig.max()))
-        return largest
-
-
-def _element_stiffness(shape_gradients, volume_lambda, volume_mu):
-    """Element stiffness matrices (m, 12, 12): K_jk = V (lambda a_j a_k^T + mu a_k a_j^T + mu a_j.a_k I)."""
-    a = np.concatenate([-shape_gradients.sum(axis=1, keepdims=True), shape_gradients], axis=1)  # (m,4,3)
-    outer = np.einsum('mjr,mks->mjkrs', a, a)                    # a_j[r] a_k[s]
-    dots = np.einsum('mjr,mkr->mjk', a, a)
-    stiff = (volume_lambda[:, None, None, None, None] * outer
-             + volume_mu[:, None, None, None, None] * outer.transpose(0, 2, 1, 4, 3)
-             + volume_mu[:, None, None, None, None] * dots[:, :, :, None, None] * np.eye(3))
-    return stiff.transpose(0, 1, 3, 2, 4).reshape(-1, 12, 12)
+        return critical_step.lanczos(self)
 
 
 @njit(cache=True, parallel=True, fastmath=forces.FASTMATH, boundscheck=False, nogil=True)

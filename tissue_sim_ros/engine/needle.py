@@ -12,26 +12,16 @@ deformed mesh and then carried by the tissue. A force on a point goes to its nod
 weights, so elements larger than the needle are handled, and the needle's footprint is resolved
 as soon as the mesh is finer than it.
 
-Contact (phase ``contact``). When the tip crosses the deformed surface, the needle's flat end is
-bonded to the surface under it as a hard constraint solved exactly each step
-(:mod:`~tissue_sim_ros.engine.needle_contact`). The contact lets go when the needle, not
-advancing, would pull the tissue (while it advances, a momentary pull from the tissue's rebound
-keeps the bond: letting go there made the contact chatter on visco-elastic tissue).
-
-Puncture (the region's membrane). Criterion ``force``: the axial contact force reaches
-``rupture_force_n`` (checked every step, so puncture happens within one step of the crossing).
-Criterion ``energy``: the work the needle has done on the tissue since contact reaches
-``toughness_j_per_m2`` times the needle's cross-section area (fracture-mechanics view of
-Mahvash and Dupont 2010); viscous work counts, so a faster insertion ruptures earlier. With
-F = f(d) + v beta(d), dF_rupture/dv = beta(d) - F'(d) B(d) / F (B the integral of beta): the rupture
-force falls with speed where the curve stiffens faster than the viscous force grows (a stiffening
-law; a flat punch on a linear material is about neutral). At puncture the contact is released and the tissue relaxes.
+Contact and puncture (phase ``contact``): :mod:`~tissue_sim_ros.engine.needle_membrane`. The
+end touches the surface (or, inside, a layer with a membrane) and holds it until the membrane
+ruptures by the region's criterion; then the needle is inside.
 
 Inside (phases ``inserted``, ``retracting``). Shaft points are material points created at the
 tip each ``shaft_point_spacing_m`` of advance. Each is held on the needle axis (lateral
 constraint, so the tissue follows the needle sideways) and dragged along it by friction: a
-modified Karnopp law per unit length (Okamura et al. 2004) with the inserted length shared
-equally between the points. Relative velocity v (needle minus tissue, along the axis): inside
+modified Karnopp law per unit length (Okamura et al. 2004), each point standing for its
+trapezoid share of the inserted length, plus constant terms for a pull that does not scale
+with it. Relative velocity v (needle minus tissue, along the axis): inside
 the stick band |v| <= stick_band / 2 the impulse that stops the relative motion is applied, up
 to the static limit D; outside, the slip force (C + b |v|) opposes v. The slip force is solved
 implicitly (the tissue point's velocity after the impulse enters b |v|), so it is stable for any
@@ -39,15 +29,21 @@ step. Insertion uses the ``insertion`` coefficients, retraction the ``retraction
 (magnitudes). A shaft point the tip has passed back over is released; the needle is out when
 none is left.
 
-Cutting. The material points under the needle end (the disc samples, relocated at each new
-shaft point) are pushed along the axis by the same velocity-level solve with a one-sided limit:
+Cutting. The material points under the needle end (samples over the end's disc or a sharp tip's
+faces, found again every step) are pushed along the axis by the same velocity-level solve with a one-sided limit:
 the tip carries the tissue in front of it at its own speed until that takes more than the
 region's ``cutting_force_n`` (shared between the samples); then the tissue is cut and the force
 is the cutting force. It never pulls, so retraction has no cutting force, and a needle stopped
-inside still feels the compressed tissue push back (up to the cutting force).
+inside still feels the compressed tissue push back (up to the cutting force). A sharp tip's
+faces also push the tissue they displace sideways out of the tip, frictionless (a bevel's face
+pushes it sideways and the tissue pushes the needle toward the sharp point).
 
-Layers. When a new shaft point lies in another region that has a membrane, the needle end is
-bonded to the material points in front of it and that membrane must be punctured in turn.
+Layers are surfaces, not element sets. Every step the tip's apex is found in the deformed mesh
+(a walk from where it was) and taken back to rest coordinates; when that material point enters
+another region (its selector: a plane, box or sphere in metres, :mod:`.region_selectors`), the
+needle meets that layer there, wherever the element faces lie. A region with a membrane starts
+a new contact (a flat end bonded to the material in front of it, a sharp tip touching it point
+by point) that must be punctured in turn; one without switches the friction and cutting laws.
 
 Reaction wrench. Every force the needle puts on the tissue is recorded with its point of action
 on the needle; the wrench on the needle is their negative sum, and the torque about the base
@@ -55,39 +51,45 @@ origin is sum (r - p) x (-f). Both are available in the world or the needle fram
 
 The other needle modules: :mod:`~tissue_sim_ros.engine.pose` (pose maths, pose rules),
 :mod:`~tissue_sim_ros.engine.needle_parameters` (geometry, membrane, friction),
-:mod:`~tissue_sim_ros.engine.needle_kernels` (numba kernels) and
-:mod:`~tissue_sim_ros.engine.needle_contact` (the bonded contact). Their public names are
-re-exported here.
+:mod:`~tissue_sim_ros.engine.needle_kernels` (numba kernels),
+:mod:`~tissue_sim_ros.engine.needle_membrane` (contact and puncture),
+:mod:`~tissue_sim_ros.engine.needle_contact` (a flat end's bonded contact) and
+:mod:`~tissue_sim_ros.engine.needle_tip` (sharp tips). Their public names are re-exported here.
 """
 import math
 
 import numpy as np
 
 from tissue_sim_ros.engine.mesh import element_neighbours, face_elements
-from tissue_sim_ros.engine.needle_contact import ContactPatch, disc_offsets, end_samples
-from tissue_sim_ros.engine.needle_kernels import (first_surface_hit, follow_rigid_samples, locate_point, needle_kinematics,
-                                                  put_axis_points, put_rigid_points, put_rows, shaft_solve,
-                                                  wrench_about)
-from tissue_sim_ros.engine.needle_parameters import Friction, Membrane, NeedleGeometry, RegionInteraction
+from tissue_sim_ros.engine.needle_contact import disc_offsets
+from tissue_sim_ros.engine.needle_kernels import (first_surface_hit, follow_rigid_samples, locate_point,
+                                                  locate_walk, needle_kinematics, put_axis_points,
+                                                  put_rigid_points, put_rows, shaft_solve, wrench_about)
+from tissue_sim_ros.engine.needle_membrane import MembraneContact
+from tissue_sim_ros.engine.needle_parameters import (Friction, Membrane, NeedleGeometry, RegionInteraction,
+                                                     TipShape)
+from tissue_sim_ros.engine.needle_tip import SharpTipContact, tip_length, tip_samples
 from tissue_sim_ros.engine.pose import (QUATERNION_NORM_TOLERANCE, NeedleInputError, needle_axis, pose_jump,
                                         rotation_matrix, slerp, validate_pose)
 
 __all__ = ['PHASES', 'NeedleTissue', 'NeedleInputError', 'Friction', 'Membrane', 'RegionInteraction',
-           'NeedleGeometry', 'QUATERNION_NORM_TOLERANCE', 'rotation_matrix', 'slerp', 'validate_pose',
+           'NeedleGeometry', 'TipShape', 'QUATERNION_NORM_TOLERANCE', 'rotation_matrix', 'slerp', 'validate_pose',
            'first_surface_hit', 'locate_point']
 
 PHASES = ('approach', 'contact', 'inserted', 'retracting')
 
 
-class NeedleTissue:
+class NeedleTissue(MembraneContact):
     """The needle-tissue interaction state of one scene (see the module docstring).
 
     simulation: the tissue's Simulation. element_region: (m,) region index of each element.
-    regions: list of RegionInteraction, by region index. geometry: NeedleGeometry.
+    regions: list of RegionInteraction, by region index. geometry: NeedleGeometry. selectors: the
+    scene's RegionSelectors (where the layers are; None: each element's region is its own).
     """
 
-    def __init__(self, simulation, element_region, regions, geometry, position, orientation):
+    def __init__(self, simulation, element_region, regions, geometry, position, orientation, selectors=None):
         self.simulation = simulation
+        self.selectors = selectors
         self.mesh = simulation.model.mesh
         self.element_region = np.asarray(element_region, dtype=np.int64)
         self.regions = list(regions)
@@ -95,12 +97,17 @@ class NeedleTissue:
         self.tetrahedra = np.ascontiguousarray(simulation.model.tetrahedra, dtype=np.int64)
         self.rest = self.mesh.rest_positions
         self._surface_owner()
-        self.disc_offsets = disc_offsets(0.5 * geometry.diameter_m)
+        self.sharp = geometry.tip.shape != 'flat'
+        # the cutting samples: the end's disc, or points over a sharp tip's surface
+        self.disc_offsets = (tip_samples(0.5 * geometry.diameter_m, geometry.tip)[0] if self.sharp
+                             else disc_offsets(0.5 * geometry.diameter_m))
+        self.tip_contact = SharpTipContact(0.5 * geometry.diameter_m, geometry.tip) if self.sharp else None
         capacity = int(math.ceil(geometry.length_m / geometry.shaft_point_spacing_m)) + 16
         self.point_nodes = np.zeros((capacity, 4), dtype=np.int64)
         self.point_weights = np.zeros((capacity, 4))
         self.point_forces = np.zeros((capacity, 3))
         self.point_depths = np.zeros(capacity)
+        self.point_offsets = np.zeros((capacity, 3))   # lateral, needle frame (shaft_solve)
         self.point_shares = np.zeros(capacity)
         self.applied_forces = np.zeros((self.mesh.n_nodes, 3))
         n_disc = len(self.disc_offsets)
@@ -110,8 +117,15 @@ class NeedleTissue:
         self.tip_forces = np.zeros((n_disc, 3))
         self.tip_depths = np.zeros(n_disc)
         self._unit_shares = np.ones(n_disc)
+        self._no_offsets = np.zeros((n_disc, 3))
+        # shaft points further than this from the base lie along a sharp tip's faces (not held)
+        # and the tissue they pushed aside closes around the shaft over one tip length behind it
+        self._closing_m = tip_length(0.5 * geometry.diameter_m, geometry.tip)
+        self._free_beyond = geometry.length_m - self._closing_m if self.sharp else math.inf
         self.tip_elements = np.full(n_disc, -1, dtype=np.int64)   # where each sample was last found
+        self._candidates = np.zeros(len(self.tetrahedra), dtype=np.int64)   # elements near the tip
         self._weights = np.zeros(4)
+        self._apex_weights = np.zeros(4)
         # the cutting law in shaft_solve's terms: static limit per sample (set per step), push only
         self._cutting_law = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.inf, 0.0, 0.0])
         self._friction_laws = [r.friction.as_array() for r in self.regions]
@@ -124,7 +138,7 @@ class NeedleTissue:
         self.contact_force = np.zeros(3)
         self.wrench_force = np.zeros(3)         # world frame, on the needle, about the base origin
         self.wrench_torque = np.zeros(3)
-        self._reserve_applied(capacity + n_disc + len(self.disc_offsets))
+        self._reserve_applied(capacity + 2 * n_disc)
         self._mass_generation = 0
         self._initial_pose = validate_pose(position, orientation, 'needle.initial_pose')
         self.reset()
@@ -148,11 +162,15 @@ class NeedleTissue:
         self._previous_axis = self.axis.copy()
         self.phase = 'approach'
         self.patch = None
+        if self.tip_contact is not None:
+            self.tip_contact.release()
+        self.apex_element = -1             # where the tip's apex was found last (inserted)
         self.n_points = 0
         self.region = -1
         self.n_tip = 0
         self.surface_point = None          # where the tip first touched the surface (world)
         self.puncture_events = []
+        self.punctured_regions = set()     # membranes the needle has gone through (cleared once out)
         self.contact_force[:] = 0.0
         self.cutting_force = 0.0
         self.friction_force = 0.0
@@ -256,31 +274,37 @@ class NeedleTissue:
             self._detect_surface_contact(inverse_mass)
         if self.patch is not None:
             self._enforce_patch(inverse_mass, dt)
+        if self.tip_contact is not None and self.tip_contact.active and self._engage_tip(inverse_mass):
+            self._enforce_patch(inverse_mass, dt)      # the first bonds hold from the step they touch
         if self.n_points:
             n = self.n_points
             self.friction_force = shaft_solve(
                 self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.point_nodes,
-                self.point_weights, n, self.position, self.axis, self._base_velocity, self._axis_rate,
-                dt, self.geometry.length_m, self._friction_laws[self.region], 2, self.point_forces,
-                self.point_depths, self.point_shares, self.applied_forces)
+                self.point_weights, n, self.position, self.axis, self.rotation, self._base_velocity,
+                self._axis_rate, dt, self.geometry.length_m, self._friction_laws[self.region], 2,
+                self._free_beyond, self._closing_m, self.point_offsets, self.point_forces, self.point_depths,
+                self.point_shares, self.applied_forces)
             start = self._add_applied(n)
             put_axis_points(self.position, self.axis, self.point_depths, n, self._applied_points, start)
             put_rows(self.point_forces, n, self._applied_point_forces, start)
-            if self.patch is None:
+            touching = self._touching()
+            if not touching:
                 self._follow_tip_samples()
-            if self.patch is None and self.n_tip:
+                if self.sharp and self.tip_contact.cutting:
+                    self._push_with_tip_faces(inverse_mass, dt)
+            if not touching and self.n_tip:
                 self._cutting_law[0] = self.regions[self.region].cutting_force_n / self.n_tip
                 self.cutting_force = shaft_solve(
                     self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.tip_nodes,
-                    self.tip_weights, self.n_tip, self.position, self.axis, self._base_velocity, self._axis_rate,
-                    dt, 0.0, self._cutting_law, 0, self.tip_forces, self.tip_depths, self._unit_shares,
-                    self.applied_forces)
+                    self.tip_weights, self.n_tip, self.position, self.axis, self.rotation, self._base_velocity,
+                    self._axis_rate, dt, 0.0, self._cutting_law, 0, math.inf, 0.0, self._no_offsets, self.tip_forces,
+                    self.tip_depths, self._unit_shares, self.applied_forces)
                 start = self._add_applied(self.n_tip)
                 put_rigid_points(self._tip, self.rotation, self.tip_offsets, self.n_tip, self._applied_points, start)
                 put_rows(self.tip_forces, self.n_tip, self._applied_point_forces, start)
             self._release_passed_points()
-            if self.patch is None and self.n_points:
-                self._grow_shaft(inverse_mass)
+            if not self._touching() and self.n_points:
+                self._track_apex(inverse_mass)
         self._forces_applied = self.n_applied > 0
         if self._forces_applied:         # work of the needle's forces, for the energy watchdog
             sim.input_work += float(np.vdot(self.applied_forces, sim.velocity)) * dt
@@ -298,68 +322,29 @@ class NeedleTissue:
             self._mass_generation += 1
         return self._inverse_mass_dofs
 
-    # -- contact and puncture ---------------------------------------------------------------------
-    def _detect_surface_contact(self, inverse_mass):
-        """Start a contact when the tip has crossed the deformed surface."""
-        # the tip is past the surface if the surface lies within the last step's travel or one
-        # diameter behind the tip (the surface may have come up to a needle at rest)
-        back = math.sqrt(float(self._travel @ self._travel)) + self.geometry.diameter_m
-        disp = self.simulation.displacement
-        np.multiply(self.axis, -back, out=self._ray_origin)
-        self._ray_origin += self._tip
-        hit, t, _, _, _ = first_surface_hit(self.rest, disp, self.surface_triangles, self._ray_origin,
-                                            self.axis, 0.0, back)
-        if hit < 0:
-            return
-        self.surface_point = self.tip - (back - t) * self.axis
-        region = int(self.element_region[self.surface_owner[hit]])
-        found = end_samples(self.rest, disp, self.surface_triangles, self.surface_nodes, self.tip, self.rotation,
-                            self.axis, self.geometry.diameter_m, self.disc_offsets)
-        if found is not None:
-            self._begin_patch(*found, region, inverse_mass)
-
-    def _begin_patch(self, offsets, sample_nodes, sample_weights, region, inverse_mass):
-        membrane = self.regions[region].membrane
-        if membrane is None:                       # no membrane: the needle enters at once
-            self._enter(region, sample_nodes[0], sample_weights[0])
-            return
-        self.patch = ContactPatch.from_samples(offsets, sample_nodes, sample_weights, inverse_mass, region)
-        self._reserve_applied(len(offsets) + len(self.point_nodes) + len(self.disc_offsets))
-        self.phase = 'contact'
-
-    def _enforce_patch(self, inverse_mass, dt):
-        """The bonded contact's step: release when it would pull back, else hold; puncture."""
-        patch, sim = self.patch, self.simulation
-        if patch.scale_generation != self._mass_generation:
-            patch.set_masses(inverse_mass, self._force_scale, self._mass_generation)
-        n = len(patch.offsets)
-        total = patch.solve(self.rest, sim.displacement, self._tip, self.rotation, dt)
-        advancing = float(self._travel @ self.axis) > 0.0
-        if float(total @ self.axis) < 0.0 and not advancing:   # it would pull back: contact lost
-            self.patch = None
-            if self.n_points == 0:
-                self.phase = 'approach'
-            return
-        patch.apply(sim.displacement, sim.velocity, inverse_mass, self._force_scale, dt, self.applied_forces)
-        self.contact_force[:] = total
-        patch.work += float(total @ self._travel)
-        start = self._add_applied(n)
-        put_rows(patch.targets, n, self._applied_points, start)
-        put_rows(patch.sample_forces, n, self._applied_point_forces, start)
-        axial = float(total @ self.axis)
-        if patch.ruptured(self.regions[patch.region].membrane, axial, self.geometry.diameter_m):
-            self.puncture_events.append({'time_s': self.simulation.time, 'tip_depth_m': self.tip_depth(),
-                                         'axial_force_n': axial, 'work_j': patch.work,
-                                         'region': self.regions[patch.region].name})
-            self.patch = None
-            self._enter(patch.region, *patch.entry_point())
-
+    # -- inside the tissue -------------------------------------------------------------------------
     def _enter(self, region, nodes, weights):
         """Puncture done (or no membrane): the needle is inside ``region``; first shaft point."""
         self.region = region
         self._add_point(nodes, weights)
-        self._locate_tip_samples()
+        self.tip_elements[:] = -1
+        self._follow_tip_samples()
+        if self.sharp:
+            self.tip_contact.follow()
         self.phase = 'inserted'
+
+    def _push_with_tip_faces(self, inverse_mass, dt):
+        """A sharp tip cutting its way in: the material it reaches is taken at the tip's samples
+        and pushed sideways out of the tip until it passes the heel (needle_tip)."""
+        contact, sim = self.tip_contact, self.simulation
+        contact.engage_found(self.tip_elements, self.tip_nodes, self.tip_weights)
+        contact.solve(self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self._tip,
+                      self.rotation, dt, self.applied_forces,
+                      self.regions[self.region].cutting_force_n / len(contact.offsets))
+        n = len(contact.offsets)
+        start = self._add_applied(n)
+        put_rows(contact.points, n, self._applied_points, start)
+        put_rows(contact.forces, n, self._applied_point_forces, start)
 
     def _add_point(self, nodes, weights):
         if self.n_points == len(self.point_nodes):
@@ -370,28 +355,43 @@ class NeedleTissue:
         self.point_nodes[k, :len(nodes)] = nodes
         self.point_weights[k, :len(weights)] = weights
         self.point_depths[k] = self.geometry.length_m
+        self.point_offsets[k] = 0.0
         self.n_points += 1
 
-    def _grow_shaft(self, inverse_mass):
-        """A new shaft point at the tip each spacing of advance; a new region's membrane."""
-        deepest = float(self.point_depths[:self.n_points].max())
-        if self.geometry.length_m - deepest < self.geometry.shaft_point_spacing_m:
-            return
+    def _track_apex(self, inverse_mass):
+        """The tip's apex found in the deformed mesh (a walk from where it was): the layer it is
+        in (its material point's region: layers are surfaces) and a new shaft point each spacing
+        of advance. Entering a region with a membrane not yet punctured starts a contact with that
+        layer (one punctured stays open: just after a layer's puncture the apex's material point
+        can lie on the near side of the plane, and the layer left was met, and punctured, again:
+        six punctures in 0.04 mm)."""
         disp = self.simulation.displacement
-        element, weights = locate_point(self.rest, disp, self.tetrahedra, self.tip, 0.0)
+        element = -2 if self.apex_element < 0 else locate_walk(
+            self.rest, disp, self.tetrahedra, self._neighbours, self.apex_element, self._tip, 64, self._apex_weights)
+        if element == -2:
+            element, weights = locate_point(self.rest, disp, self.tetrahedra, self._tip, 0.0)
+            self._apex_weights[:] = weights
+        self.apex_element = element
         if element < 0:                     # the tip has left the mesh
             self.n_tip = 0
             return
-        region = int(self.element_region[element])
-        self._locate_tip_samples()
-        if region != self.region and self.regions[region].membrane is not None:
-            n = self.n_tip
-            self.n_tip = 0
-            self._begin_patch(self.tip_offsets[:n].copy(), self.tip_nodes[:n].copy(),
-                              self.tip_weights[:n].copy(), region, inverse_mass)
-            return
-        self.region = region
-        self._add_point(self.tetrahedra[element], weights)
+        nodes = self.tetrahedra[element]
+        region = self._region_of(self._apex_weights @ self.rest[nodes], element)
+        if region != self.region:
+            if self.regions[region].membrane is not None and region not in self.punctured_regions:
+                if self.sharp:
+                    self.tip_contact.begin(region, on_surface=False)
+                    self.phase = 'contact'
+                else:
+                    n = self.n_tip
+                    self.n_tip = 0
+                    self._begin_patch(self.tip_offsets[:n].copy(), self.tip_nodes[:n].copy(),
+                                      self.tip_weights[:n].copy(), region, inverse_mass)
+                return
+            self.region = region
+        deepest = float(self.point_depths[:self.n_points].max())
+        if self.geometry.length_m - deepest >= self.geometry.shaft_point_spacing_m:
+            self._add_point(nodes, self._apex_weights.copy())
 
     def _follow_tip_samples(self):
         """The cutting samples are the material under the needle end now: found again every step
@@ -402,20 +402,7 @@ class NeedleTissue:
         self.n_tip = follow_rigid_samples(self.rest, self.simulation.displacement, self.tetrahedra,
                                           self._neighbours, self._tip, self.rotation, self.disc_offsets,
                                           self.tip_elements, self.tip_offsets, self.tip_nodes,
-                                          self.tip_weights, self._weights)
-
-    def _locate_tip_samples(self):
-        """The material points under the needle end (disc samples) that take the cutting force."""
-        disp = self.simulation.displacement
-        n = 0
-        for offset in self.disc_offsets:
-            e, w = locate_point(self.rest, disp, self.tetrahedra, self.tip + self.rotation @ offset, 0.0)
-            if e >= 0:
-                self.tip_offsets[n] = offset
-                self.tip_nodes[n] = self.tetrahedra[e]
-                self.tip_weights[n] = w
-                n += 1
-        self.n_tip = n
+                                          self.tip_weights, self._weights, self._candidates)
 
     def _release_passed_points(self):
         """Shaft points the tip has gone back over leave the needle (retraction). Only while it
@@ -427,15 +414,18 @@ class NeedleTissue:
             return
         keep = self.point_depths[:self.n_points] <= limit
         n = int(keep.sum())
-        for arr in (self.point_nodes, self.point_weights, self.point_depths):
+        for arr in (self.point_nodes, self.point_weights, self.point_depths, self.point_offsets):
             arr[:n] = arr[:self.n_points][keep]
         self.n_points = n
         if n == 0:
             self.region = -1
             self.n_tip = 0
+            self.punctured_regions.clear()
+            if self.sharp:
+                self.tip_contact.release()
 
     def _update_phase(self, dt):
-        if self.patch is not None:
+        if self._touching():
             self.phase = 'contact'
         elif self.n_points:
             speed = float(self._base_velocity @ self.axis)

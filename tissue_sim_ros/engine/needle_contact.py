@@ -136,12 +136,12 @@ class ContactPatch:
         patch_apply(displacement, velocity, inverse_mass, force_scale, self.nodes, self.weights,
                     self.multipliers, dt, applied_forces)
 
-    def ruptured(self, membrane, axial_force, diameter):
-        """Whether the membrane gives way: the axial force reaches ``rupture_force_n`` ('force'),
-        or the work done since contact reaches the toughness times the needle's cross-section
-        area ('energy')."""
+    def ruptured(self, membrane, axial_force, diameter, speed=0.0):
+        """Whether the membrane gives way: the axial force reaches its rupture force at the
+        needle's axial ``speed`` ('force', Membrane.rupture_force), or the work done since contact
+        reaches the toughness times the needle's cross-section area ('energy')."""
         if membrane.criterion == 'force':
-            return axial_force >= membrane.rupture_force_n
+            return axial_force >= membrane.rupture_force(speed)
         area = 0.25 * math.pi * diameter ** 2
         return self.work >= membrane.toughness_j_per_m2 * area
 

@@ -20,7 +20,8 @@ from tissue_sim_ros.engine.material import Material, MaterialError, MeanRatioLaw
 from tissue_sim_ros.engine.mesh import box_mesh, graded_box_mesh, load_mesh, make_mesh
 from tissue_sim_ros.engine.model import TensorMassModel
 from tissue_sim_ros.engine.needle import (Friction, Membrane, NeedleGeometry, NeedleTissue,
-                                          RegionInteraction, slerp)
+                                          RegionInteraction, TipShape, slerp)
+from tissue_sim_ros.engine.region_selectors import RegionSelectors
 from tissue_sim_ros.engine.pose import needle_axis
 from tissue_sim_ros.engine.scene_overrides import apply_overrides
 from tissue_sim_ros.engine.scene_schema import SCHEMA, SceneError, apply_schema, describe_keys  # noqa: F401
@@ -54,23 +55,9 @@ def _build_mesh(spec, base_dir):
                            fine_size=spec['fine_size_m'], grade_z=spec['grade_z'])
 
 
-def _element_regions(mesh, regions):
+def _element_regions(mesh, selectors):
     centroids = mesh.rest_positions[mesh.tetrahedra].mean(axis=1)
-    index = np.full(mesh.n_elements, -1)
-    for k, region in enumerate(regions):
-        select = region['select']
-        if select == 'all':
-            inside = np.ones(mesh.n_elements, dtype=bool)
-        elif 'tag' in select:
-            inside = mesh.element_tags == select['tag']
-        elif 'box_m' in select:
-            lo, hi = np.array(select['box_m'][0]), np.array(select['box_m'][1])
-            inside = np.all((centroids >= lo) & (centroids <= hi), axis=1)
-        elif 'above_z_m' in select:
-            inside = centroids[:, 2] >= select['above_z_m']
-        else:
-            inside = centroids[:, 2] <= select['below_z_m']
-        index[inside] = k
+    index = selectors.element_regions(centroids)
     if np.any(index < 0):
         raise SceneError(f'regions: {int(np.sum(index < 0))} elements (first {int(np.argmax(index < 0))}) '
                          f'belong to no region; add a region with select: all first')
@@ -161,9 +148,18 @@ def _region_interaction(region):
     return RegionInteraction(
         name=region['name'],
         membrane=None if membrane['criterion'] == 'none' else Membrane(
-            membrane['criterion'], membrane['rupture_force_n'], membrane['toughness_j_per_m2']),
+            membrane['criterion'], membrane['rupture_force_n'], membrane['toughness_j_per_m2'],
+            membrane['rate_exponent'], membrane['reference_speed_m_s']),
         cutting_force_n=region['cutting_force_n'],
         friction=Friction(**region['friction']))
+
+
+def _tip_shape(tip):
+    """The needle's TipShape; an angle out of (0, 90) degrees is refused by its key."""
+    for key in ('half_angle_deg', 'bevel_angle_deg'):
+        if not 0.0 < tip[key] < 90.0:
+            raise SceneError(f'needle.tip.{key} = {tip[key]!r}: expected an angle in (0, 90) degrees')
+    return TipShape(tip['shape'], tip['half_angle_deg'], tip['bevel_angle_deg'], tip['bevel_orientation_deg'])
 
 
 class Scene:
@@ -177,7 +173,8 @@ class Scene:
         s = self.spec
         try:
             raw_mesh = _build_mesh(s['mesh'], Path(base_dir))
-            element_region = _element_regions(raw_mesh, s['regions'])
+            self.selectors = RegionSelectors(s['regions'], raw_mesh.element_tags)
+            element_region = _element_regions(raw_mesh, self.selectors)
             self.mesh = make_mesh(raw_mesh.rest_positions, raw_mesh.tetrahedra, element_region)
             materials = {k: _region_material(k, r) for k, r in enumerate(s['regions'])
                          if np.any(element_region == k)}
@@ -188,7 +185,8 @@ class Scene:
             self.model = TensorMassModel(self.mesh, materials, geometric=m['geometric'],
                                          physical=_physical_law(m['physical']), viscosity=viscosity,
                                          nonlinearity_threshold=m['nonlinearity_threshold'],
-                                         inversion_safeguard=m['inversion_safeguard'])
+                                         inversion_safeguard=m['inversion_safeguard'],
+                                         relaxation=m['relaxation'])
             sol = s['solver']
             if sol['mass_scaling'] < 1:
                 raise SceneError(f"solver.mass_scaling = {sol['mass_scaling']!r}: expected >= 1")
@@ -199,10 +197,11 @@ class Scene:
             _check_time_step(self.simulation, sol)
             n = s['needle']
             geometry = NeedleGeometry(n['diameter_m'], n['length_m'], n['shaft_point_spacing_m'],
-                                      n['max_jump_m'])
+                                      n['max_jump_m'], _tip_shape(n['tip']))
             self.needle = NeedleTissue(self.simulation, element_region,
                                        [_region_interaction(r) for r in s['regions']], geometry,
-                                       _start_position(self.mesh, n), n['initial_orientation_xyzw'])
+                                       _start_position(self.mesh, n), n['initial_orientation_xyzw'],
+                                       selectors=self.selectors)
         except SceneError:
             raise
         except ValueError as exc:        # MaterialError, MeshError, NeedleInputError...

@@ -6,8 +6,11 @@ their dotted name; a bad value with its dotted path, the value and what was expe
 """
 import copy
 import math
+from dataclasses import dataclass
+from typing import Callable
 
 from tissue_sim_ros.engine.pose import DEFAULT_MAX_JUMP_M
+from tissue_sim_ros.engine.relaxation import PronySeries
 
 __all__ = ['SCHEMA', 'SceneError', 'apply_schema', 'describe_keys']
 
@@ -16,9 +19,18 @@ class SceneError(ValueError):
     """A scene file or value the engine refuses; names the key and the value."""
 
 
+@dataclass(frozen=True)
+class MappingList:
+    """Kind of a key holding a list of mappings (default: none): each entry is checked against
+    the schema ``entry``, then the whole list by ``check(entries, dotted_name)``, which raises a
+    ValueError naming what it refuses."""
+    entry: dict
+    check: Callable
+
+
 # -- the schema: key -> (default, kind, meaning) -----------------------------------------------
 # kinds: 'float+' (> 0), 'float0' (>= 0), 'float', 'int+', 'bool', 'vec3', 'vec3+', 'quat',
-# 'str', a tuple of allowed strings, 'floats' (list of numbers), or a nested dict.
+# 'str', a tuple of allowed strings, 'floats' (list of numbers), a MappingList, or a nested dict.
 SCHEMA = {
     'mesh': {
         'generator': ('graded_box', ('box', 'graded_box', 'file'), 'how the tetrahedral mesh is made'),
@@ -34,9 +46,12 @@ SCHEMA = {
     },
     'regions': [{
         'name': ('tissue', 'str', 'region name (reported in puncture events)'),
-        'select': ('all', 'select', "'all', {tag: N} (element tag of a mesh file), {box_m: [[x,y,z], "
-                                   "[x,y,z]]}, {above_z_m: z} or {below_z_m: z}: elements whose centroid "
-                                   "is inside; later regions override earlier ones"),
+        'select': ('all', 'select', "'all', {below_z_m: z}, {above_z_m: z} (half-spaces under and over the "
+                                   "plane z), {box_m: [[x,y,z], [x,y,z]]}, {sphere_m: [x, y, z, r]} or "
+                                   "{tag: N} (element tag of a mesh file), in rest coordinates [m]; later "
+                                   "regions override earlier ones. Its surface is the layer boundary the "
+                                   "needle meets (where its tip's material point enters); an element's "
+                                   "material is its centroid's region"),
         'young_modulus_pa': (5000.0, 'float+', "Young's modulus [Pa]"),
         'poisson_ratio': (0.45, 'float', 'Poisson ratio, in (-1, 0.5)'),
         'density_kg_per_m3': (1060.0, 'float+', 'density [kg/m^3]'),
@@ -45,6 +60,10 @@ SCHEMA = {
             'rupture_force_n': (1.0, 'float+', "criterion 'force': axial force at rupture [N]"),
             'toughness_j_per_m2': (1000.0, 'float+', "criterion 'energy': work since contact per needle "
                                                      "cross-section area at rupture [J/m^2]"),
+            'rate_exponent': (0.0, 'float', "criterion 'force': n of the rupture force F0 (v / v0)^n at the "
+                                            "needle's axial speed v (0: the same at every speed; negative: "
+                                            'falls with speed)'),
+            'reference_speed_m_s': (0.001, 'float+', "criterion 'force': v0 of the rate law [m/s]"),
         },
         'cutting_force_n': (0.0, 'float0', 'cutting force at the tip while advancing inside [N]'),
         'friction': {
@@ -55,6 +74,10 @@ SCHEMA = {
             'retraction_coulomb_n_per_m': (0.0, 'float0', 'Coulomb, retraction (magnitude) [N/m]'),
             'retraction_viscous_n_s_per_m2': (0.0, 'float0', 'viscous, retraction (magnitude) [N s/m^2]'),
             'stick_band_m_per_s': (5e-4, 'float+', 'relative speed band in which the tissue sticks [m/s]'),
+            'insertion_constant_n': (0.0, 'float0', 'friction that does not scale with the inserted length, '
+                                                    'insertion [N] (shared by the shaft points)'),
+            'retraction_constant_n': (0.0, 'float0', 'the same while retracting (magnitude) [N]: a near-'
+                                                     'constant pull on the way out'),
         },
     }],
     'model': {
@@ -72,6 +95,13 @@ SCHEMA = {
         'viscosity_mu_pa_s': (0.0, 'float0', 'Kelvin-Voigt mu_v [Pa s]'),
         'nonlinearity_threshold': (0.0, 'float0', 'elements deformed less than this take the linear force'),
         'inversion_safeguard': (True, 'bool', 'St Venant-Kirchhoff safeguard for near-inverted elements'),
+        'relaxation': ([], MappingList({
+            'relative_modulus': (None, 'float+', 'g_i, the part of the shear modulus this term relaxes '
+                                                 '(required; 0 < g_i, sum of all g_i < 1)'),
+            'time_constant_s': (None, 'float+', 'tau_i, its relaxation time constant [s] (required)'),
+        }, PronySeries), 'stress relaxation, a Prony series on the deviatoric stress: shear modulus '
+                         'mu (1 - sum_i g_i (1 - exp(-t / tau_i))), the bulk modulus unrelaxed; a list '
+                         'of terms, [] for none'),
     },
     'boundary': {
         'fixed': (['bottom', 'walls'], 'faces', 'bounding-box faces held fixed: bottom, top, walls, '
@@ -93,6 +123,16 @@ SCHEMA = {
                                         'position moved along the axis to this gap'),
         'shaft_point_spacing_m': (0.001, 'float+', 'tissue points along the shaft, one per this advance [m]'),
         'max_jump_m': (DEFAULT_MAX_JUMP_M, 'float+', 'largest base or tip move accepted in one advance() call [m]'),
+        'tip': {
+            'shape': ('flat', ('flat', 'conical', 'bevel'), 'the tip: flat end (bonded at first contact), '
+                                                          'cone or bevel (bonded point by point as the indentation '
+                                                          'grows; after puncture the faces push the tissue aside)'),
+            'half_angle_deg': (30.0, 'float+', 'conical: the cone half-angle [deg]'),
+            'bevel_angle_deg': (20.0, 'float+', 'bevel: the angle between the bevel face and the axis [deg]'),
+            'bevel_orientation_deg': (0.0, 'float', 'bevel: direction of the sharp point about the axis, from '
+                                                    "the needle frame's +x [deg]; the lateral force points "
+                                                    'that way'),
+        },
     },
 }
 _FACES = ('bottom', 'top', 'walls', 'x_min', 'x_max', 'y_min', 'y_max')
@@ -141,6 +181,15 @@ def _check_value(name, value, kind):
         if not isinstance(value, (list, tuple)) or any(f not in _FACES for f in value):
             fail('a list of ' + ', '.join(_FACES))
         return list(value)
+    if isinstance(kind, MappingList):
+        if not isinstance(value, (list, tuple)):
+            fail('a list of mappings')
+        entries = [apply_schema(f'{name}[{i}]', entry, kind.entry) for i, entry in enumerate(value)]
+        try:
+            kind.check(entries, name)
+        except ValueError as exc:
+            raise SceneError(str(exc)) from None
+        return entries
     if kind == 'select':
         if value == 'all':
             return value
@@ -150,9 +199,15 @@ def _check_value(name, value, kind):
                 return value
             if key in ('above_z_m', 'below_z_m'):
                 return {key: number(v)}
+            if key == 'sphere_m':
+                sphere = _check_value(f'{name}.sphere_m', v, 'floats')
+                if len(sphere) != 4 or not sphere[3] > 0:
+                    fail('{sphere_m: [x, y, z, r]} with r > 0')
+                return {key: sphere}
             if key == 'box_m' and isinstance(v, (list, tuple)) and len(v) == 2:
                 return {key: [_check_value(f'{name}.box_m', c, 'vec3') for c in v]}
-        fail("'all', {tag: N}, {box_m: [[x,y,z],[x,y,z]]}, {above_z_m: z} or {below_z_m: z}")
+        fail("'all', {tag: N}, {box_m: [[x,y,z],[x,y,z]]}, {sphere_m: [x,y,z,r]}, {above_z_m: z} or "
+             "{below_z_m: z}")
     raise AssertionError(kind)
 
 
@@ -195,4 +250,6 @@ def describe_keys(schema=SCHEMA, prefix=''):
             lines += describe_keys(spec[0], dotted + '[].')
         else:
             lines.append(f'{dotted} (default {spec[0]!r}): {spec[2]}')
+            if isinstance(spec[1], MappingList):
+                lines += describe_keys(spec[1].entry, dotted + '[].')
     return lines

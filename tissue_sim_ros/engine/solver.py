@@ -238,7 +238,8 @@ class Simulation:
         return self._critical
 
     def reset(self):
-        """Back to the rest state at t = 0."""
+        """Back to the rest state at t = 0 (the model's relaxation history forgotten too)."""
+        self.model.reset_relaxation()
         self.displacement[:] = 0.0
         self.velocity[:] = 0.0
         self.internal_force[:] = 0.0
@@ -263,7 +264,10 @@ class Simulation:
             if check:   # energy at u_n, matched with the velocity at t_n from the advance
                 strain, inverted = model.strain_energy(self.displacement)
             kernel0 = time.thread_time()
-            model.accumulate_forces(self.displacement, self.velocity)
+            # the time since the previous step's forces (none before the first): the relaxation's
+            # internal variables advance over it
+            model.accumulate_forces(self.displacement, self.velocity,
+                                    time_step=dt if self.step_count else 0.0)
             work, kinetic, bad = _advance_free(self.displacement, self.velocity, *model.force_buffers,
                                                self.internal_force,
                                                self.external_forces, self.inverse_mass,

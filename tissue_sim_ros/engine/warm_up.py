@@ -35,8 +35,9 @@ def warm_up():
     _WARM.append(True)
     compile_cache.wait_for_helper()
     from tissue_sim_ros.engine.scene import Scene
-    scene = Scene(WARM_UP_SCENE)
-    position, orientation = scene.needle_pose
-    for depth in (0.0015, 0.003, 0.0045, 0.003):     # down through the membrane, then back up
-        scene.advance(0.05, position - np.array([0.0, 0.0, depth]), orientation)
-        scene.reaction_wrench('needle')
+    for tip in ({'shape': 'flat'}, {'shape': 'bevel'}):     # the bonded end; a sharp tip's kernels
+        scene = Scene({**WARM_UP_SCENE, 'needle': {**WARM_UP_SCENE['needle'], 'tip': tip}})
+        position, orientation = scene.needle_pose
+        for depth in (0.0015, 0.003, 0.0045, 0.003):     # down through the membrane, then back up
+            scene.advance(0.05, position - np.array([0.0, 0.0, depth]), orientation)
+            scene.reaction_wrench('needle')

@@ -1,0 +1,78 @@
+"""Sharp tips (needle.tip): a cone's or bevel's contact grows with the indentation, so the curve
+before the puncture is convex and sharper cones push less at the same depth (Sneddon's cone,
+F = (2 / pi) E* tan(theta) d^2, against a flat punch's F proportional to d); a bevel's face pushes
+the tissue aside after the puncture, so the tissue pushes the needle toward the sharp point, and
+turning the bevel turns that force with it."""
+import numpy as np
+import pytest
+
+from tissue_sim_ros.analysis.insertion import run_insertion
+from tissue_sim_ros.engine.scene import Scene
+
+COARSE_FAR = ['mesh.divisions=[6,6,5]']          # the default fine zone near the needle, coarser far away
+NO_PUNCTURE = ['regions[0].membrane.rupture_force_n=100']
+INDENT_M = 0.0075
+
+
+def pre_puncture(tip_sets):
+    """(indentation since contact [m], axial force [N]) of the default scene's needle with this
+    tip, pushed INDENT_M into a capsule that does not rupture, at 3 mm/s."""
+    scene = Scene.from_file(sets=COARSE_FAR + NO_PUNCTURE + tip_sets)
+    run = run_insertion(scene, 0.003, scene.start_gap_m + INDENT_M, retract=False, tick=0.02)
+    inside = run.depth > scene.start_gap_m
+    return run.depth[inside] - scene.start_gap_m, run.axial_force[inside]
+
+
+def test_sharp_tips_curve_up_before_the_puncture_and_sharper_cones_push_less():
+    curves = {name: pre_puncture(sets) for name, sets in (
+        ('cone 15', ['needle.tip.shape=conical', 'needle.tip.half_angle_deg=15']),
+        ('cone 30', ['needle.tip.shape=conical', 'needle.tip.half_angle_deg=30']),
+        ('cone 60', ['needle.tip.shape=conical', 'needle.tip.half_angle_deg=60']),
+        ('bevel 20', ['needle.tip.shape=bevel', 'needle.tip.bevel_angle_deg=20']),
+        ('flat', ['needle.tip.shape=flat']))}
+    fits, ends = {}, {}
+    for name, (depth, force) in curves.items():
+        fits[name] = np.polyfit(depth, force, 2)             # a2, a1, a0
+        ends[name] = float(np.interp(INDENT_M * 0.98, depth, force))
+        print(f'{name}: a2 {fits[name][0]:.0f} N/m^2, a1 {fits[name][1]:.1f} N/m, F({INDENT_M * 0.98 * 1e3:.2f} mm) '
+              f'{ends[name]:.3f} N')
+    for name in ('cone 15', 'cone 30', 'cone 60', 'bevel 20'):
+        assert fits[name][0] > 0.0, name                     # convex: the loaded area grows
+    assert fits['cone 15'][0] < fits['cone 30'][0]           # Sneddon: a2 grows with tan(theta)
+    assert ends['cone 15'] < ends['cone 30'] < ends['cone 60'] < ends['flat']
+
+
+def lateral_after_puncture(orientation_deg):
+    """Mean force on the needle in its own frame (x, y) [N] from 4 to 10 mm past the capsule's
+    puncture, and the mean torque about the base (world) with the mean force (world)."""
+    scene = Scene.from_file(sets=COARSE_FAR + ['regions[0].membrane.rupture_force_n=0.5',
+                                               f'needle.tip.bevel_orientation_deg={orientation_deg}'])
+    run = run_insertion(scene, 0.003, scene.start_gap_m + 0.018, retract=False, tick=0.02)
+    puncture = scene.puncture_events[0]['tip_depth_m'] + scene.start_gap_m
+    window = (run.depth > puncture + 0.004) & (run.depth < puncture + 0.010)
+    rotation = scene.needle.rotation
+    force_world = run.force[window].mean(axis=0)
+    return (rotation.T @ force_world)[:2], run.torque[window].mean(axis=0), force_world, scene.needle.axis
+
+
+@pytest.mark.parametrize('turned', [90.0])
+def test_a_bevel_pushes_the_needle_toward_its_point_and_the_force_turns_with_it(turned):
+    """The default scene's bevel with its point toward the needle frame's +x, then turned 180
+    and ``turned`` degrees: the difference of opposite bevels is the tip's own lateral force
+    (the mesh's own bias cancels), toward the point; turned, it turns."""
+    f0, torque, force_world, axis = lateral_after_puncture(0.0)
+    f180, *_ = lateral_after_puncture(180.0)
+    f_turned, *_ = lateral_after_puncture(turned)
+    f_opposite, *_ = lateral_after_puncture(turned + 180.0)
+    print(f'lateral force in the needle frame [N]: 0 deg {f0}, 180 deg {f180}, {turned:.0f} deg {f_turned}, '
+          f'{turned + 180:.0f} deg {f_opposite}')
+    assert f0[0] > 0.0 > f180[0]                              # the sign flips with the bevel
+    own = 0.5 * (f0 - f180)
+    assert own[0] > 0.02 and abs(own[1]) < 0.3 * own[0]
+    own_turned = 0.5 * (f_turned - f_opposite)
+    direction = np.array([np.cos(np.radians(turned)), np.sin(np.radians(turned))])
+    assert own_turned @ direction > 0.8 * np.linalg.norm(own_turned)
+    assert np.linalg.norm(own_turned) == pytest.approx(np.linalg.norm(own), rel=0.35)
+    # the moment about the base: the lateral force acts along the inserted part, far from the base
+    lateral = force_world - (force_world @ axis) * axis
+    assert np.dot(np.cross(axis, lateral), torque) > 0.0
