@@ -179,6 +179,19 @@ def _compare(args):
          tick_ms=args.tick_ms, workers=args.jobs, scheduler=args.scheduler, out=args.out)
 
 
+def _calibrate(args):
+    from tissue_sim_ros.analysis.calibration import _phase_weights, main
+    try:
+        _phase_weights(args.phase_weight)
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
+    main(data_spec=args.data_spec, fits=args.fit, validate_spec=args.validate_spec, scene_file=args.scene,
+         sets=args.set, coarse_sets=args.coarse_set, align=args.align, gap_mm=args.start_gap_mm,
+         tick_ms=args.tick_ms, phase_weights=args.phase_weight, inertia_bound=args.inertia_bound,
+         global_search=args.global_search, joint_evaluations=args.max_iterations, workers=args.jobs,
+         scheduler=args.scheduler, out=args.out)
+
+
 def _column(text):
     """A column option: a 0-based index when it is a whole number, else a header name."""
     if text is None:
@@ -290,6 +303,42 @@ def build_parser():
     columns.add_argument('--file-pattern', default=None,
                          help='a regular expression with named groups speed and repeat, searched in the file names')
     compare.set_defaults(run=_compare)
+    calibrate = commands.add_parser('calibrate', help='fit scene keys to load-cell trials (several speeds '
+                                    'at once), cross-validated on held-out speeds')
+    calibrate.add_argument('--data-spec', type=_input_file, required=True, metavar='FIT.yaml',
+                           help='the data description of the trials to fit')
+    calibrate.add_argument('--validate-spec', type=_input_file, default=None, metavar='HELD_OUT.yaml',
+                           help='trials to predict, not fitted (e.g. another speed)')
+    calibrate.add_argument('--fit', action='append', default=[], required=True, metavar='KEY=LOW:HIGH[:log]',
+                           help='a scene key to fit and its bounds (repeatable), e.g. '
+                                'regions[0].young_modulus_pa=5000:50000:log')
+    calibrate.add_argument('--scene', type=_input_file, default=None, help='starting scene YAML (default: the packaged one)')
+    _add_scene_sets(calibrate)
+    calibrate.add_argument('--coarse-set', action='append', default=[], metavar='KEY=VALUE',
+                           help='search on a cheaper scene (e.g. mesh.fine_size_m=0.003), then finish on '
+                                'the scene as asked (repeatable)')
+    calibrate.add_argument('--align', choices=['contact', 'xcorr', 'depth'], default='contact',
+                           help="how simulation and data are put side by side (compare's --align)")
+    calibrate.add_argument('--start-gap-mm', type=_NON_NEGATIVE, default=None,
+                           help='travel from the start to contact, when known (default: from the force)')
+    calibrate.add_argument('--tick-ms', type=_POSITIVE, default=10.0, help='simulation sampling [ms] (default 10)')
+    calibrate.add_argument('--phase-weight', action='append', default=[], metavar='PHASE=W',
+                           help='weight of a phase in the objective (approach, loading, inserted, hold, '
+                                'retraction; default 1 each)')
+    calibrate.add_argument('--inertia-bound', type=_POSITIVE, default=0.02,
+                           help="the mass scaling's inertia error allowed, as a fraction of the force "
+                                'range (default 0.02)')
+    calibrate.add_argument('--global', dest='global_search', action='store_true',
+                           help='start with a global search (differential evolution) for hard cases')
+    calibrate.add_argument('--max-iterations', type=_number(1, inclusive=True, whole=True), default=20,
+                           help='evaluations of the joint refinement at most (default 20)')
+    calibrate.add_argument('--jobs', type=_number(1, inclusive=True, whole=True), default=None,
+                           help='worker processes (default: every core this process may use)')
+    calibrate.add_argument('--scheduler', default=None, metavar='ADDRESS',
+                           help='run the simulations on a Dask distributed cluster (tcp://host:8786)')
+    calibrate.add_argument('--out', type=_output_dir, default='out/calibrate',
+                           help='output directory (default out/calibrate); an interrupted run resumes there')
+    calibrate.set_defaults(run=_calibrate)
     replay = commands.add_parser('replay', help='run a recorded node log through the engine again: '
                                  'the same wrenches (exact), or the same motion through --scene/--set')
     replay.add_argument('log', type=_input_file, metavar='LOG.mcap', help='a log the node recorded (or '

@@ -6,11 +6,17 @@ simulations of one scene (or of its variants) along measured or scripted motions
 pickles to a worker process or a Dask cluster; :func:`simulate` runs it through the one
 :class:`~tissue_sim_ros.engine.driver.SimulationDriver` and returns plain arrays. A worker keeps
 the scenes it built (by their keys' hash) and resets them between jobs instead of building them
-again. A run that diverges is a result too (``diverged``: the watchdog's reason), never an
-exception that would stop a whole study.
+again. A run that diverges, or whose keys the scene refuses, is a result too (``diverged``: the
+reason), never an exception that would stop a whole study.
 
 :class:`ResultStore` keeps every result in ``DIR/simulations/<key>.npz`` as it arrives, so an
 interrupted study resumes where it stopped (the key hashes the job: scene keys and schedule).
+
+Affordable stiffness (the calibration's rule): a job with ``keep_time_step_s`` raises the scene's
+mass scaling when its parameters would shrink the time step below that step (the critical step
+grows as the square root of the mass scaling, so the factor is (kept step / step)^2), at most to
+``max_mass_scaling``, beyond which the step shrinks instead. The result records the mass scaling
+and time step used.
 """
 from __future__ import annotations
 
@@ -34,6 +40,8 @@ class SimulationJob:
     times_s: np.ndarray
     positions: np.ndarray
     threads: int = 1
+    keep_time_step_s: float | None = None
+    max_mass_scaling: float | None = None
 
     @property
     def key(self) -> str:
@@ -45,6 +53,8 @@ def job_key(job: SimulationJob) -> str:
     digest.update(str(job.base_dir).encode())
     digest.update(np.ascontiguousarray(job.times_s, dtype=np.float64).tobytes())
     digest.update(np.ascontiguousarray(job.positions, dtype=np.float64).tobytes())
+    if job.keep_time_step_s is not None:
+        digest.update(f'{job.keep_time_step_s!r} {job.max_mass_scaling!r}'.encode())
     return digest.hexdigest()[:24]
 
 
@@ -53,7 +63,7 @@ class SimulationResult:
     """Per sample of the schedule: simulated time [s], the axial force [N] (positive while the
     tissue resists insertion), the tip depth below the entry point [m]; the punctures (travel
     of the tip from the start [m] and axial force [N] at each); ``diverged``: the reason, or ''.
-    ``wall_s``, ``steps``: what it cost."""
+    ``wall_s``, ``steps``: what it cost; ``mass_scaling`` and ``time_step_s``: what it ran with."""
 
     time_s: np.ndarray
     axial_force_n: np.ndarray
@@ -63,6 +73,8 @@ class SimulationResult:
     diverged: str = ''
     wall_s: float = 0.0
     steps: int = 0
+    mass_scaling: float = float('nan')
+    time_step_s: float = float('nan')
 
 
 _SCENES: dict = {}
@@ -75,6 +87,12 @@ def _scene(job: SimulationJob):
     scene = _SCENES.get(key)
     if scene is None:
         scene = Scene(job.scene_spec, base_dir=job.base_dir)
+        if job.keep_time_step_s is not None and scene.dt < job.keep_time_step_s * (1 - 1e-9):
+            scaling = scene.spec['solver']['mass_scaling'] * (job.keep_time_step_s / scene.dt) ** 2
+            if job.max_mass_scaling is not None:
+                scaling = min(scaling, job.max_mass_scaling)
+            spec = dict(job.scene_spec, solver=dict(scene.spec['solver'], mass_scaling=scaling))
+            scene = Scene(spec, base_dir=job.base_dir)
         scene.model.set_threads(job.threads)
         _SCENES.clear()                 # one scene per worker at a time: memory
         _SCENES[key] = scene
@@ -86,8 +104,13 @@ def simulate(job: SimulationJob) -> SimulationResult:
     import time
 
     from tissue_sim_ros.engine.driver import SimulationDriver
+    from tissue_sim_ros.engine.scene_schema import SceneError
     from tissue_sim_ros.engine.solver import SimulationDiverged
-    scene = _scene(job)
+    try:
+        scene = _scene(job)
+    except SceneError as exc:            # parameters the scene refuses: a failed run, not a crash
+        nan = np.full(len(job.times_s), np.nan)
+        return SimulationResult(nan, nan, nan, np.zeros(0), np.zeros(0), diverged=f'scene refused: {exc}')
     driver = SimulationDriver(scene, wrench_frame='world', on_divergence='raise')
     driver.reset()
     start, axis = scene.needle_pose[0], scene.needle.axis.copy()
@@ -98,14 +121,18 @@ def simulate(job: SimulationJob) -> SimulationResult:
     except SimulationDiverged as exc:
         nan = np.full(k, np.nan)
         return SimulationResult(nan, nan, nan, np.zeros(0), np.zeros(0), diverged=str(exc),
-                                wall_s=time.perf_counter() - wall0)
+                                wall_s=time.perf_counter() - wall0, **_stepping(scene))
     events = scene.puncture_events
     travel = (job.positions - start) @ axis
     puncture_travel = np.interp([e['time_s'] for e in events], samples.time, travel) if events else np.zeros(0)
     return SimulationResult(samples.time, -(samples.force @ axis), samples.tip_depth,
                             np.asarray(puncture_travel, dtype=float),
                             np.array([e['axial_force_n'] for e in events], dtype=float),
-                            wall_s=time.perf_counter() - wall0, steps=samples.substeps)
+                            wall_s=time.perf_counter() - wall0, steps=samples.substeps, **_stepping(scene))
+
+
+def _stepping(scene) -> dict:
+    return {'mass_scaling': float(scene.spec['solver']['mass_scaling']), 'time_step_s': float(scene.dt)}
 
 
 class ResultStore:
@@ -123,7 +150,8 @@ class ResultStore:
             with np.load(self._path(key), allow_pickle=False) as data:
                 return SimulationResult(data['time_s'], data['axial_force_n'], data['tip_depth_m'],
                                         data['puncture_travel_m'], data['puncture_force_n'],
-                                        str(data['diverged']), float(data['wall_s']), int(data['steps']))
+                                        str(data['diverged']), float(data['wall_s']), int(data['steps']),
+                                        float(data['mass_scaling']), float(data['time_step_s']))
         except (OSError, KeyError, ValueError):
             return None
 
@@ -133,5 +161,6 @@ class ResultStore:
         np.savez(temporary, time_s=result.time_s, axial_force_n=result.axial_force_n,
                  tip_depth_m=result.tip_depth_m, puncture_travel_m=result.puncture_travel_m,
                  puncture_force_n=result.puncture_force_n, diverged=np.array(result.diverged),
-                 wall_s=np.array(result.wall_s), steps=np.array(result.steps))
+                 wall_s=np.array(result.wall_s), steps=np.array(result.steps),
+                 mass_scaling=np.array(result.mass_scaling), time_step_s=np.array(result.time_step_s))
         temporary.replace(path)         # whole or absent: an interruption leaves no half file

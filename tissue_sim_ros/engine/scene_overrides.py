@@ -17,7 +17,7 @@ import yaml
 
 from tissue_sim_ros.engine.scene_schema import SCHEMA, SceneError
 
-__all__ = ['parse_override', 'apply_overrides']
+__all__ = ['parse_override', 'apply_overrides', 'select_region']
 
 _PART = re.compile(r'^([A-Za-z_][A-Za-z0-9_]*)(?:\[([^\]]*)\])?$')
 
@@ -41,7 +41,7 @@ def parse_override(text: str) -> tuple[list[tuple[str, str | None]], object]:
     return parts, value
 
 
-def _region(items: list, selector: str | None, text: str, dotted: str) -> dict:
+def select_region(items: list, selector: str | None, text: str, dotted: str) -> dict:
     if selector is None or selector == '':
         raise SceneError(f'--set {text!r}: {dotted} is a list; pick a region by index or name, '
                          f'e.g. {dotted}[0] or {dotted}[liver]')
@@ -76,7 +76,7 @@ def apply_overrides(spec: dict, overrides) -> dict:
             if isinstance(schema[key], list):
                 if not isinstance(node.get(key), list) or not node[key]:
                     node[key] = [{}]
-                node, schema = _region(node[key], selector, text, dotted), schema[key][0]
+                node, schema = select_region(node[key], selector, text, dotted), schema[key][0]
                 dotted += f'[{selector}]'
                 if last:
                     raise SceneError(f'--set {text!r}: {dotted} is a region; set one of its keys')

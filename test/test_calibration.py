@@ -1,0 +1,177 @@
+"""tissue-sim calibrate: data made by the simulator with known parameters, plus noise, calibrated
+from a start 30-50 % off.
+
+The truth: the parameters that made the data (they must come back), the noise added (the
+held-out speed must be predicted at its level, and better than reusing the other speeds'
+measured curves), and runs that must agree with each other (serial, process pool, Dask
+LocalCluster; interrupted and resumed against uninterrupted).
+"""
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tissue_sim_ros.analysis import calibration
+from tissue_sim_ros.analysis.calibration_objective import FAILED_RESIDUAL, Objective
+from tissue_sim_ros.analysis.calibration_parameters import parse_fit
+from tissue_sim_ros.analysis.insertion import run_insertion
+from tissue_sim_ros.engine.scene import Scene
+from tissue_sim_ros.io.data_spec import DataSpec, load_trials
+
+MESH = ['mesh.generator=box', 'mesh.divisions=[8,8,6]']
+TRUE = {'regions[0].young_modulus_pa': 20000.0, 'regions[0].membrane.rupture_force_n': 0.6,
+        'regions[0].cutting_force_n': 0.5}
+START = {'regions[0].young_modulus_pa': 13000.0, 'regions[0].membrane.rupture_force_n': 0.85,
+         'regions[0].cutting_force_n': 0.33}              # -35 %, +42 %, -34 %
+FITS = ['regions[0].young_modulus_pa=5000:50000:log', 'regions[0].membrane.rupture_force_n=0.2:2',
+        'regions[0].cutting_force_n=0.1:1.5']
+NOISE_N = 0.005
+
+
+def sets(values):
+    return [f'{key}={value!r}' for key, value in values.items()]
+
+
+def write_study(directory: Path, speeds_mm_s, scene_sets, *, travel_m=0.02, repeats=2, seed=1) -> Path:
+    """``repeats`` noisy trials per speed of the scene's insertion (in, a 0.5 s hold, out), as
+    CSV files with time in s, force in N and position in mm, speed and repeat in the name."""
+    rng = np.random.default_rng(seed)
+    directory.mkdir(parents=True, exist_ok=True)
+    for speed in speeds_mm_s:
+        run = run_insertion(Scene.from_file(None, sets=scene_sets), speed * 1e-3, travel_m, hold_s=0.5, tick=0.01)
+        for repeat in range(1, repeats + 1):
+            t = np.arange(0.0, run.time[-1], 0.01) + rng.uniform(0.0, 0.001)
+            force = np.interp(t, run.time, run.axial_force) + rng.normal(0.0, NOISE_N, t.size)
+            rows = np.column_stack([t, force, 1e3 * np.interp(t, run.time, run.depth)])
+            np.savetxt(directory / f'trial_{speed:g}_{repeat}.csv', rows, delimiter=',', fmt='%.6f',
+                       header='time,fz,pz', comments='')
+    spec = directory / 'spec.yaml'
+    spec.write_text("files: ['trial_*.csv']\ntime: {column: time, unit: s}\nforce: {column: fz, unit: N}\n"
+                    'position: {column: pz, unit: mm}\n'
+                    "file_name: {pattern: 'trial_(?P<speed>[0-9.]+)_(?P<repeat>[0-9]+)', speed_unit: mm/s}\n")
+    return spec
+
+
+def test_known_parameters_come_back_and_predict_a_held_out_speed_at_the_noise_level(tmp_path):
+    fit_spec = write_study(tmp_path / 'fit', [2.0, 4.0], MESH + sets(TRUE))
+    held_spec = write_study(tmp_path / 'held', [3.0], MESH + sets(TRUE), seed=2)
+    t0 = time.perf_counter()
+    report = calibration.main(data_spec=fit_spec, validate_spec=held_spec, fits=FITS, sets=MESH + sets(START),
+                              out=tmp_path / 'out', workers=2)
+    wall = time.perf_counter() - t0
+    for key, truth in TRUE.items():
+        value = report['parameters'][key]['value']
+        print(f'{key}: {value:.5g} (true {truth:g}, start {START[key]:g}; '
+              f"stderr {report['parameters'][key]['stderr']:.2g})")
+        assert value == pytest.approx(truth, rel=0.10)
+    held = report['validation']['speeds'][0]
+    print(f"held-out 3 mm/s: NRMSE {held['nrmse_calibrated']:.4f} (start {held['nrmse_start']:.4f}), noise floor "
+          f"{held['noise_floor_nrmse']:.4f}, nearest speed's data {held['nearest_speed_nrmse']:.4f}; "
+          f"{report['evaluations']} evaluations in {wall:.0f} s")
+    assert held['nrmse_calibrated'] < 1.5 * held['noise_floor_nrmse']
+    assert held['nrmse_calibrated'] < held['nearest_speed_nrmse']
+    assert held['nrmse_start'] > 5 * held['noise_floor_nrmse']       # the start was far off
+    # the outputs: a scene every command accepts, that reproduces the fit
+    calibrated = Scene.from_file(tmp_path / 'out' / 'calibrated.yaml')
+    for key, entry in report['parameters'].items():
+        from tissue_sim_ros.analysis.calibration_parameters import read_key
+        assert read_key(calibrated.spec, key) == pytest.approx(entry['value'], rel=1e-9)
+    saved = json.loads((tmp_path / 'out' / 'report.json').read_text())
+    assert saved['fit']['nrmse_mean'] == pytest.approx(report['fit']['nrmse_mean'])
+    for name in ('report.md', 'calibration.csv', 'evaluations.jsonl', 'calibration_held_out_3mm_s.png'):
+        assert (tmp_path / 'out' / name).stat().st_size > 0
+
+
+CHEAP_MESH = ['mesh.generator=box', 'mesh.divisions=[6,6,5]', 'regions[0].membrane.criterion=none']
+CHEAP_FITS = ['regions[0].young_modulus_pa=5000:50000:log', 'regions[0].cutting_force_n=0.1:1.5']
+
+
+@pytest.fixture(scope='module')
+def cheap_study(tmp_path_factory):
+    directory = tmp_path_factory.mktemp('cheap')
+    return write_study(directory, [3.0], CHEAP_MESH + sets(TRUE), travel_m=0.012, repeats=1)
+
+
+def cheap_run(spec, out, **options):
+    return calibration.main(data_spec=spec, fits=CHEAP_FITS, sets=CHEAP_MESH + sets(START), out=out,
+                            joint_evaluations=6, **options)
+
+
+def test_serial_process_pool_and_dask_give_one_result(cheap_study, tmp_path):
+    distributed = pytest.importorskip('distributed')
+    serial = cheap_run(cheap_study, tmp_path / 'serial', workers=1)
+    pool = cheap_run(cheap_study, tmp_path / 'pool', workers=2)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+        dask = cheap_run(cheap_study, tmp_path / 'dask', scheduler=client)
+    for key in serial['parameters']:
+        values = [r['parameters'][key]['value'] for r in (serial, pool, dask)]
+        print(f'{key}: serial {values[0]!r}, pool {values[1]!r}, dask {values[2]!r}')
+        # equal to rounding: a pool worker starts with NUMBA_NUM_THREADS=1, which changes how
+        # numba chunks a parallel reduction (the last digits of a sum), not the search
+        assert values[1] == pytest.approx(values[0], rel=1e-9)
+        assert values[2] == pytest.approx(values[0], rel=1e-9)
+    assert pool['evaluations'] == serial['evaluations'] == dask['evaluations']
+
+
+def test_an_interrupted_calibration_resumes_to_the_uninterrupted_result(cheap_study, tmp_path):
+    whole = cheap_run(cheap_study, tmp_path / 'whole', workers=1)
+    command = [sys.executable, '-m', 'tissue_sim_ros.cli', 'calibrate', '--data-spec', str(cheap_study),
+               '--max-iterations', '6', '--jobs', '1', '--out', str(tmp_path / 'cut')]
+    for text in CHEAP_MESH + sets(START):
+        command += ['--set', text]
+    for text in CHEAP_FITS:
+        command += ['--fit', text]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    log = tmp_path / 'cut' / 'evaluations.jsonl'
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and (not log.exists() or len(log.read_text().splitlines()) < 4):
+        time.sleep(0.2)
+    process.kill()                                             # a hard stop mid-search
+    process.wait()
+    done_before = len(log.read_text().splitlines())
+    assert done_before >= 4 and not (tmp_path / 'cut' / 'report.json').exists()
+    resumed = cheap_run(cheap_study, tmp_path / 'cut', workers=1)
+    print(f'killed after {done_before} evaluations; resumed: '
+          f"{resumed['simulations']} simulations run of {whole['simulations']}")
+    assert resumed['simulations'] < whole['simulations']      # what it had done, it did not redo
+    for key in whole['parameters']:
+        assert resumed['parameters'][key]['value'] == whole['parameters'][key]['value']
+
+
+def test_a_diverging_or_refused_trial_scores_as_a_miss_and_the_search_goes_on(cheap_study, tmp_path):
+    trials = load_trials(DataSpec.from_file(cheap_study))
+    scene = Scene.from_file(None, sets=CHEAP_MESH + sets(START))
+    refused = Objective(trials, scene, [parse_fit('regions[0].poisson_ratio=0.3:0.6')], workers=1).evaluate([1.0])
+    strong_law = 'model.physical.mu_rate=1:300:log'          # an exponential law this strong diverges
+    diverged = Objective(trials, scene, [parse_fit(strong_law)], workers=1).evaluate([1.0])
+    for evaluation, reason in ((refused, 'poisson_ratio'), (diverged, 'diverged')):
+        print(f'{reason}: {evaluation.failures[0][:110]}')
+        assert evaluation.failures and reason in evaluation.failures[0]
+        assert np.all(evaluation.residuals * np.sqrt(evaluation.residuals.size) == pytest.approx(FAILED_RESIDUAL))
+        assert np.isfinite(evaluation.objective)
+    report = calibration.main(data_spec=cheap_study, fits=[strong_law, 'regions[0].cutting_force_n=0.1:1.5'],
+                              sets=CHEAP_MESH + sets(START), out=tmp_path / 'out', workers=2, joint_evaluations=6)
+    assert any('failed and scored as misses' in w for w in report['warnings'])   # the scan met them
+    assert report['parameters']['model.physical.mu_rate']['value'] < 100
+    assert report['fit']['nrmse_mean'] < 0.5 * report['fit']['nrmse_mean_start']
+
+
+@pytest.mark.parametrize('fit, says', [
+    ('regions[0].young_modulus_pa', 'expected KEY=LOW:HIGH'),
+    ('regions[0].young_modulus_pa=50000:5000', 'LOW < HIGH'),
+    ('regions[0].young_modulus_pa=0:5000:log', 'log scale needs LOW > 0'),
+    ('regions[0].young_modulus_pa=a:5000', "'a'"),
+    ('regions[0].stiffness=1:2', "no key 'stiffness'"),
+    ('model.geometric=0:1', 'is not a number'),
+])
+def test_a_bad_fit_option_is_one_error_line_naming_it(cheap_study, tmp_path, capsys, fit, says):
+    from tissue_sim_ros.cli import main
+    status = main(['calibrate', '--data-spec', str(cheap_study), '--fit', fit, '--out', str(tmp_path)])
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    print(error)
+    assert status == 2 and error.startswith('tissue-sim calibrate: error:') and says in error

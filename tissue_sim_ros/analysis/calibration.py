@@ -1,0 +1,200 @@
+"""``tissue-sim calibrate``: scene parameters fitted to load-cell data, cross-validated across speeds.
+
+1. The fitted trials (a data description, :mod:`tissue_sim_ros.io.data_spec`) and the scene
+   (with ``--set``); each ``--fit KEY=LOW:HIGH[:log]`` starts from the scene's value.
+2. Affordable stiffness: a trial that would shrink the time step below the starting scene's keeps
+   that step by raising the mass scaling (the critical step grows as its square root). The
+   inertia error this brings is measured once: the first speed's simulation at the starting mass
+   scaling m0 and at m0 / 4; the quasi-static error of mass scaling is linear in it (the inertial
+   force m a and the mass-proportional damping force both scale with the mass), so
+   e(m) = (4/3) d (m / m0), d the NRMSE between the two runs. The mass scaling is capped where
+   e(m) reaches ``inertia_bound`` (default 0.02 of the force range); beyond that the step
+   shrinks instead (slower, never less accurate). e at the optimum is reported.
+3. The search (:mod:`~tissue_sim_ros.analysis.calibration_search`) on the objective
+   (:mod:`~tissue_sim_ros.analysis.calibration_objective`); with ``coarse_sets`` (``--coarse-set``)
+   the staged start and most of the refinement run on a cheaper scene (a coarser mesh, a
+   simpler model), then a short joint refinement on the scene as asked: coarse to fine.
+4. The result compared with every trial, fitted and held out (``--validate-spec``), by
+   ``tissue-sim compare``'s machinery, beside the data's noise floor per speed and the baseline
+   "reuse the nearest other speed's measured mean curve"; standard errors and correlations.
+5. Outputs (:mod:`~tissue_sim_ros.analysis.calibration_report`).
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ['INERTIA_BOUND', 'measure_inertia_error', 'calibrate', 'main']
+
+INERTIA_BOUND = 0.02
+#: the reduced mass scaling of the inertia check: m0 / this
+INERTIA_CHECK_FACTOR = 4.0
+
+
+def measure_inertia_error(objective, u0) -> dict:
+    """The mass scaling's error at the start (see the module docstring, item 2)."""
+    from dataclasses import replace
+
+    from tissue_sim_ros.analysis.job_runner import run_jobs
+    from tissue_sim_ros.analysis.trial_simulation import simulate
+    job = objective.jobs_for(u0)[0]
+    m0 = float(job.scene_spec['solver']['mass_scaling'])
+    lighter = dict(job.scene_spec, solver=dict(job.scene_spec['solver'], mass_scaling=m0 / INERTIA_CHECK_FACTOR))
+    plain = replace(job, keep_time_step_s=None, max_mass_scaling=None)
+    heavy, light = run_jobs(simulate, [plain, replace(plain, scene_spec=lighter)],
+                            workers=objective.workers, scheduler=objective.scheduler, quiet=True)
+    trial = objective.trials[objective.plan.representative[0]]
+    scale = float(np.ptp(trial.axial_force_n)) or 1.0
+    both = np.isfinite(heavy.axial_force_n) & np.isfinite(light.axial_force_n)
+    if heavy.diverged or light.diverged or not both.any():
+        return {'mass_scaling': m0, 'error_at_start': float('nan'),
+                'note': f'the check did not finish: {heavy.diverged or light.diverged or "no samples"}'}
+    difference = float(np.sqrt(np.mean((heavy.axial_force_n[both] - light.axial_force_n[both]) ** 2))) / scale
+    error = difference * INERTIA_CHECK_FACTOR / (INERTIA_CHECK_FACTOR - 1.0)
+    return {'mass_scaling': m0, 'error_at_start': error, 'difference_nrmse': difference,
+            'checked_at': m0 / INERTIA_CHECK_FACTOR}
+
+
+def _start(keys, spec, log) -> np.ndarray:
+    from tissue_sim_ros.analysis.calibration_parameters import read_key
+    u = []
+    for k in keys:
+        value = read_key(spec, k.key)
+        if not k.low <= value <= k.high:
+            log(f'warning: {k.key} = {value:g} in the scene is outside --fit {k.low:g}:{k.high:g}; '
+                'starting at the nearest bound')
+        u.append(k.unit(value))
+    return np.array(u)
+
+
+def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=None, tick_s=0.01,
+              phase_weights=None, inertia_bound=INERTIA_BOUND, staged=True, global_search=False,
+              generations=5, stage_evaluations=6, joint_evaluations=20, fine_evaluations=6,
+              out=None, workers=None, scheduler=None, quiet=False, log=None) -> dict:
+    """Fit ``keys`` (FittedKey) of ``scene`` to ``trials``; everything the report needs."""
+    from tqdm import tqdm
+
+    from tissue_sim_ros.analysis.calibration_objective import Objective
+    from tissue_sim_ros.analysis.calibration_search import search, uncertainty
+    from tissue_sim_ros.analysis.trial_simulation import ResultStore
+    log = log or (lambda text: print(text, file=sys.stderr))
+    wall0 = time.perf_counter()
+    out = Path(out) if out is not None else None
+    store = ResultStore(out / 'simulations') if out is not None else None
+    log_path = out / 'evaluations.jsonl' if out is not None else None
+    search_scene = coarse_scene or scene
+    u0 = _start(keys, scene.spec, log)
+    options = dict(align=align, gap_m=gap_m, tick_s=tick_s, phase_weights=phase_weights, store=store,
+                   log_path=log_path, workers=workers, scheduler=scheduler)
+
+    def objective_for(a_scene):
+        probe = Objective(trials, a_scene, keys, **options)
+        inertia = measure_inertia_error(probe, u0)
+        m0, e0 = inertia['mass_scaling'], inertia['error_at_start']
+        cap = m0 * max(1.0, inertia_bound / e0) if np.isfinite(e0) and e0 > 0 else m0
+        return Objective(trials, a_scene, keys, keep_time_step_s=a_scene.dt, max_mass_scaling=cap,
+                         **options), dict(inertia, cap=cap, bound=inertia_bound)
+
+    bar = tqdm(desc='calibration', unit='eval', file=sys.stderr, disable=quiet, dynamic_ncols=True)
+
+    def progress(objective):
+        def seen(evaluation):
+            bar.update(1)
+            bar.set_postfix_str(f'best NRMSE {objective.best.nrmse_mean:.4f}, '
+                                f'{objective.simulations_run} sims', refresh=False)
+        objective.on_evaluation = seen
+        return objective
+
+    with bar:
+        objective, inertia = objective_for(search_scene)
+        progress(objective)
+        start = objective.evaluate(u0)
+        u = search(objective, u0, staged=staged, global_search=global_search, generations=generations,
+                   stage_evaluations=stage_evaluations, joint_evaluations=joint_evaluations, log=log)
+        evaluations = len(objective._cache)
+        simulations = objective.simulations_run
+        if coarse_scene is not None:
+            log('fine stage: joint refinement on the scene as asked')
+            objective, inertia = objective_for(scene)
+            progress(objective)
+            start = objective.evaluate(u0)
+            u = search(objective, u, staged=False, joint_evaluations=fine_evaluations, log=log)
+            evaluations += len(objective._cache)
+            simulations += objective.simulations_run
+        best = objective.evaluate(u)
+        spread = uncertainty(objective, u)
+    used = max((r.mass_scaling for r in best.results if np.isfinite(r.mass_scaling)), default=inertia['mass_scaling'])
+    inertia['mass_scaling_at_optimum'] = used
+    inertia['error_at_optimum'] = inertia['error_at_start'] * used / inertia['mass_scaling']
+    return {'keys': keys, 'u0': u0, 'u': u, 'start': start, 'best': best, 'uncertainty': spread,
+            'inertia': inertia, 'objective': objective, 'evaluations': evaluations,
+            'simulations': simulations, 'search_wall_s': time.perf_counter() - wall0}
+
+
+def calibrated_spec(fit: dict) -> dict:
+    """The scene keys of the optimum, with the mass scaling it ran with."""
+    spec = fit['objective'].spec_for(fit['u'])
+    return dict(spec, solver=dict(spec['solver'], mass_scaling=fit['inertia']['mass_scaling_at_optimum']))
+
+
+def _phase_weights(texts) -> dict:
+    from tissue_sim_ros.analysis.force_events import PHASES
+    weights = {}
+    for text in texts or ():
+        phase, _, value = text.partition('=')
+        if phase not in PHASES:
+            raise ValueError(f'--phase-weight {text!r}: unknown phase {phase!r}; expected one of {", ".join(PHASES)}')
+        try:
+            weights[phase] = float(value)
+        except ValueError:
+            raise ValueError(f'--phase-weight {text!r}: the weight {value!r} is not a number') from None
+        if not (np.isfinite(weights[phase]) and weights[phase] >= 0):
+            raise ValueError(f'--phase-weight {text!r}: expected a finite weight >= 0')
+    return weights
+
+
+def main(*, data_spec, fits, validate_spec=None, scene_file=None, sets=(), coarse_sets=(), align='contact',
+         gap_mm=None, tick_ms=10.0, phase_weights=(), inertia_bound=INERTIA_BOUND, global_search=False,
+         joint_evaluations=20, workers=None, scheduler=None, out='out/calibrate', stream=None) -> dict:
+    """The ``tissue-sim calibrate`` command."""
+    from tissue_sim_ros.analysis.calibration_parameters import parse_fit
+    from tissue_sim_ros.analysis.calibration_report import write_report
+    from tissue_sim_ros.engine.scene import Scene
+    from tissue_sim_ros.io.data_spec import DataSpec, load_trials
+    stream = sys.stdout if stream is None else stream
+    keys = [parse_fit(text) for text in fits]
+    if not keys:
+        raise ValueError('calibrate: give at least one --fit KEY=LOW:HIGH[:log]')
+    weights = _phase_weights(phase_weights)
+    spec = DataSpec.from_file(data_spec)
+    trials = load_trials(spec)
+    held_out = load_trials(DataSpec.from_file(validate_spec)) if validate_spec else []
+    scene = Scene.from_file(scene_file, sets=sets)
+    coarse = Scene.from_file(scene_file, sets=list(sets) + list(coarse_sets)) if coarse_sets else None
+    print(f'calibrate: {len(keys)} key(s) on {len(trials)} trial(s) from {spec.source}'
+          f'{f", {len(held_out)} held out" if held_out else ""}; scene {scene_file or "(default)"}: '
+          f'{scene.mesh.n_elements} tetrahedra'
+          f'{f", searching on {coarse.mesh.n_elements}" if coarse else ""}', file=stream)
+    fit = calibrate(trials, scene, keys, coarse_scene=coarse, align=align,
+                    gap_m=None if gap_mm is None else gap_mm * 1e-3, tick_s=tick_ms * 1e-3,
+                    phase_weights=weights, inertia_bound=inertia_bound, global_search=global_search,
+                    joint_evaluations=joint_evaluations, out=out, workers=workers, scheduler=scheduler,
+                    log=lambda text: print(text, file=stream))
+    final = Scene(calibrated_spec(fit), base_dir=scene.base_dir)
+    report = write_report(Path(out), fit, trials=trials, held_out=held_out, start_scene=scene, final_scene=final,
+                          scene_file=scene_file, sets=sets, data_spec=data_spec, validate_spec=validate_spec,
+                          align=align, gap_m=None if gap_mm is None else gap_mm * 1e-3, tick_s=tick_ms * 1e-3,
+                          workers=workers, scheduler=scheduler)
+    for key, entry in report['parameters'].items():
+        print(f"  {key} = {entry['value']:.6g} +- {entry['stderr']:.2g} (start {entry['start']:.6g})", file=stream)
+    for warning in report['warnings']:
+        print(f'  warning: {warning}', file=stream)
+    print(f"fit NRMSE {report['fit']['nrmse_mean']:.4f} (start {report['fit']['nrmse_mean_start']:.4f})"
+          + (f"; held out {report['validation']['nrmse_mean']:.4f}" if report.get('validation') else '')
+          + f"; {report['evaluations']} evaluations, {report['simulations']} simulations, "
+          f"{report['wall_s']:.1f} s", file=stream)
+    print(f"wrote {', '.join(report['outputs'].values())}", file=stream)
+    return report
