@@ -370,3 +370,25 @@ def test_resample_is_linear_inside_and_nan_outside():
     assert np.isnan(out[0]) and np.isnan(out[4])
     with pytest.raises(ValueError, match=r'time_s\[2\] = 1.0 after 1.0'):
         resample([0.0, 1.0, 1.0], [0, 1, 2], [0.5])
+
+
+def test_a_recording_that_starts_just_above_the_tissue_keeps_its_noise_and_its_puncture():
+    """The first 10 % of such a recording holds the loading's rise; taken as noise, it set the
+    puncture threshold (8 noise) above a 0.4 N drop. Truth: the noise added and the drop made."""
+    from tissue_sim_ros.analysis.force_events import baseline_and_noise, detect_contact, detect_punctures
+    rng = np.random.default_rng(3)
+    inserting = np.arange(0.0, 0.019, 3e-5)                   # 3 mm/s at 100 Hz, 1 mm gap
+    travel = np.concatenate([inserting, np.full(50, 0.019), inserting[::-1]])   # hold, retract
+    depth = np.clip(travel - 0.001, 0.0, None)
+    force = np.where(depth < 0.010, 0.048e3 * depth + 9.2e3 * depth ** 2, 1.0 + 10.0 * (depth - 0.010))
+    force[inserting.size:] = 0.5 * force[inserting.size:] - 0.3                  # the way out
+    noisy = force + rng.normal(0.0, 0.005, travel.size)
+    baseline, noise = baseline_and_noise(noisy)
+    punctures = detect_punctures(travel, noisy)
+    contact = detect_contact(np.arange(travel.size) * 0.01, noisy, travel)
+    print(f'baseline {baseline * 1e3:.2f} mN, noise {noise * 1e3:.2f} mN (added 0 and 5); contact at '
+          f'{travel[contact] * 1e3:.2f} mm (made at 1.0); punctures at '
+          f'{[round(p.travel_m * 1e3, 2) for p in punctures]} mm (made at 11.0)')
+    assert abs(baseline) < 0.003 and 0.003 < noise < 0.010
+    assert abs(travel[contact] - 0.001) < 3e-4
+    assert len(punctures) == 1 and abs(punctures[0].travel_m - 0.011) < 2e-4
