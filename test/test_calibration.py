@@ -18,7 +18,7 @@ import pytest
 from tissue_sim_ros.analysis import calibration
 from tissue_sim_ros.analysis.calibration_objective import FAILED_RESIDUAL, Objective
 from tissue_sim_ros.analysis.calibration_parameters import parse_fit
-from tissue_sim_ros.analysis.insertion import run_insertion
+from tissue_sim_ros.analysis.synthetic_study import write_synthetic_study
 from tissue_sim_ros.engine.scene import Scene
 from tissue_sim_ros.io.data_spec import DataSpec, load_trials
 
@@ -37,23 +37,8 @@ def sets(values):
 
 
 def write_study(directory: Path, speeds_mm_s, scene_sets, *, travel_m=0.02, repeats=2, seed=1) -> Path:
-    """``repeats`` noisy trials per speed of the scene's insertion (in, a 0.5 s hold, out), as
-    CSV files with time in s, force in N and position in mm, speed and repeat in the name."""
-    rng = np.random.default_rng(seed)
-    directory.mkdir(parents=True, exist_ok=True)
-    for speed in speeds_mm_s:
-        run = run_insertion(Scene.from_file(None, sets=scene_sets), speed * 1e-3, travel_m, hold_s=0.5, tick=0.01)
-        for repeat in range(1, repeats + 1):
-            t = np.arange(0.0, run.time[-1], 0.01) + rng.uniform(0.0, 0.001)
-            force = np.interp(t, run.time, run.axial_force) + rng.normal(0.0, NOISE_N, t.size)
-            rows = np.column_stack([t, force, 1e3 * np.interp(t, run.time, run.depth)])
-            np.savetxt(directory / f'trial_{speed:g}_{repeat}.csv', rows, delimiter=',', fmt='%.6f',
-                       header='time,fz,pz', comments='')
-    spec = directory / 'spec.yaml'
-    spec.write_text("files: ['trial_*.csv']\ntime: {column: time, unit: s}\nforce: {column: fz, unit: N}\n"
-                    'position: {column: pz, unit: mm}\n'
-                    "file_name: {pattern: 'trial_(?P<speed>[0-9.]+)_(?P<repeat>[0-9]+)', speed_unit: mm/s}\n")
-    return spec
+    return write_synthetic_study(directory, scene_sets, speeds_mm_s, travel_m=travel_m, repeats=repeats,
+                                 noise_n=NOISE_N, seed=seed)
 
 
 def test_known_parameters_come_back_and_predict_a_held_out_speed_at_the_noise_level(tmp_path):
@@ -98,7 +83,7 @@ def cheap_study(tmp_path_factory):
 
 def cheap_run(spec, out, **options):
     return calibration.main(data_spec=spec, fits=CHEAP_FITS, sets=CHEAP_MESH + sets(START), out=out,
-                            joint_evaluations=6, **options)
+                            max_evaluations=40, **options)
 
 
 def test_serial_process_pool_and_dask_give_one_result(cheap_study, tmp_path):
@@ -121,7 +106,7 @@ def test_serial_process_pool_and_dask_give_one_result(cheap_study, tmp_path):
 def test_an_interrupted_calibration_resumes_to_the_uninterrupted_result(cheap_study, tmp_path):
     whole = cheap_run(cheap_study, tmp_path / 'whole', workers=1)
     command = [sys.executable, '-m', 'tissue_sim_ros.cli', 'calibrate', '--data-spec', str(cheap_study),
-               '--max-iterations', '6', '--jobs', '1', '--out', str(tmp_path / 'cut')]
+               '--max-evaluations', '40', '--jobs', '1', '--out', str(tmp_path / 'cut')]
     for text in CHEAP_MESH + sets(START):
         command += ['--set', text]
     for text in CHEAP_FITS:
@@ -155,7 +140,7 @@ def test_a_diverging_or_refused_trial_scores_as_a_miss_and_the_search_goes_on(ch
         assert np.all(evaluation.residuals * np.sqrt(evaluation.residuals.size) == pytest.approx(FAILED_RESIDUAL))
         assert np.isfinite(evaluation.objective)
     report = calibration.main(data_spec=cheap_study, fits=[strong_law, 'regions[0].cutting_force_n=0.1:1.5'],
-                              sets=CHEAP_MESH + sets(START), out=tmp_path / 'out', workers=2, joint_evaluations=6)
+                              sets=CHEAP_MESH + sets(START), out=tmp_path / 'out', workers=2, max_evaluations=40)
     assert any('failed and scored as misses' in w for w in report['warnings'])   # the scan met them
     assert report['parameters']['model.physical.mu_rate']['value'] < 100
     assert report['fit']['nrmse_mean'] < 0.5 * report['fit']['nrmse_mean_start']
@@ -175,3 +160,11 @@ def test_a_bad_fit_option_is_one_error_line_naming_it(cheap_study, tmp_path, cap
     error = capsys.readouterr().err.strip().splitlines()[-1]
     print(error)
     assert status == 2 and error.startswith('tissue-sim calibrate: error:') and says in error
+
+
+@pytest.mark.parametrize('value', [0.0, 1e-10, 2.5e-7, 1e20, 12345.678, -3e-5])
+def test_a_fitted_value_reaches_the_scene_as_the_same_number(value):
+    """YAML 1.1 reads 1e-10 as text; the scene refused such a value mid-search."""
+    import yaml
+    from tissue_sim_ros.analysis.calibration_parameters import yaml_number
+    assert yaml.safe_load(yaml_number(value)) == value

@@ -63,6 +63,12 @@ def _add_scene_sets(parser):
                              'regions[liver].membrane.rupture_force_n=2.1')
 
 
+def _add_max_depth(parser):
+    parser.add_argument('--max-depth-mm', type=_POSITIVE, default=None,
+                        help='use each trial up to this travel since its contact [mm] (the first '
+                             'part of the insertion; default: the whole trial)')
+
+
 def _input_file(text):
     """An argparse type: a file that exists (not a directory)."""
     path = Path(text)
@@ -175,7 +181,8 @@ def _compare(args):
                'motion.retract': True if args.retract else None,
                'file_name.pattern': args.file_pattern}
     main(data_spec=args.data_spec, files=args.files, options=options, scene_file=args.scene,
-         sets=args.set, align=args.align, gap_mm=args.start_gap_mm, per_trial=args.per_trial,
+         sets=args.set, align=args.align, gap_mm=args.start_gap_mm, max_depth_mm=args.max_depth_mm,
+         per_trial=args.per_trial,
          tick_ms=args.tick_ms, workers=args.jobs, scheduler=args.scheduler, out=args.out)
 
 
@@ -187,8 +194,10 @@ def _calibrate(args):
         raise CommandError(str(exc)) from None
     main(data_spec=args.data_spec, fits=args.fit, validate_spec=args.validate_spec, scene_file=args.scene,
          sets=args.set, coarse_sets=args.coarse_set, align=args.align, gap_mm=args.start_gap_mm,
+         max_depth_mm=args.max_depth_mm,
          tick_ms=args.tick_ms, phase_weights=args.phase_weight, inertia_bound=args.inertia_bound,
-         global_search=args.global_search, joint_evaluations=args.max_iterations, workers=args.jobs,
+         global_search=args.global_search, max_evaluations=args.max_evaluations,
+         fine_evaluations=args.fine_evaluations, workers=args.jobs,
          scheduler=args.scheduler, out=args.out)
 
 
@@ -271,6 +280,7 @@ def build_parser():
                               'correlation (<= 0.5 s); depth: force against depth, insertion only')
     compare.add_argument('--start-gap-mm', type=_NON_NEGATIVE, default=None,
                          help="the data's travel at contact [mm] (default: found in the force)")
+    _add_max_depth(compare)
     compare.add_argument('--per-trial', action='store_true',
                          help="simulate every trial's own motion (default: one simulation per speed)")
     compare.add_argument('--tick-ms', type=_POSITIVE, default=10.0, help='simulation sampling [ms] (default 10)')
@@ -321,6 +331,7 @@ def build_parser():
                            help="how simulation and data are put side by side (compare's --align)")
     calibrate.add_argument('--start-gap-mm', type=_NON_NEGATIVE, default=None,
                            help='travel from the start to contact, when known (default: from the force)')
+    _add_max_depth(calibrate)
     calibrate.add_argument('--tick-ms', type=_POSITIVE, default=10.0, help='simulation sampling [ms] (default 10)')
     calibrate.add_argument('--phase-weight', action='append', default=[], metavar='PHASE=W',
                            help='weight of a phase in the objective (approach, loading, inserted, hold, '
@@ -330,8 +341,11 @@ def build_parser():
                                 'range (default 0.02)')
     calibrate.add_argument('--global', dest='global_search', action='store_true',
                            help='start with a global search (differential evolution) for hard cases')
-    calibrate.add_argument('--max-iterations', type=_number(1, inclusive=True, whole=True), default=20,
-                           help='evaluations of the joint refinement at most (default 20)')
+    calibrate.add_argument('--max-evaluations', type=_number(1, inclusive=True, whole=True), default=150,
+                           help='parameter vectors the search may evaluate (each: one simulation per '
+                                'speed; default 150); then the best so far is the result')
+    calibrate.add_argument('--fine-evaluations', type=_number(1, inclusive=True, whole=True), default=15,
+                           help='with --coarse-set: evaluations of the finish on the scene as asked (default 15)')
     calibrate.add_argument('--jobs', type=_number(1, inclusive=True, whole=True), default=None,
                            help='worker processes (default: every core this process may use)')
     calibrate.add_argument('--scheduler', default=None, metavar='ADDRESS',

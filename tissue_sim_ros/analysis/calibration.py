@@ -44,8 +44,8 @@ def measure_inertia_error(objective, u0) -> dict:
     m0 = float(job.scene_spec['solver']['mass_scaling'])
     lighter = dict(job.scene_spec, solver=dict(job.scene_spec['solver'], mass_scaling=m0 / INERTIA_CHECK_FACTOR))
     plain = replace(job, keep_time_step_s=None, max_mass_scaling=None)
-    heavy, light = run_jobs(simulate, [plain, replace(plain, scene_spec=lighter)],
-                            workers=objective.workers, scheduler=objective.scheduler, quiet=True)
+    heavy, light = run_jobs(simulate, [plain, replace(plain, scene_spec=lighter)], workers=objective.workers,
+                            scheduler=objective.scheduler, quiet=True, pool=objective.pool)
     trial = objective.trials[objective.plan.representative[0]]
     scale = float(np.ptp(trial.axial_force_n)) or 1.0
     both = np.isfinite(heavy.axial_force_n) & np.isfinite(light.axial_force_n)
@@ -72,7 +72,7 @@ def _start(keys, spec, log) -> np.ndarray:
 
 def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=None, tick_s=0.01,
               phase_weights=None, inertia_bound=INERTIA_BOUND, staged=True, global_search=False,
-              generations=5, stage_evaluations=6, joint_evaluations=20, fine_evaluations=6,
+              generations=5, stage_evaluations=6, joint_evaluations=20, max_evaluations=150, fine_evaluations=15,
               out=None, workers=None, scheduler=None, quiet=False, log=None) -> dict:
     """Fit ``keys`` (FittedKey) of ``scene`` to ``trials``; everything the report needs."""
     from tqdm import tqdm
@@ -87,8 +87,10 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
     log_path = out / 'evaluations.jsonl' if out is not None else None
     search_scene = coarse_scene or scene
     u0 = _start(keys, scene.spec, log)
+    from tissue_sim_ros.analysis.job_runner import WorkerPool
+    pool = WorkerPool(workers if scheduler is None else 1)
     options = dict(align=align, gap_m=gap_m, tick_s=tick_s, phase_weights=phase_weights, store=store,
-                   log_path=log_path, workers=workers, scheduler=scheduler)
+                   log_path=log_path, workers=workers, scheduler=scheduler, pool=pool)
 
     def objective_for(a_scene):
         probe = Objective(trials, a_scene, keys, **options)
@@ -108,12 +110,13 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
         objective.on_evaluation = seen
         return objective
 
-    with bar:
+    with bar, pool:
         objective, inertia = objective_for(search_scene)
         progress(objective)
         start = objective.evaluate(u0)
         u = search(objective, u0, staged=staged, global_search=global_search, generations=generations,
-                   stage_evaluations=stage_evaluations, joint_evaluations=joint_evaluations, log=log)
+                   stage_evaluations=stage_evaluations, joint_evaluations=joint_evaluations,
+                   max_evaluations=max_evaluations, log=log)
         evaluations = len(objective._cache)
         simulations = objective.simulations_run
         if coarse_scene is not None:
@@ -121,7 +124,8 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
             objective, inertia = objective_for(scene)
             progress(objective)
             start = objective.evaluate(u0)
-            u = search(objective, u, staged=False, joint_evaluations=fine_evaluations, log=log)
+            u = search(objective, u, staged=False, joint_evaluations=joint_evaluations,
+                       max_evaluations=fine_evaluations, log=log)
             evaluations += len(objective._cache)
             simulations += objective.simulations_run
         best = objective.evaluate(u)
@@ -157,8 +161,9 @@ def _phase_weights(texts) -> dict:
 
 
 def main(*, data_spec, fits, validate_spec=None, scene_file=None, sets=(), coarse_sets=(), align='contact',
-         gap_mm=None, tick_ms=10.0, phase_weights=(), inertia_bound=INERTIA_BOUND, global_search=False,
-         joint_evaluations=20, workers=None, scheduler=None, out='out/calibrate', stream=None) -> dict:
+         gap_mm=None, max_depth_mm=None, tick_ms=10.0, phase_weights=(), inertia_bound=INERTIA_BOUND, global_search=False,
+         max_evaluations=150, fine_evaluations=15, workers=None, scheduler=None, out='out/calibrate',
+         stream=None) -> dict:
     """The ``tissue-sim calibrate`` command."""
     from tissue_sim_ros.analysis.calibration_parameters import parse_fit
     from tissue_sim_ros.analysis.calibration_report import write_report
@@ -172,6 +177,11 @@ def main(*, data_spec, fits, validate_spec=None, scene_file=None, sets=(), coars
     spec = DataSpec.from_file(data_spec)
     trials = load_trials(spec)
     held_out = load_trials(DataSpec.from_file(validate_spec)) if validate_spec else []
+    if max_depth_mm is not None:
+        from tissue_sim_ros.analysis.measured_motion import within_depth
+        gap = None if gap_mm is None else gap_mm * 1e-3
+        trials = [within_depth(t, max_depth_mm * 1e-3, gap_m=gap) for t in trials]
+        held_out = [within_depth(t, max_depth_mm * 1e-3, gap_m=gap) for t in held_out]
     scene = Scene.from_file(scene_file, sets=sets)
     coarse = Scene.from_file(scene_file, sets=list(sets) + list(coarse_sets)) if coarse_sets else None
     print(f'calibrate: {len(keys)} key(s) on {len(trials)} trial(s) from {spec.source}'
@@ -181,10 +191,11 @@ def main(*, data_spec, fits, validate_spec=None, scene_file=None, sets=(), coars
     fit = calibrate(trials, scene, keys, coarse_scene=coarse, align=align,
                     gap_m=None if gap_mm is None else gap_mm * 1e-3, tick_s=tick_ms * 1e-3,
                     phase_weights=weights, inertia_bound=inertia_bound, global_search=global_search,
-                    joint_evaluations=joint_evaluations, out=out, workers=workers, scheduler=scheduler,
+                    max_evaluations=max_evaluations, fine_evaluations=fine_evaluations, out=out,
+                    workers=workers, scheduler=scheduler,
                     log=lambda text: print(text, file=stream))
     final = Scene(calibrated_spec(fit), base_dir=scene.base_dir)
-    report = write_report(Path(out), fit, trials=trials, held_out=held_out, start_scene=scene, final_scene=final,
+    report = write_report(Path(out), fit, held_out=held_out, start_scene=scene, final_scene=final,
                           scene_file=scene_file, sets=sets, data_spec=data_spec, validate_spec=validate_spec,
                           align=align, gap_m=None if gap_mm is None else gap_mm * 1e-3, tick_s=tick_ms * 1e-3,
                           workers=workers, scheduler=scheduler)

@@ -8,7 +8,9 @@ the same comparison ``tissue-sim compare`` reports. The residuals of a trial are
 minus the measured force at fixed samples (chosen once: evenly over the compared part of the
 trial, at most ``points_per_trial``), divided by the trial's force range (so each residual is an
 NRMSE contribution) and by the square root of the number of residuals, times the weight of the
-sample's phase: the sum of squares is the mean squared NRMSE of the trials.
+sample's phase: the sum of squares is the mean squared NRMSE of the trials. Samples at a
+puncture of either curve count 0, as compare's NRMSE leaves them out (a one-sample difference in
+when the force drops would dominate the sum); the puncture stage fits the events themselves.
 
 A run that diverges, trips the watchdog, or whose keys the scene refuses, scores 1 at every
 residual (a miss by the whole force range: worse than any run that finishes) and its reason is
@@ -28,10 +30,14 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['Evaluation', 'Objective', 'FAILED_RESIDUAL']
+__all__ = ['Evaluation', 'Objective', 'FAILED_RESIDUAL', 'BudgetSpent']
 
 #: the residual of a sample the simulation did not give (diverged, refused, not reached)
 FAILED_RESIDUAL = 1.0
+
+
+class BudgetSpent(Exception):
+    """The evaluations the search may run are spent (``Objective.budget``)."""
 
 
 @dataclass
@@ -60,7 +66,7 @@ class Objective:
 
     def __init__(self, trials, scene, keys, *, sets_spec=None, align='contact', gap_m=None, tick_s=0.01,
                  points_per_trial=200, phase_weights=None, keep_time_step_s=None, max_mass_scaling=None,
-                 store=None, log_path=None, workers=None, scheduler=None):
+                 store=None, log_path=None, workers=None, scheduler=None, pool=None):
         from tissue_sim_ros.analysis.compare import plan_simulations
         self.trials, self.keys, self.align = list(trials), list(keys), align
         self.base_spec = sets_spec if sets_spec is not None else scene.spec
@@ -70,13 +76,14 @@ class Objective:
         self.points_per_trial = int(points_per_trial)
         self.phase_weights = dict(phase_weights or {})
         self.keep_time_step_s, self.max_mass_scaling = keep_time_step_s, max_mass_scaling
-        self.store, self.workers, self.scheduler = store, workers, scheduler
+        self.store, self.workers, self.scheduler, self.pool = store, workers, scheduler, pool
         self.log_path = None if log_path is None else Path(log_path)
         self._cache: dict = {}
         self._points = None              # per trial: (sample indices, phases there)
         self.simulations_run = 0
         self.best: Evaluation | None = None
         self.on_evaluation = None        # called with each new Evaluation (progress)
+        self.budget: int | None = None   # evaluations at most (None: no limit), else BudgetSpent
 
     # -- parameter vectors to jobs ----------------------------------------------------------------
     def values(self, u) -> dict:
@@ -104,6 +111,8 @@ class Objective:
         from tissue_sim_ros.analysis.trial_simulation import simulate
         keys = [self._key(u) for u in us]
         new = list(dict.fromkeys(k for k in keys if k not in self._cache))
+        if new and self.budget is not None and len(self._cache) + len(new) > self.budget:
+            raise BudgetSpent(f'{self.budget} evaluations spent')
         jobs = [job for k in new for job in self.jobs_for(k)]
         results = [self.store.get(job.key) if self.store is not None else None for job in jobs]
         todo = [i for i, r in enumerate(results) if r is None]
@@ -113,7 +122,7 @@ class Objective:
             if self.store is not None:
                 self.store.put(jobs[todo[position]].key, result)
         run_jobs(simulate, [jobs[i] for i in todo], workers=self.workers, scheduler=self.scheduler,
-                 on_result=keep, quiet=True)
+                 on_result=keep, quiet=True, pool=self.pool)
         self.simulations_run += len(todo)
         per = len(self.plan.jobs)
         for n, k in enumerate(new):
@@ -156,10 +165,15 @@ class Objective:
         return candidates, phases[candidates]
 
     def _trial_residuals(self, comparison, indices, phases) -> np.ndarray:
+        from tissue_sim_ros.analysis.compare import away_from_events
         measured = comparison.measured_n
         scale = float(np.ptp(measured)) or 1.0
         simulated = comparison.simulated_n[indices]
         error = np.where(np.isfinite(simulated), (simulated - measured[indices]) / scale, FAILED_RESIDUAL)
+        if not comparison.diverged:      # compare's NRMSE leaves the samples at a puncture out; so does this
+            away = away_from_events(comparison.travel_since_contact_m,
+                                     comparison.measured_punctures + comparison.simulated_punctures)
+            error = np.where(away[indices], error, 0.0)
         weights = np.array([self.phase_weights.get(p, 1.0) for p in phases])
         total = sum(len(points[0]) for points in self._points)
         return error * weights / np.sqrt(max(total, 1))

@@ -18,7 +18,7 @@ import math
 import re
 from dataclasses import dataclass
 
-__all__ = ['FittedKey', 'PHASE_RULES', 'parse_fit', 'phase_of', 'read_key', 'overrides_for']
+__all__ = ['FittedKey', 'PHASE_RULES', 'parse_fit', 'phase_of', 'read_key', 'overrides_for', 'yaml_number']
 
 #: (pattern on the key, the phase it is fitted on in the staged start); the first match wins
 PHASE_RULES = (
@@ -112,6 +112,16 @@ def read_key(spec: dict, key: str):
     return float(node)
 
 
+def yaml_number(value: float) -> str:
+    """``value`` with every digit (repr), written so that YAML reads a number: PyYAML (YAML 1.1)
+    reads ``1e-10`` as text, ``1.0e-10`` as a float."""
+    text = repr(float(value))
+    mantissa, e, exponent = text.partition('e')
+    if e and '.' not in mantissa:
+        text = f'{mantissa}.0e{exponent}'
+    return text
+
+
 def overrides_for(keys, values) -> list[str]:
-    """``--set`` texts giving each key its value (repr keeps every digit)."""
-    return [f'{k.key}={float(v)!r}' for k, v in zip(keys, values)]
+    """``--set`` texts giving each key its value."""
+    return [f'{k.key}={yaml_number(v)}' for k, v in zip(keys, values)]

@@ -42,6 +42,13 @@ def _studies(trials, scene, **options):
     return compare_trials(trials, scene, quiet=True, **options) if trials else None
 
 
+def _study_of(evaluation, objective) -> dict:
+    """The fitted trials' comparisons as compare's study (the search already simulated them)."""
+    from tissue_sim_ros.analysis.compare import speed_groups
+    return {'comparisons': evaluation.comparisons,
+            'speeds': speed_groups(objective.trials, objective.plan.motions, evaluation.comparisons)}
+
+
 def _speed_rows(study_start, study_final, role, baseline) -> list[dict]:
     rows = []
     for start, final in zip(study_start['speeds'], study_final['speeds']):
@@ -168,7 +175,7 @@ def _markdown(report) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def write_report(out: Path, fit, *, trials, held_out, start_scene, final_scene, scene_file, sets, data_spec,
+def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_file, sets, data_spec,
                  validate_spec, align, gap_m, tick_s, workers=None, scheduler=None) -> dict:
     """Write every output (see the module docstring); the report dict."""
     from tissue_sim_ros.analysis.calibration import calibrated_spec
@@ -176,12 +183,12 @@ def write_report(out: Path, fit, *, trials, held_out, start_scene, final_scene, 
     out.mkdir(parents=True, exist_ok=True)
     options = dict(align=align, gap_m=gap_m, tick_s=tick_s, store=ResultStore(out / 'simulations'),
                    workers=workers, scheduler=scheduler)
-    baseline = _nearest_baseline(list(trials) + list(held_out))
-    rows, studies = [], {}
-    for role, members in (('fit', trials), ('held out', held_out)):
-        if members:
-            studies[role] = (_studies(members, start_scene, **options), _studies(members, final_scene, **options))
-            rows += _speed_rows(*studies[role], role, baseline)
+    baseline = _nearest_baseline(list(fit['objective'].trials) + list(held_out))
+    objective = fit['objective']
+    studies = {'fit': (_study_of(fit['start'], objective), _study_of(fit['best'], objective))}
+    if held_out:
+        studies['held out'] = (_studies(held_out, start_scene, **options), _studies(held_out, final_scene, **options))
+    rows = [row for role, pair in studies.items() for row in _speed_rows(*pair, role, baseline)]
     spread = fit['uncertainty']
     keys = fit['keys']
     parameters = {k.key: {'value': k.value(x), 'stderr': float(se), 'start': k.value(x0), 'low': k.low,

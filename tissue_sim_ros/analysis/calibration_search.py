@@ -19,6 +19,9 @@ Jacobians are forward differences of ``FD_STEP`` in unit coordinates (about 5 % 
 log key: wider than a step of the simulation's events, narrow enough for the curvature),
 stepping inward at a bound; the vectors of one Jacobian run as one parallel batch.
 
+``max_evaluations`` bounds the evaluations of one search; when they are spent the best vector
+so far is the result.
+
 Uncertainty: with J the Jacobian of the residuals at the optimum (unit coordinates), m residuals
 and n keys, the covariance is s^2 (J^T J)^-1 with s^2 = sum(r^2) / (m - n) (the Gauss-Newton
 estimate, as scipy's curve_fit), converted to each key's unit by its d value / d u. Neighbouring
@@ -99,10 +102,25 @@ def _global(objective, u0, generations, seed):
 
 
 def search(objective, u0, *, staged=True, global_search=False, generations=5, seed=0,
-           stage_evaluations=6, joint_evaluations=20, log=print) -> np.ndarray:
+           stage_evaluations=6, joint_evaluations=20, max_evaluations=None, log=print) -> np.ndarray:
     """The optimum in unit coordinates, from ``u0`` (see the module docstring)."""
+    from tissue_sim_ros.analysis.calibration_objective import BudgetSpent
     u = np.clip(np.asarray(u0, dtype=float), 0.0, 1.0)
     objective.evaluate(u)
+    objective.budget = None if max_evaluations is None else len(objective._cache) + int(max_evaluations)
+    try:
+        u = _stages(objective, u, staged, global_search, generations, seed, stage_evaluations,
+                    joint_evaluations, log)
+    except BudgetSpent:
+        log(f'{max_evaluations} evaluations spent: the best so far is the result')
+        u = np.asarray(objective.best.u, dtype=float)
+    finally:
+        objective.budget = None
+    best = objective.best
+    return np.asarray(best.u if best.objective < objective.evaluate(u).objective else u, dtype=float)
+
+
+def _stages(objective, u, staged, global_search, generations, seed, stage_evaluations, joint_evaluations, log):
     if global_search:
         log(f'global stage: differential evolution, {generations} generation(s)')
         u = _global(objective, u, generations, seed)
@@ -118,9 +136,7 @@ def search(objective, u0, *, staged=True, global_search=False, generations=5, se
                 u = _scan(objective, u, i, phases)
             u = _least_squares(objective, u, free, phases, stage_evaluations)
     log(f'joint refinement: {len(u)} key(s)')
-    u = _least_squares(objective, u, list(range(len(u))), None, joint_evaluations)
-    best = objective.best
-    return np.asarray(best.u if best.objective < objective.evaluate(u).objective else u, dtype=float)
+    return _least_squares(objective, u, list(range(len(u))), None, joint_evaluations)
 
 
 def uncertainty(objective, u) -> dict:

@@ -122,7 +122,7 @@ def compare_trial(trial, motion, curve: SimulatedCurve, align: str = 'contact') 
     events = event_errors(data_punctures, sim_punctures, measured_force_n=force[compared],
                           measured_phases=phases[compared], simulated_force_n=simulated[compared],
                           simulated_phases=phases[compared]) if compared.any() else {}
-    pointwise = np.where(_away_from_events(travel, data_punctures + sim_punctures), simulated, np.nan)
+    pointwise = np.where(away_from_events(travel, data_punctures + sim_punctures), simulated, np.nan)
     normaliser = float(np.ptp(force)) or None
     errors = curve_errors(force, pointwise, normaliser=normaliser) \
         if np.isfinite(pointwise).any() else {'nrmse': float('nan'), 'rmse_n': float('nan'), 'count': 0}
@@ -135,7 +135,7 @@ def compare_trial(trial, motion, curve: SimulatedCurve, align: str = 'contact') 
                            curve.diverged)
 
 
-def _away_from_events(travel, punctures) -> np.ndarray:
+def away_from_events(travel, punctures) -> np.ndarray:
     """Samples farther than EVENT_WINDOW_M of travel (and EVENT_WINDOW_SAMPLES samples) from
     every puncture of either curve: the pointwise errors leave those out. A puncture drops the
     force by most of its value within a sample; a timing difference of one sample there would
@@ -282,7 +282,7 @@ def data_spec_from_options(files, options: dict):
 
 
 def main(*, data_spec=None, files=(), options=None, scene_file=None, sets=(), align='contact',
-         gap_mm=None, per_trial=False, tick_ms=10.0, workers=None, scheduler=None, out='out/compare',
+         gap_mm=None, max_depth_mm=None, per_trial=False, tick_ms=10.0, workers=None, scheduler=None, out='out/compare',
          stream=None) -> dict:
     """The ``tissue-sim compare`` command: load the trials, compare, write the report."""
     import sys
@@ -294,6 +294,10 @@ def main(*, data_spec=None, files=(), options=None, scene_file=None, sets=(), al
     stream = sys.stdout if stream is None else stream
     spec = DataSpec.from_file(data_spec) if data_spec else data_spec_from_options(files, options or {})
     trials = load_trials(spec)
+    if max_depth_mm is not None:
+        from tissue_sim_ros.analysis.measured_motion import within_depth
+        trials = [within_depth(t, max_depth_mm * 1e-3, gap_m=None if gap_mm is None else gap_mm * 1e-3)
+                  for t in trials]
     scene = Scene.from_file(scene_file, sets=sets)
     print(f'compare: {len(trials)} trial(s) from {spec.source}; scene {scene_file or "(default)"}'
           f'{" with " + ", ".join(sets) if sets else ""}: {scene.mesh.n_elements} tetrahedra', file=stream)

@@ -9,6 +9,10 @@ address ('tcp://host:8786', or a ``distributed.Client``). A progress bar (tqdm, 
 the jobs done; ``on_result(index, result)`` sees each result as it arrives (the caller saves it:
 that is what makes a run resumable). ``function`` and the jobs must pickle (a module-level
 function and plain data).
+
+A study that runs many small batches (a calibration: one per parameter vector or Jacobian)
+keeps one :class:`WorkerPool` open across them: starting a spawned worker (Python, numpy, numba
+and its cached kernels) costs seconds, more than a small batch's simulations.
 """
 from __future__ import annotations
 
@@ -17,7 +21,7 @@ import os
 import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
-__all__ = ['default_workers', 'run_jobs']
+__all__ = ['default_workers', 'run_jobs', 'WorkerPool']
 
 
 def default_workers() -> int:
@@ -39,10 +43,32 @@ def _progress(total: int, label: str, quiet: bool):
                 dynamic_ncols=True)
 
 
+class WorkerPool:
+    """A process pool of ``workers`` spawned processes (one numba thread each) kept open across
+    :func:`run_jobs` calls (``pool=``); a context manager. With one worker it holds no process."""
+
+    def __init__(self, workers: int | None = None):
+        self.workers = default_workers() if workers is None else int(workers)
+        self.executor = None
+
+    def __enter__(self):
+        if self.workers > 1:
+            self.executor = ProcessPoolExecutor(max_workers=self.workers, initializer=_one_thread,
+                                                mp_context=multiprocessing.get_context('spawn'))
+        return self
+
+    def __exit__(self, *exc):
+        if self.executor is not None:
+            self.executor.shutdown(cancel_futures=True)
+            self.executor = None
+        return False
+
+
 def run_jobs(function, jobs, *, workers: int | None = None, scheduler=None, label: str = 'simulations',
-             on_result=None, quiet: bool = False, postfix=None) -> list:
+             on_result=None, quiet: bool = False, postfix=None, pool: WorkerPool | None = None) -> list:
     """``[function(job) for job in jobs]`` in parallel (see the module docstring). ``postfix()``:
-    text the progress bar shows after each result (e.g. the best objective so far)."""
+    text the progress bar shows after each result (e.g. the best objective so far); ``pool``: an
+    open WorkerPool to run them in (``workers`` is then its size)."""
     jobs = list(jobs)
     results = [None] * len(jobs)
     workers = default_workers() if workers is None else int(workers)
@@ -57,6 +83,10 @@ def run_jobs(function, jobs, *, workers: int | None = None, scheduler=None, labe
 
         if scheduler is not None:
             _run_dask(function, jobs, scheduler, done)
+        elif pool is not None and pool.executor is not None and len(jobs) > 1:
+            futures = {pool.executor.submit(function, job): index for index, job in enumerate(jobs)}
+            for future in as_completed(futures):
+                done(futures[future], future.result())
         elif workers <= 1 or len(jobs) <= 1:
             for index, job in enumerate(jobs):
                 done(index, function(job))

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ['MeasuredMotion', 'PRE_ROLL_SPEED_M_S', 'SMOOTHING_S', 'trial_travel', 'measured_motion',
-           'Schedule', 'schedule_for_scene']
+           'within_depth', 'Schedule', 'schedule_for_scene']
 
 PRE_ROLL_SPEED_M_S = 0.02
 SMOOTHING_S = 0.05
@@ -88,6 +88,24 @@ def measured_motion(trial, *, gap_m: float | None = None) -> MeasuredMotion:
     elif contact is None:
         contact = int(np.argmax(travel >= gap_m)) if np.any(travel >= gap_m) else len(travel) - 1
     return MeasuredMotion(time, travel, int(contact), float(gap_m))
+
+
+def within_depth(trial, max_depth_m: float, *, gap_m: float | None = None):
+    """``trial`` up to the sample where its travel since contact first passes ``max_depth_m``
+    (the first millimetres of the insertion: what a study compares when the deeper part, the
+    hold and the retraction are left out), with its travel as a column. The trial as it is
+    when it never gets that deep."""
+    from dataclasses import replace
+    if not (np.isfinite(max_depth_m) and max_depth_m > 0):
+        raise ValueError(f'max depth = {max_depth_m!r} m: expected a finite depth > 0')
+    motion = measured_motion(trial, gap_m=gap_m)
+    beyond = np.flatnonzero(motion.travel_m - motion.gap_m > max_depth_m)
+    end = int(beyond[0]) + 1 if beyond.size else trial.n_samples
+
+    def cut(values):
+        return None if values is None else np.asarray(values)[:end]
+    return replace(trial, time_s=cut(trial.time_s), axial_force_n=cut(trial.axial_force_n),
+                   travel_m=cut(motion.travel_m), force_n=cut(trial.force_n), torque_nm=cut(trial.torque_nm))
 
 
 @dataclass(frozen=True)
