@@ -5,12 +5,13 @@ compared between them are found by the same rule. Force is positive while the ti
 The rules (module constants, SI units):
 
 - Pre-contact level: the median (``baseline``) and the robust standard deviation (``noise``,
-  1.4826 x the median absolute deviation) of the first third of the first 10 % of the samples
-  (at least 10): robust to a few spikes, and zero for a noiseless simulated curve. With 20
-  samples or more in the first 10 %, the noise is the smaller of that and the same over all of
-  them about a quadratic fit. A recording that starts just above the tissue has the loading's
-  rise in its first 10 %: taken as noise it hid a 0.4 N puncture behind an 8-noise threshold of
-  0.87 N, and taken as the baseline it put the contact 1 mm late.
+  1.4826 x the median absolute deviation) of the first 10 % of the samples (at least 10): robust
+  to a few spikes, and zero for a noiseless simulated curve. A recording that starts just above
+  the tissue has the loading's rise in its first 10 %: taken as noise it hid a 0.4 N puncture
+  behind an 8-noise threshold of 0.87 N, and raising the median it put the contact 1 mm late.
+  So the baseline is the smaller of that median and the median of the first third of those
+  samples, and with 20 samples or more the noise is the smaller of that spread and the spread
+  about a quadratic fit to them.
 - Contact: found where the force stays above ``baseline + 5 noise + 1 mN`` for ``sustain_s`` (and
   the travel, when given, rises meanwhile by more than 3 travel-noise: the median of the last
   quarter of that window above the median of its first quarter); the index returned is the onset
@@ -76,9 +77,8 @@ def baseline_and_noise(force_n) -> tuple[float, float]:
     if n_head == 0:
         raise ValueError('force_n is empty; expected a force curve')
     head = force[:n_head]
-    early = head[:max(MIN_HEAD_SAMPLES, n_head // 3)]
-    baseline = float(np.median(early))
-    noise = MAD_TO_SIGMA * np.median(np.abs(early - baseline))
+    baseline = float(min(np.median(head), np.median(head[:max(MIN_HEAD_SAMPLES, n_head // 3)])))
+    noise = MAD_TO_SIGMA * np.median(np.abs(head - np.median(head)))
     if n_head >= 2 * MIN_HEAD_SAMPLES:      # a head that reaches into the loading: its trend is not noise
         k = np.arange(n_head, dtype=float)
         trend = np.polyval(np.polyfit(k, head, 2), k)
