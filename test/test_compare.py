@@ -15,7 +15,9 @@ from tissue_sim_ros.analysis import compare
 from tissue_sim_ros.analysis.insertion import run_insertion
 from tissue_sim_ros.engine.scene import Scene
 
-SETS = ['mesh.generator=box', 'mesh.divisions=[8,8,6]']
+# the tests' own tissue (the default scene's cutting and friction are calibrated, and move)
+SETS = ['mesh.generator=box', 'mesh.divisions=[8,8,6]', 'regions[0].cutting_force_n=0.94',
+        'regions[0].friction.insertion_coulomb_n_per_m=10.57']
 NO_MEMBRANE = ['regions[0].membrane.criterion=none']   # cutting and friction: a smooth curve
 NOISE_N = 0.005
 REPEATS = 3
