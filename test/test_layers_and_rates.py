@@ -5,7 +5,7 @@ next to the per-length ones gives the retraction its plateau."""
 import numpy as np
 import pytest
 
-from test_needle import NU, axial, drive_down, push, small_scene
+from test_needle import NU, axial, drive_down, push, small_scene, stiff_scene
 from tissue_sim_ros.engine.region_selectors import RegionSelectors
 
 
@@ -77,10 +77,7 @@ def test_constant_friction_terms_give_a_plateau_both_ways():
                 'retraction_coulomb_n_per_m': 11.96, 'retraction_viscous_n_s_per_m2': 239.08,
                 'insertion_constant_n': 0.4, 'retraction_constant_n': 1.1}
     cutting, speed = 0.5, 3e-3
-    scene = small_scene(fine=0.003, regions=[{'name': 'stiff', 'young_modulus_pa': 2e9, 'poisson_ratio': 0.3,
-                                              'membrane': {'criterion': 'force', 'rupture_force_n': 0.5},
-                                              'cutting_force_n': cutting, 'friction': friction}],
-                        solver={'mass_scaling': 1e6})
+    scene = stiff_scene(cutting, friction)
     drive_down(scene, 0.0105, speed, tick=0.01)
     inserted = scene.tip_depth
     expected = cutting + 0.4 + inserted * (10.57 + 212.31 * speed)

@@ -35,6 +35,15 @@ def push(scene, travel, speed, *, tick=0.02):
         yield
 
 
+def stiff_scene(cutting_n, friction):
+    """A rigid-like tissue (the shaft's points do not move; huge masses keep the step usable) with a
+    0.5 N membrane: the axial force is the needle's own laws, cutting and friction."""
+    return small_scene(fine=0.003, regions=[{'name': 'stiff', 'young_modulus_pa': 2e9, 'poisson_ratio': 0.3,
+                                             'membrane': {'criterion': 'force', 'rupture_force_n': 0.5},
+                                             'cutting_force_n': cutting_n, 'friction': friction}],
+                       solver={'mass_scaling': 1e6})
+
+
 def drive_down(scene, travel, speed, *, tick=0.02):
     """push() to the end, when only the final state matters."""
     for _ in push(scene, travel, speed, tick=tick):
@@ -241,10 +250,7 @@ def test_stiff_tissue_force_is_cutting_plus_karnopp_friction_and_retraction_pull
                 'insertion_viscous_n_s_per_m2': 212.31, 'retraction_static_n_per_m': 18.23,
                 'retraction_coulomb_n_per_m': 11.96, 'retraction_viscous_n_s_per_m2': 239.08}
     cutting, speed = 0.94, 3e-3
-    scene = small_scene(fine=0.003, regions=[{'name': 'stiff', 'young_modulus_pa': 2e9, 'poisson_ratio': 0.3,
-                                              'membrane': {'criterion': 'force', 'rupture_force_n': 0.5},
-                                              'cutting_force_n': cutting, 'friction': friction}],
-                        solver={'mass_scaling': 1e6})   # a rigid-like tissue: huge masses keep dt usable
+    scene = stiff_scene(cutting, friction)
     drive_down(scene, 0.0105, speed, tick=0.01)
     assert scene.phase == 'inserted'
     inserted = scene.tip_depth
