@@ -187,9 +187,9 @@ def _compare(args):
 
 
 def _calibrate(args):
-    from tissue_sim_ros.analysis.calibration import _phase_weights, main
+    from tissue_sim_ros.analysis.calibration import parse_phase_weights, main
     try:
-        _phase_weights(args.phase_weight)
+        parse_phase_weights(args.phase_weight)
     except ValueError as exc:
         raise CommandError(str(exc)) from None
     main(data_spec=args.data_spec, fits=args.fit, validate_spec=args.validate_spec, scene_file=args.scene,

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['INERTIA_BOUND', 'measure_inertia_error', 'calibrate', 'main']
+__all__ = ['INERTIA_BOUND', 'measure_inertia_error', 'calibrate', 'calibrated_spec', 'parse_phase_weights', 'main']
 
 INERTIA_BOUND = 0.02
 #: the reduced mass scaling of the inertia check: m0 / this
@@ -112,29 +112,28 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
 
     with bar, pool:
         objective, inertia = objective_for(search_scene)
-        progress(objective)
+        used_objectives = [progress(objective)]
         start = objective.evaluate(u0)
         u = search(objective, u0, staged=staged, global_search=global_search, generations=generations,
                    stage_evaluations=stage_evaluations, joint_evaluations=joint_evaluations,
                    max_evaluations=max_evaluations, log=log)
-        evaluations = len(objective._cache)
-        simulations = objective.simulations_run
         if coarse_scene is not None:
             log('fine stage: joint refinement on the scene as asked')
             objective, inertia = objective_for(scene)
-            progress(objective)
+            used_objectives.append(progress(objective))
             start = objective.evaluate(u0)
             u = search(objective, u, staged=False, joint_evaluations=joint_evaluations,
                        max_evaluations=fine_evaluations, log=log)
-            evaluations += len(objective._cache)
-            simulations += objective.simulations_run
         best = objective.evaluate(u)
         spread = uncertainty(objective, u)
+    evaluations = [e for o in used_objectives for e in o.evaluations]
+    failed = [e for e in evaluations if e.failures]
+    simulations = sum(o.simulations_run for o in used_objectives)
     used = max((r.mass_scaling for r in best.results if np.isfinite(r.mass_scaling)), default=inertia['mass_scaling'])
     inertia['mass_scaling_at_optimum'] = used
     inertia['error_at_optimum'] = inertia['error_at_start'] * used / inertia['mass_scaling']
     return {'keys': keys, 'u0': u0, 'u': u, 'start': start, 'best': best, 'uncertainty': spread,
-            'inertia': inertia, 'objective': objective, 'evaluations': evaluations,
+            'inertia': inertia, 'objective': objective, 'evaluations': len(evaluations), 'failed': failed,
             'simulations': simulations, 'search_wall_s': time.perf_counter() - wall0}
 
 
@@ -144,7 +143,7 @@ def calibrated_spec(fit: dict) -> dict:
     return dict(spec, solver=dict(spec['solver'], mass_scaling=fit['inertia']['mass_scaling_at_optimum']))
 
 
-def _phase_weights(texts) -> dict:
+def parse_phase_weights(texts) -> dict:
     from tissue_sim_ros.analysis.force_events import PHASES
     weights = {}
     for text in texts or ():
@@ -173,7 +172,7 @@ def main(*, data_spec, fits, validate_spec=None, scene_file=None, sets=(), coars
     keys = [parse_fit(text) for text in fits]
     if not keys:
         raise ValueError('calibrate: give at least one --fit KEY=LOW:HIGH[:log]')
-    weights = _phase_weights(phase_weights)
+    weights = parse_phase_weights(phase_weights)
     spec = DataSpec.from_file(data_spec)
     trials = load_trials(spec)
     held_out = load_trials(DataSpec.from_file(validate_spec)) if validate_spec else []

@@ -85,6 +85,11 @@ class Objective:
         self.on_evaluation = None        # called with each new Evaluation (progress)
         self.budget: int | None = None   # evaluations at most (None: no limit), else BudgetSpent
 
+    @property
+    def evaluations(self) -> list[Evaluation]:
+        """Every evaluation so far, in the order they were made."""
+        return list(self._cache.values())
+
     # -- parameter vectors to jobs ----------------------------------------------------------------
     def values(self, u) -> dict:
         return {k.key: k.value(x) for k, x in zip(self.keys, u)}

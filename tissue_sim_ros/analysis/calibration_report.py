@@ -85,7 +85,7 @@ def _warnings(fit, rows, spread) -> list[str]:
            'add data where they differ' for a, b, rho in spread['correlated_pairs']]
     out += [f'{key} does not change the fitted curves (zero sensitivity): its value is the start'
             for key in spread['insensitive']]
-    failed = [e for e in fit['objective']._cache.values() if e.failures]
+    failed = fit['failed']
     if failed:
         out.append(f'{len(failed)} evaluation(s) failed and scored as misses (first: {failed[0].failures[0][:160]})')
     inertia = fit['inertia']

@@ -107,7 +107,7 @@ def search(objective, u0, *, staged=True, global_search=False, generations=5, se
     from tissue_sim_ros.analysis.calibration_objective import BudgetSpent
     u = np.clip(np.asarray(u0, dtype=float), 0.0, 1.0)
     objective.evaluate(u)
-    objective.budget = None if max_evaluations is None else len(objective._cache) + int(max_evaluations)
+    objective.budget = None if max_evaluations is None else len(objective.evaluations) + int(max_evaluations)
     try:
         u = _stages(objective, u, staged, global_search, generations, seed, stage_evaluations,
                     joint_evaluations, log)
