@@ -144,8 +144,8 @@ class MembraneContact:
             work = 0.0 if first else self.patch.work
             self.patch = ContactPatch.from_samples(*contact.engaged_samples(), inverse_mass, contact.region)
             self.patch.work = work
-            return first
             self._reserve_applied(len(contact.offsets) + len(self.point_nodes) + len(self.disc_offsets))
+            return first
         elif self.patch is None and float(self._travel @ self.axis) <= 0.0:
             contact.release()
             if self.n_points == 0:
