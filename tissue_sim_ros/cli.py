@@ -344,8 +344,9 @@ def build_parser():
     calibrate.add_argument('--max-evaluations', type=_number(1, inclusive=True, whole=True), default=150,
                            help='parameter vectors the search may evaluate (each: one simulation per '
                                 'speed; default 150); then the best so far is the result')
-    calibrate.add_argument('--fine-evaluations', type=_number(1, inclusive=True, whole=True), default=15,
-                           help='with --coarse-set: evaluations of the finish on the scene as asked (default 15)')
+    calibrate.add_argument('--fine-evaluations', type=_number(1, inclusive=True, whole=True), default=4,
+                           help='with --coarse-set: space-mapping iterations on the scene as asked, one '
+                                'evaluation there each (default 4)')
     calibrate.add_argument('--jobs', type=_number(1, inclusive=True, whole=True), default=None,
                            help='worker processes (default: every core this process may use)')
     calibrate.add_argument('--scheduler', default=None, metavar='ADDRESS',

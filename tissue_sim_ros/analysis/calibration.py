@@ -4,16 +4,18 @@
    (with ``--set``); each ``--fit KEY=LOW:HIGH[:log]`` starts from the scene's value.
 2. Affordable stiffness: a trial that would shrink the time step below the starting scene's keeps
    that step by raising the mass scaling (the critical step grows as its square root). The
-   inertia error this brings is measured once: the first speed's simulation at the starting mass
-   scaling m0 and at m0 / 4; the quasi-static error of mass scaling is linear in it (the inertial
+   inertia error this brings is measured once (on the scene the search runs on): the fastest speed's simulation (the shortest, and
+   the largest inertial and damping forces: the worst case) at the starting mass scaling m0 and
+   at m0 / 4; the quasi-static error of mass scaling is linear in it (the inertial
    force m a and the mass-proportional damping force both scale with the mass), so
    e(m) = (4/3) d (m / m0), d the NRMSE between the two runs. The mass scaling is capped where
    e(m) reaches ``inertia_bound`` (default 0.02 of the force range); beyond that the step
    shrinks instead (slower, never less accurate). e at the optimum is reported.
 3. The search (:mod:`~tissue_sim_ros.analysis.calibration_search`) on the objective
    (:mod:`~tissue_sim_ros.analysis.calibration_objective`); with ``coarse_sets`` (``--coarse-set``)
-   the staged start and most of the refinement run on a cheaper scene (a coarser mesh, a
-   simpler model), then a short joint refinement on the scene as asked: coarse to fine.
+   the staged start and the refinement run on a cheaper scene (a coarser mesh, a simpler model),
+   then output space mapping (:mod:`~tissue_sim_ros.analysis.calibration_mapping`) carries the
+   optimum to the scene as asked, one fine evaluation per iteration: coarse to fine.
 4. The result compared with every trial, fitted and held out (``--validate-spec``), by
    ``tissue-sim compare``'s machinery, beside the data's noise floor per speed and the baseline
    "reuse the nearest other speed's measured mean curve"; standard errors and correlations.
@@ -40,13 +42,15 @@ def measure_inertia_error(objective, u0) -> dict:
 
     from tissue_sim_ros.analysis.job_runner import run_jobs
     from tissue_sim_ros.analysis.trial_simulation import simulate
-    job = objective.jobs_for(u0)[0]
+    jobs = objective.jobs_for(u0)
+    fastest = int(np.argmin([job.times_s[-1] - job.times_s[0] for job in jobs]))
+    job = jobs[fastest]
     m0 = float(job.scene_spec['solver']['mass_scaling'])
     lighter = dict(job.scene_spec, solver=dict(job.scene_spec['solver'], mass_scaling=m0 / INERTIA_CHECK_FACTOR))
     plain = replace(job, keep_time_step_s=None, max_mass_scaling=None)
     heavy, light = run_jobs(simulate, [plain, replace(plain, scene_spec=lighter)], workers=objective.workers,
                             scheduler=objective.scheduler, quiet=True, pool=objective.pool)
-    trial = objective.trials[objective.plan.representative[0]]
+    trial = objective.trials[objective.plan.representative[fastest]]
     scale = float(np.ptp(trial.axial_force_n)) or 1.0
     both = np.isfinite(heavy.axial_force_n) & np.isfinite(light.axial_force_n)
     if heavy.diverged or light.diverged or not both.any():
@@ -72,12 +76,13 @@ def _start(keys, spec, log) -> np.ndarray:
 
 def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=None, tick_s=0.01,
               phase_weights=None, inertia_bound=INERTIA_BOUND, staged=True, global_search=False,
-              generations=5, stage_evaluations=6, joint_evaluations=20, max_evaluations=150, fine_evaluations=15,
-              out=None, workers=None, scheduler=None, quiet=False, log=None) -> dict:
+              generations=5, stage_evaluations=6, joint_evaluations=20, max_evaluations=150, fine_evaluations=4,
+              mapping_evaluations=13, out=None, workers=None, scheduler=None, quiet=False, log=None) -> dict:
     """Fit ``keys`` (FittedKey) of ``scene`` to ``trials``; everything the report needs."""
     from tqdm import tqdm
 
     from tissue_sim_ros.analysis.calibration_objective import Objective
+    from tissue_sim_ros.analysis.calibration_mapping import space_mapping
     from tissue_sim_ros.analysis.calibration_search import search, uncertainty
     from tissue_sim_ros.analysis.trial_simulation import ResultStore
     log = log or (lambda text: print(text, file=sys.stderr))
@@ -92,13 +97,15 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
     options = dict(align=align, gap_m=gap_m, tick_s=tick_s, phase_weights=phase_weights, store=store,
                    log_path=log_path, workers=workers, scheduler=scheduler, pool=pool)
 
-    def objective_for(a_scene):
-        probe = Objective(trials, a_scene, keys, **options)
-        inertia = measure_inertia_error(probe, u0)
+    def inertia_for(a_scene):
+        inertia = measure_inertia_error(Objective(trials, a_scene, keys, **options), u0)
         m0, e0 = inertia['mass_scaling'], inertia['error_at_start']
         cap = m0 * max(1.0, inertia_bound / e0) if np.isfinite(e0) and e0 > 0 else m0
-        return Objective(trials, a_scene, keys, keep_time_step_s=a_scene.dt, max_mass_scaling=cap,
-                         **options), dict(inertia, cap=cap, bound=inertia_bound)
+        return dict(inertia, cap=cap, bound=inertia_bound)
+
+    def objective_for(a_scene, inertia):
+        return Objective(trials, a_scene, keys, keep_time_step_s=a_scene.dt, max_mass_scaling=inertia['cap'],
+                         **options)
 
     bar = tqdm(desc='calibration', unit='eval', file=sys.stderr, disable=quiet, dynamic_ncols=True)
 
@@ -111,21 +118,25 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
         return objective
 
     with bar, pool:
-        objective, inertia = objective_for(search_scene)
+        inertia = inertia_for(search_scene)
+        objective = objective_for(search_scene, inertia)
         used_objectives = [progress(objective)]
         start = objective.evaluate(u0)
+        # with a coarse scene the joint refinement is the space mapping's, on the corrected scene
         u = search(objective, u0, staged=staged, global_search=global_search, generations=generations,
                    stage_evaluations=stage_evaluations, joint_evaluations=joint_evaluations,
-                   max_evaluations=max_evaluations, log=log)
+                   max_evaluations=max_evaluations, joint=coarse_scene is None or not staged, log=log)
+        at_optimum = objective
         if coarse_scene is not None:
-            log('fine stage: joint refinement on the scene as asked')
-            objective, inertia = objective_for(scene)
+            log('fine stage: space mapping onto the scene as asked')
+            coarse = objective
+            objective = objective_for(scene, inertia)
             used_objectives.append(progress(objective))
-            start = objective.evaluate(u0)
-            u = search(objective, u, staged=False, joint_evaluations=joint_evaluations,
-                       max_evaluations=fine_evaluations, log=log)
+            start = objective.evaluate_many([u0, u])[0]
+            u, at_optimum = space_mapping(objective, coarse, u, iterations=fine_evaluations,
+                                          evaluations_per_iteration=mapping_evaluations, log=log)
         best = objective.evaluate(u)
-        spread = uncertainty(objective, u)
+        spread = uncertainty(at_optimum, u)
     evaluations = [e for o in used_objectives for e in o.evaluations]
     failed = [e for e in evaluations if e.failures]
     simulations = sum(o.simulations_run for o in used_objectives)
@@ -161,7 +172,7 @@ def parse_phase_weights(texts) -> dict:
 
 def main(*, data_spec, fits, validate_spec=None, scene_file=None, sets=(), coarse_sets=(), align='contact',
          gap_mm=None, max_depth_mm=None, tick_ms=10.0, phase_weights=(), inertia_bound=INERTIA_BOUND, global_search=False,
-         max_evaluations=150, fine_evaluations=15, workers=None, scheduler=None, out='out/calibrate',
+         max_evaluations=150, fine_evaluations=4, workers=None, scheduler=None, out='out/calibrate',
          stream=None) -> dict:
     """The ``tissue-sim calibrate`` command."""
     from tissue_sim_ros.analysis.calibration_parameters import parse_fit

@@ -35,7 +35,7 @@ import numpy as np
 __all__ = ['FD_STEP', 'CORRELATION_WARNING', 'STAGE_PHASES', 'search', 'jacobian', 'uncertainty']
 
 FD_STEP = 0.03
-SCAN_POINTS = 7
+SCAN_POINTS = 5
 CORRELATION_WARNING = 0.95
 #: stage -> the sample phases its residuals come from
 STAGE_PHASES = {'loading': ('loading',), 'puncture': 'events', 'inserted': ('inserted',),
@@ -102,7 +102,7 @@ def _global(objective, u0, generations, seed):
 
 
 def search(objective, u0, *, staged=True, global_search=False, generations=5, seed=0,
-           stage_evaluations=6, joint_evaluations=20, max_evaluations=None, log=print) -> np.ndarray:
+           stage_evaluations=6, joint_evaluations=20, max_evaluations=None, joint=True, log=print) -> np.ndarray:
     """The optimum in unit coordinates, from ``u0`` (see the module docstring)."""
     from tissue_sim_ros.analysis.calibration_objective import BudgetSpent
     u = np.clip(np.asarray(u0, dtype=float), 0.0, 1.0)
@@ -110,7 +110,7 @@ def search(objective, u0, *, staged=True, global_search=False, generations=5, se
     objective.budget = None if max_evaluations is None else len(objective.evaluations) + int(max_evaluations)
     try:
         u = _stages(objective, u, staged, global_search, generations, seed, stage_evaluations,
-                    joint_evaluations, log)
+                    joint_evaluations if joint else 0, log)
     except BudgetSpent:
         log(f'{max_evaluations} evaluations spent: the best so far is the result')
         u = np.asarray(objective.best.u, dtype=float)
@@ -134,7 +134,10 @@ def _stages(objective, u, staged, global_search, generations, seed, stage_evalua
                 f'{count} residual(s)')
             for i in free:
                 u = _scan(objective, u, i, phases)
-            u = _least_squares(objective, u, free, phases, stage_evaluations)
+            if stage_evaluations:
+                u = _least_squares(objective, u, free, phases, stage_evaluations)
+    if not joint_evaluations:
+        return u
     log(f'joint refinement: {len(u)} key(s)')
     return _least_squares(objective, u, list(range(len(u))), None, joint_evaluations)
 
