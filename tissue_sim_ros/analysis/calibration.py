@@ -4,10 +4,10 @@
    (with ``--set``); each ``--fit KEY=LOW:HIGH[:log]`` starts from the scene's value.
 2. Affordable stiffness: a trial that would shrink the time step below the starting scene's keeps
    that step by raising the mass scaling (the critical step grows as its square root). The
-   inertia error this brings is measured once (on the scene the search runs on): the fastest speed's simulation (the shortest, and
-   the largest inertial and damping forces: the worst case) at the starting mass scaling m0 and
-   at m0 / 4; the quasi-static error of mass scaling is linear in it (the inertial
-   force m a and the mass-proportional damping force both scale with the mass), so
+   inertia error this brings is measured once, on the scene the search runs on: the fastest
+   speed's simulation (the shortest, and the largest inertial and damping forces: the worst case)
+   at the starting mass scaling m0 and at m0 / 4; the quasi-static error of mass scaling is linear
+   in it (the inertial force m a and the mass-proportional damping force both scale with the mass), so
    e(m) = (4/3) d (m / m0), d the NRMSE between the two runs. The mass scaling is capped where
    e(m) reaches ``inertia_bound`` (default 0.02 of the force range); beyond that the step
    shrinks instead (slower, never less accurate). e at the optimum is reported.
