@@ -14,8 +14,9 @@ which equals the fine residuals at u_k; the next point u_{k+1} minimises |s_k|^2
 least-squares refinement on the coarse scene), the fine scene is run once there, and the
 correction is renewed. Each iteration costs one fine evaluation; it stops when the fine objective
 no longer falls, or before that evaluation when the point no longer moves or the corrected scene
-predicts less than ``MIN_PREDICTED_GAIN`` of improvement. The Jacobian of s_k is the coarse one, so the
-standard errors at the optimum come from the coarse scene's Jacobian around the fine residuals.
+predicts less than ``MIN_PREDICTED_GAIN`` of improvement. The Jacobian of s_k is the coarse one,
+so the standard errors at the optimum come from the coarse scene's Jacobian around the fine
+residuals.
 """
 from __future__ import annotations
 

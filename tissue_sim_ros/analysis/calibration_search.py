@@ -12,7 +12,8 @@ search does what the field does:
    and travel errors), the others held: first a scan of each key over ``SCAN_POINTS`` values across its
    bounds (one parallel batch; a threshold the simulation never reaches has no gradient at all,
    so a local method cannot find it from there), the best kept, then a bounded least-squares fit;
-3. **joint refinement**: scipy.optimize.least_squares ('trf', bounds [0, 1] in unit
+3. **joint refinement** (``joint``; the calibration leaves it to the space mapping when it
+   searches on a coarse scene): scipy.optimize.least_squares ('trf', bounds [0, 1] in unit
    coordinates) over every key on every residual.
 
 Jacobians are forward differences of ``FD_STEP`` in unit coordinates (about 5 % of a decade on a
@@ -134,8 +135,7 @@ def _stages(objective, u, staged, global_search, generations, seed, stage_evalua
                 f'{count} residual(s)')
             for i in free:
                 u = _scan(objective, u, i, phases)
-            if stage_evaluations:
-                u = _least_squares(objective, u, free, phases, stage_evaluations)
+            u = _least_squares(objective, u, free, phases, stage_evaluations)
     if not joint_evaluations:
         return u
     log(f'joint refinement: {len(u)} key(s)')
