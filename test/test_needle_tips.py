@@ -76,3 +76,31 @@ def test_a_bevel_pushes_the_needle_toward_its_point_and_the_force_turns_with_it(
     # the moment about the base: the lateral force acts along the inserted part, far from the base
     lateral = force_world - (force_world @ axis) * axis
     assert np.dot(np.cross(axis, lateral), torque) > 0.0
+
+
+@pytest.mark.parametrize('shape', ['flat', 'conical', 'bevel'])
+def test_the_compiled_inside_step_is_the_general_path_bit_for_bit(shape, monkeypatch):
+    """Inside the tissue the needle's step runs as one compiled call (engine.needle_step); the
+    general path runs the same kernels one by one from Python. An insertion through the capsule,
+    a hold and the retraction give the same wrench at every tick and the same final tissue state
+    either way, and the compiled call did run (on most steps)."""
+    from tissue_sim_ros.engine.needle import NeedleTissue
+    calls = []
+    compiled_step = NeedleTissue._inserted_step
+    monkeypatch.setattr(NeedleTissue, '_inserted_step', lambda self, *a: calls.append(1) or compiled_step(self, *a))
+
+    def run(compiled):
+        scene = Scene.from_file(sets=COARSE_FAR + [f'needle.tip.shape={shape}'])
+        scene.needle.compiled_inside = compiled
+        result = run_insertion(scene, 0.005, scene.start_gap_m + 0.012, hold_s=0.1, tick=0.02)
+        return result, scene.displacement.copy(), scene.simulation.input_work
+
+    compiled, general = run(True), run(False)
+    assert len(compiled[0].puncture_events) == 1 and {'inserted', 'retracting'} <= set(compiled[0].phase)
+    assert len(calls) > compiled[0].steps / 3
+    assert np.array_equal(compiled[0].force, general[0].force)
+    assert np.array_equal(compiled[0].torque, general[0].torque)
+    assert compiled[0].phase == general[0].phase
+    assert np.array_equal(compiled[1], general[1])
+    # the work put in is summed in another order (a loop against numpy's dot)
+    assert compiled[2] == pytest.approx(general[2], rel=1e-9)

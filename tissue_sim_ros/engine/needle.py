@@ -68,6 +68,7 @@ from tissue_sim_ros.engine.needle_kernels import (first_surface_hit, follow_rigi
 from tissue_sim_ros.engine.needle_membrane import MembraneContact
 from tissue_sim_ros.engine.needle_parameters import (Friction, Membrane, NeedleGeometry, RegionInteraction,
                                                      TipShape)
+from tissue_sim_ros.engine.needle_step import inserted_step
 from tissue_sim_ros.engine.needle_tip import SharpTipContact, tip_length, tip_samples
 from tissue_sim_ros.engine.pose import (QUATERNION_NORM_TOLERANCE, NeedleInputError, needle_axis, pose_jump,
                                         rotation_matrix, slerp, validate_pose)
@@ -139,6 +140,11 @@ class NeedleTissue(MembraneContact):
         self.wrench_force = np.zeros(3)         # world frame, on the needle, about the base origin
         self.wrench_torque = np.zeros(3)
         self._reserve_applied(capacity + 2 * n_disc)
+        # the arrays the compiled inside step takes for a sharp tip's faces (a flat end's: unused ones)
+        self._faces = self.tip_contact if self.sharp else SharpTipContact(0.5 * geometry.diameter_m,
+                                                                          TipShape('conical', 30.0))
+        #: run the inside step as one compiled call (False: the general path, the same kernels)
+        self.compiled_inside = True
         self._mass_generation = 0
         self._initial_pose = validate_pose(position, orientation, 'needle.initial_pose')
         self.reset()
@@ -261,13 +267,16 @@ class NeedleTissue(MembraneContact):
         Allocates no arrays on the way (work arrays are made in the constructor and at contact).
         """
         sim = self.simulation
+        self.contact_force[:] = 0.0
+        inverse_mass = self._inverse_mass()
+        if self.compiled_inside and self.n_points and not self._touching():
+            self._inserted_step(inverse_mass, dt)
+            return
         if self._forces_applied:
             self.applied_forces[:] = 0.0
-        self.contact_force[:] = 0.0
         self.friction_force = 0.0
         self.cutting_force = 0.0
         self.n_applied = 0
-        inverse_mass = self._inverse_mass()
         needle_kinematics(self.position, self.axis, self._previous_position, self._previous_axis,
                            self.geometry.length_m, dt, self._tip, self._travel, self._base_velocity, self._axis_rate)
         if self.phase == 'approach':
@@ -311,6 +320,29 @@ class NeedleTissue(MembraneContact):
         self._update_phase(dt)
         wrench_about(self._applied_points, self._applied_point_forces, self.n_applied, self.position,
                 self.wrench_force, self.wrench_torque)
+
+    def _inserted_step(self, inverse_mass, dt):
+        """after_step inside the tissue, not touching a membrane: the same kernels in the same
+        order as the general path, in one compiled call (engine.needle_step)."""
+        sim, geometry, faces = self.simulation, self.geometry, self._faces
+        self.friction_force, self.cutting_force, self.n_tip, self.n_applied, work = inserted_step(
+            self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.tetrahedra,
+            self._neighbours, self.position, self.axis, self._previous_position, self._previous_axis,
+            self.rotation, geometry.length_m, dt, self._tip, self._travel, self._base_velocity, self._axis_rate,
+            self.point_nodes, self.point_weights, self.n_points, self._friction_laws[self.region],
+            self._free_beyond, self._closing_m, self.point_offsets, self.point_forces, self.point_depths,
+            self.point_shares, self.disc_offsets, self.tip_elements, self.tip_offsets, self.tip_nodes,
+            self.tip_weights, self._weights, self._candidates, self.regions[self.region].cutting_force_n,
+            self._cutting_law, self.tip_forces, self.tip_depths, self._unit_shares, self._no_offsets,
+            self.sharp and self.tip_contact.cutting, faces.engaged, faces.new, faces.nodes, faces.weights,
+            faces.params, faces.forces, faces.points, faces.total, self.applied_forces, self._applied_points,
+            self._applied_point_forces, self.wrench_force, self.wrench_torque)
+        self._forces_applied = self.n_applied > 0
+        sim.input_work += work
+        self._release_passed_points()
+        if not self._touching() and self.n_points:
+            self._track_apex(inverse_mass)
+        self._update_phase(dt)
 
     def _inverse_mass(self):
         """(n, 3) inverse mass of each free DOF, 0 for held ones; rebuilt when the masses change."""

@@ -311,7 +311,7 @@ class SharpTipContact:
         self.params = tip_parameters(radius, tip)
         self.reach = radius + tip_length(radius, tip)
         s = len(self.offsets)
-        self._new = np.zeros(s, dtype=np.bool_)
+        self.new = np.zeros(s, dtype=np.bool_)        # touched since the last take_new
         self.engaged = np.zeros(s, dtype=np.bool_)
         self.touch_order = np.zeros(s, dtype=np.int64)
         self._touches = 0
@@ -334,7 +334,7 @@ class SharpTipContact:
         self.region = -1
         self.on_surface = True
         self.engaged[:] = False
-        self._new[:] = False
+        self.new[:] = False
         self.forces[:] = 0.0
         self.total[:] = 0.0
 
@@ -351,11 +351,11 @@ class SharpTipContact:
 
     def take_new(self) -> bool:
         """Whether samples have touched since the last call (they are numbered in touch order)."""
-        if not self._new.any():
+        if not self.new.any():
             return False
         self._touches += 1
-        self.touch_order[self._new] = self._touches
-        self._new[:] = False
+        self.touch_order[self.new] = self._touches
+        self.new[:] = False
         return True
 
     def engaged_samples(self):
@@ -372,7 +372,7 @@ class SharpTipContact:
     def engage_on_surface(self, rest, displacement, triangles, tip, rotation, axis, back):
         self._room_for(len(triangles))
         return engage_samples(rest, displacement, triangles, tip, rotation, axis, self.offsets, self.engaged,
-                              self._new, back, self.reach + back, self._candidates, self.nodes, self.weights)
+                              self.new, back, self.reach + back, self._candidates, self.nodes, self.weights)
 
 
     def _room_for(self, n_cells):
@@ -399,14 +399,14 @@ class SharpTipContact:
         in_layer = selectors.regions_of(rest_points, element_tags) == self.region
         taken = inside[in_layer]
         self.engaged[taken] = True
-        self._new[taken] = True
+        self.new[taken] = True
         self.nodes[taken] = self._found_nodes[:n][in_layer]
         self.weights[taken] = self._found_weights[:n][in_layer]
         return int(in_layer.sum())
 
     def engage_found(self, sample_elements, found_nodes, found_weights):
         """Cutting: the samples found in the tissue that hold no point take theirs (take_found)."""
-        take_found(sample_elements, found_nodes, found_weights, self.engaged, self._new, self.nodes, self.weights)
+        take_found(sample_elements, found_nodes, found_weights, self.engaged, self.new, self.nodes, self.weights)
 
     def solve(self, rest, displacement, velocity, inverse_mass, force_scale, tip, rotation, dt, applied_forces,
               limit=math.inf):

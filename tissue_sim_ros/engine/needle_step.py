@@ -1,0 +1,75 @@
+"""The step of a needle inside the tissue in one compiled call.
+
+Once the needle is in (phases ``inserted`` and ``retracting``, no membrane contact), every step
+runs the same sequence, :meth:`.needle.NeedleTissue.after_step` in order: the needle's kinematics,
+the shaft's lateral hold and friction (:func:`~.needle_kernels.shaft_solve`), the cutting samples
+found again under the end (:func:`~.needle_kernels.follow_rigid_samples`), a sharp tip's faces
+pushing the displaced tissue aside (:func:`~.needle_tip.tip_contact_solve`), the cutting law on
+the samples, and the reaction wrench with the work the needle put in. As a dozen Python calls
+into numba that sequence cost 70 us a step on the default scene, as much as 30 % of a coarse
+calibration run and a fifth of the node's engine thread, most of it calls and glue (issue 19
+item 3); here it is one call to the same kernels, so the forces are the same to the last bit.
+What depends on the step's outcome (shaft points released behind the tip, the layer the apex is
+in, a new membrane met) stays in Python, where it runs rarely.
+"""
+import numpy as np
+from numba import njit
+
+from tissue_sim_ros.engine.needle_kernels import (follow_rigid_samples, needle_kinematics, put_axis_points,
+                                                  put_rigid_points, put_rows, shaft_solve, wrench_about)
+from tissue_sim_ros.engine.needle_tip import take_found, tip_contact_solve
+
+__all__ = ['inserted_step']
+
+
+@njit(cache=True)
+def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetrahedra, neighbours,
+                  position, axis, previous_position, previous_axis, rotation, length, dt,
+                  tip, travel, base_velocity, axis_rate,
+                  point_nodes, point_weights, n_points, friction_law, free_beyond, closing_m,
+                  point_offsets, point_forces, point_depths, point_shares,
+                  sample_offsets, sample_elements, tip_offsets, tip_nodes, tip_weights, walk_weights, candidates,
+                  cutting_force_n, cutting_law, tip_forces, tip_depths, unit_shares, no_offsets,
+                  faces_cut, engaged, new, face_nodes, face_weights, face_params, face_forces, face_points,
+                  face_total,
+                  applied_forces, applied_points, applied_point_forces, wrench_force, wrench_torque):
+    """One step of the inserted needle (module docstring). The arrays are NeedleTissue's (shaft
+    points, cutting samples, and with ``faces_cut`` a sharp tip's contact); ``applied_forces``
+    is cleared and filled. Returns (friction force, cutting force, cutting samples found,
+    points of action written, work of the needle's forces over the step [J])."""
+    applied_forces[:] = 0.0
+    needle_kinematics(position, axis, previous_position, previous_axis, length, dt, tip, travel,
+                      base_velocity, axis_rate)
+    friction = shaft_solve(rest, displacement, velocity, inverse_mass, force_scale, point_nodes, point_weights,
+                           n_points, position, axis, rotation, base_velocity, axis_rate, dt, length, friction_law,
+                           2, free_beyond, closing_m, point_offsets, point_forces, point_depths, point_shares,
+                           applied_forces)
+    put_axis_points(position, axis, point_depths, n_points, applied_points, 0)
+    put_rows(point_forces, n_points, applied_point_forces, 0)
+    n_applied = n_points
+    n_tip = follow_rigid_samples(rest, displacement, tetrahedra, neighbours, tip, rotation, sample_offsets,
+                                 sample_elements, tip_offsets, tip_nodes, tip_weights, walk_weights, candidates)
+    if faces_cut:
+        n_faces = engaged.shape[0]
+        take_found(sample_elements, tip_nodes, tip_weights, engaged, new, face_nodes, face_weights)
+        tip_contact_solve(rest, displacement, velocity, inverse_mass, force_scale, face_nodes, face_weights,
+                          engaged, cutting_force_n / n_faces, face_params, tip, rotation, dt, 2, face_forces,
+                          face_points, applied_forces, face_total)
+        put_rows(face_points, n_faces, applied_points, n_applied)
+        put_rows(face_forces, n_faces, applied_point_forces, n_applied)
+        n_applied += n_faces
+    cutting = 0.0
+    if n_tip:
+        cutting_law[0] = cutting_force_n / n_tip
+        cutting = shaft_solve(rest, displacement, velocity, inverse_mass, force_scale, tip_nodes, tip_weights,
+                              n_tip, position, axis, rotation, base_velocity, axis_rate, dt, 0.0, cutting_law, 0,
+                              np.inf, 0.0, no_offsets, tip_forces, tip_depths, unit_shares, applied_forces)
+        put_rigid_points(tip, rotation, tip_offsets, n_tip, applied_points, n_applied)
+        put_rows(tip_forces, n_tip, applied_point_forces, n_applied)
+        n_applied += n_tip
+    work = 0.0
+    for i in range(applied_forces.shape[0]):
+        for r in range(3):
+            work += applied_forces[i, r] * velocity[i, r]
+    wrench_about(applied_points, applied_point_forces, n_applied, position, wrench_force, wrench_torque)
+    return friction, cutting, n_tip, n_applied, work * dt
