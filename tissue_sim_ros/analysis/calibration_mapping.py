@@ -14,9 +14,13 @@ which equals the fine residuals at u_k; the next point u_{k+1} minimises |s_k|^2
 least-squares refinement on the coarse scene), the fine scene is run once there, and the
 correction is renewed. Each iteration costs one fine evaluation; it stops when the fine objective
 no longer falls, or before that evaluation when the point no longer moves or the corrected scene
-predicts less than ``MIN_PREDICTED_GAIN`` of improvement. The Jacobian of s_k is the coarse one,
-so the standard errors at the optimum come from the coarse scene's Jacobian around the fine
-residuals.
+predicts less than ``MIN_PREDICTED_GAIN`` of improvement. The Jacobian of s_k is the coarse one
+whatever the shift, so after the first iteration (a full refinement, Jacobians taken as it goes)
+the coarse Jacobian is taken once where it landed and the later refinements are chord steps
+with it (``CHORD_EVALUATIONS`` coarse runs each, not a Jacobian's batch per step): with r linear
+the iterations then converge to the u where J_c^T r_f(u) = 0, as the full refinements would
+(the method's own fixed point). The standard errors at the optimum come from the coarse scene's
+Jacobian around the fine residuals.
 """
 from __future__ import annotations
 
@@ -28,6 +32,9 @@ __all__ = ['CorrectedObjective', 'space_mapping']
 
 #: a point that moved less than this (unit coordinates, every key) ends the iterations
 MOVE_TOLERANCE = 1e-3
+#: coarse evaluations of each iteration after the first (chord steps with the Jacobian taken
+#: where the first iteration landed)
+CHORD_EVALUATIONS = 4
 #: so does a corrected optimum predicted to lower the objective by less than this fraction: the
 #: fine evaluation it would cost buys less than the noise between the two scenes' predictions
 MIN_PREDICTED_GAIN = 0.1
@@ -72,13 +79,17 @@ class CorrectedObjective:
 def space_mapping(fine, coarse, u, *, iterations: int, evaluations_per_iteration: int, log=print):
     """The best fine point from ``u`` after at most ``iterations`` fine evaluations, and the
     corrected objective at it (for the uncertainty); see the module docstring."""
-    from tissue_sim_ros.analysis.calibration_search import search
+    from tissue_sim_ros.analysis.calibration_search import jacobian, refine, search
     u = np.asarray(u, dtype=float)
     best = fine.evaluate(u)
     corrected = CorrectedObjective(coarse, best.residuals - coarse.evaluate(u).residuals)
+    chord = None
     for k in range(iterations):
-        candidate = search(corrected, u, staged=False, joint_evaluations=evaluations_per_iteration,
-                           max_evaluations=evaluations_per_iteration, log=lambda text: None)
+        if chord is None:
+            candidate = search(corrected, u, staged=False, joint_evaluations=evaluations_per_iteration,
+                               max_evaluations=evaluations_per_iteration, log=lambda text: None)
+        else:
+            candidate = refine(corrected, u, CHORD_EVALUATIONS, chord)
         predicted = corrected.evaluate(candidate).objective
         if np.max(np.abs(candidate - u)) < MOVE_TOLERANCE or predicted > (1.0 - MIN_PREDICTED_GAIN) * best.objective:
             log(f'space mapping {k + 1}: the corrected scene predicts {predicted:.5g} against '
@@ -91,4 +102,6 @@ def space_mapping(fine, coarse, u, *, iterations: int, evaluations_per_iteration
             break
         u, best = candidate, trial
         corrected = CorrectedObjective(coarse, best.residuals - coarse.evaluate(u).residuals)
+        if chord is None:
+            chord = jacobian(corrected, u, list(range(len(u))))
     return u, corrected

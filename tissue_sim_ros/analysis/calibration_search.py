@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['FD_STEP', 'CORRELATION_WARNING', 'STAGE_PHASES', 'search', 'jacobian', 'uncertainty']
+__all__ = ['FD_STEP', 'CORRELATION_WARNING', 'STAGE_PHASES', 'search', 'refine', 'jacobian', 'uncertainty']
 
 FD_STEP = 0.03
 SCAN_POINTS = 5
@@ -58,8 +58,10 @@ def jacobian(objective, u, free, phases=None) -> np.ndarray:
     return np.stack(columns, axis=1) if columns else np.zeros((residuals[0].size, 0))
 
 
-def _least_squares(objective, u, free, phases, max_evaluations):
-    """Bounded least squares over the ``free`` coordinates on a stage's residuals."""
+def _least_squares(objective, u, free, phases, max_evaluations, fixed_jacobian=None):
+    """Bounded least squares over the ``free`` coordinates on a stage's residuals; with
+    ``fixed_jacobian`` (residuals x free) that matrix serves every step (a chord method: one
+    evaluation a step instead of a Jacobian's batch)."""
     from scipy.optimize import least_squares
     u = np.asarray(u, dtype=float).copy()
 
@@ -72,10 +74,28 @@ def _least_squares(objective, u, free, phases, max_evaluations):
         return objective.stage_residuals(objective.evaluate(full(x)), phases)
 
     def jac(x):
-        return jacobian(objective, full(x), free, phases)
+        return jacobian(objective, full(x), free, phases) if fixed_jacobian is None else fixed_jacobian
     result = least_squares(fun, u[free], jac=jac, bounds=(0.0, 1.0), method='trf', x_scale=1.0,
                            ftol=1e-3, xtol=1e-3, gtol=1e-6, max_nfev=max_evaluations)
     return full(result.x)
+
+
+def refine(objective, u, max_evaluations, fixed_jacobian) -> np.ndarray:
+    """A bounded least-squares refinement of every key on every residual from ``u``, with one
+    Jacobian for all its steps (the space mapping's later iterations: their corrected objectives
+    share the coarse scene's Jacobian)."""
+    from tissue_sim_ros.analysis.calibration_objective import BudgetSpent
+    u = np.asarray(u, dtype=float)
+    objective.evaluate(u)
+    objective.budget = len(objective.evaluations) + int(max_evaluations)
+    try:
+        u = _least_squares(objective, u, list(range(len(u))), None, max_evaluations, fixed_jacobian)
+    except BudgetSpent:
+        pass
+    finally:
+        objective.budget = None
+    best = objective.best
+    return np.asarray(best.u if best.objective < objective.evaluate(u).objective else u, dtype=float)
 
 
 def _scan(objective, u, i, phases) -> np.ndarray:
