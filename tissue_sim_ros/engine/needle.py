@@ -127,6 +127,9 @@ class NeedleTissue(MembraneContact):
         self._candidates = np.zeros(len(self.tetrahedra), dtype=np.int64)   # elements near the tip
         self._weights = np.zeros(4)
         self._apex_weights = np.zeros(4)
+        self._apex_rest = np.zeros(3)
+        # a shaft point deeper than this (from the base) is behind the tip, released going back
+        self._release_beyond = geometry.length_m + 0.5 * geometry.shaft_point_spacing_m
         # the cutting law in shaft_solve's terms: static limit per sample (set per step), push only
         self._cutting_law = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.inf, 0.0, 0.0])
         self._friction_laws = [r.friction.as_array() for r in self.regions]
@@ -325,7 +328,8 @@ class NeedleTissue(MembraneContact):
         """after_step inside the tissue, not touching a membrane: the same kernels in the same
         order as the general path, in one compiled call (engine.needle_step)."""
         sim, geometry, faces = self.simulation, self.geometry, self._faces
-        self.friction_force, self.cutting_force, self.n_tip, self.n_applied, work = inserted_step(
+        (self.friction_force, self.cutting_force, self.n_tip, self.n_applied, work, apex, travel_along, deepest,
+         speed_along) = inserted_step(
             self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.tetrahedra,
             self._neighbours, self.position, self.axis, self._previous_position, self._previous_axis,
             self.rotation, geometry.length_m, dt, self._tip, self._travel, self._base_velocity, self._axis_rate,
@@ -336,13 +340,16 @@ class NeedleTissue(MembraneContact):
             self._cutting_law, self.tip_forces, self.tip_depths, self._unit_shares, self._no_offsets,
             self.sharp and self.tip_contact.cutting, faces.engaged, faces.new, faces.nodes, faces.weights,
             faces.params, faces.forces, faces.points, faces.total, self.applied_forces, self._applied_points,
-            self._applied_point_forces, self.wrench_force, self.wrench_torque)
+            self._applied_point_forces, self.wrench_force, self.wrench_torque, self.apex_element,
+            self._apex_weights, self._apex_rest)
         self._forces_applied = self.n_applied > 0
         sim.input_work += work
-        self._release_passed_points()
+        if travel_along < 0.0 and deepest > self._release_beyond:
+            self._release_passed_points()
+            deepest = None
         if not self._touching() and self.n_points:
-            self._track_apex(inverse_mass)
-        self._update_phase(dt)
+            self._track_apex(inverse_mass, apex, deepest)
+        self._update_phase(dt, speed_along)
 
     def _inverse_mass(self):
         """(n, 3) inverse mass of each free DOF, 0 for held ones; rebuilt when the masses change."""
@@ -390,25 +397,31 @@ class NeedleTissue(MembraneContact):
         self.point_offsets[k] = 0.0
         self.n_points += 1
 
-    def _track_apex(self, inverse_mass):
+    def _track_apex(self, inverse_mass, walked=None, deepest=None):
         """The tip's apex found in the deformed mesh (a walk from where it was): the layer it is
         in (its material point's region: layers are surfaces) and a new shaft point each spacing
         of advance. Entering a region with a membrane not yet punctured starts a contact with that
         layer (one punctured stays open: just after a layer's puncture the apex's material point
         can lie on the near side of the plane, and the layer left was met, and punctured, again:
-        six punctures in 0.04 mm)."""
+        six punctures in 0.04 mm). ``walked``, ``deepest``: the walk's element (its rest point in
+        ``_apex_rest``) and the deepest shaft point, when the compiled inside step has them."""
         disp = self.simulation.displacement
-        element = -2 if self.apex_element < 0 else locate_walk(
-            self.rest, disp, self.tetrahedra, self._neighbours, self.apex_element, self._tip, 64, self._apex_weights)
+        element = walked
+        if element is None:
+            element = -2 if self.apex_element < 0 else locate_walk(
+                self.rest, disp, self.tetrahedra, self._neighbours, self.apex_element, self._tip, 64,
+                self._apex_weights)
         if element == -2:
             element, weights = locate_point(self.rest, disp, self.tetrahedra, self._tip, 0.0)
             self._apex_weights[:] = weights
+            walked = None
         self.apex_element = element
         if element < 0:                     # the tip has left the mesh
             self.n_tip = 0
             return
         nodes = self.tetrahedra[element]
-        region = self._region_of(self._apex_weights @ self.rest[nodes], element)
+        region = self._region_of(self._apex_weights @ self.rest[nodes] if walked is None else self._apex_rest,
+                                 element)
         if region != self.region:
             if self.regions[region].membrane is not None and region not in self.punctured_regions:
                 if self.sharp:
@@ -421,7 +434,8 @@ class NeedleTissue(MembraneContact):
                                       self.tip_weights[:n].copy(), region, inverse_mass)
                 return
             self.region = region
-        deepest = float(self.point_depths[:self.n_points].max())
+        if deepest is None:
+            deepest = float(self.point_depths[:self.n_points].max())
         if self.geometry.length_m - deepest >= self.geometry.shaft_point_spacing_m:
             self._add_point(nodes, self._apex_weights.copy())
 
@@ -441,7 +455,7 @@ class NeedleTissue(MembraneContact):
         goes back: advancing, the cutting push can carry the first point (a surface node of a
         coarse element) ahead of the tip, and releasing it took the needle out, so the same
         membrane was punctured again at once (three times in 1 mm at 10 mm/s on 2 mm cells)."""
-        limit = self.geometry.length_m + 0.5 * self.geometry.shaft_point_spacing_m
+        limit = self._release_beyond
         if float(self._travel @ self.axis) >= 0.0 or self.point_depths[:self.n_points].max() <= limit:
             return
         keep = self.point_depths[:self.n_points] <= limit
@@ -456,11 +470,11 @@ class NeedleTissue(MembraneContact):
             if self.sharp:
                 self.tip_contact.release()
 
-    def _update_phase(self, dt):
+    def _update_phase(self, dt, speed=None):
         if self._touching():
             self.phase = 'contact'
         elif self.n_points:
-            speed = float(self._base_velocity @ self.axis)
+            speed = float(self._base_velocity @ self.axis) if speed is None else speed
             self.phase = 'retracting' if speed < -1e-9 else 'inserted'
         else:
             self.phase = 'approach'

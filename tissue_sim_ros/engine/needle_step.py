@@ -5,7 +5,8 @@ runs the same sequence, :meth:`.needle.NeedleTissue.after_step` in order: the ne
 the shaft's lateral hold and friction (:func:`~.needle_kernels.shaft_solve`), the cutting samples
 found again under the end (:func:`~.needle_kernels.follow_rigid_samples`), a sharp tip's faces
 pushing the displaced tissue aside (:func:`~.needle_tip.tip_contact_solve`), the cutting law on
-the samples, and the reaction wrench with the work the needle put in. As a dozen Python calls
+the samples, the reaction wrench with the work the needle put in, and the walk that finds the
+tip's apex in the deformed mesh. As a dozen Python calls
 into numba that sequence cost 70 us a step on the default scene, as much as 30 % of a coarse
 calibration run and a fifth of the node's engine thread, most of it calls and glue (issue 19
 item 3); here it is one call to the same kernels, so the forces are the same to the last bit.
@@ -15,8 +16,9 @@ in, a new membrane met) stays in Python, where it runs rarely.
 import numpy as np
 from numba import njit
 
-from tissue_sim_ros.engine.needle_kernels import (follow_rigid_samples, needle_kinematics, put_axis_points,
-                                                  put_rigid_points, put_rows, shaft_solve, wrench_about)
+from tissue_sim_ros.engine.needle_kernels import (follow_rigid_samples, locate_walk, needle_kinematics,
+                                                  put_axis_points, put_rigid_points, put_rows, shaft_solve,
+                                                  wrench_about)
 from tissue_sim_ros.engine.needle_tip import take_found, tip_contact_solve
 
 __all__ = ['inserted_step']
@@ -32,11 +34,16 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
                   cutting_force_n, cutting_law, tip_forces, tip_depths, unit_shares, no_offsets,
                   faces_cut, engaged, new, face_nodes, face_weights, face_params, face_forces, face_points,
                   face_total,
-                  applied_forces, applied_points, applied_point_forces, wrench_force, wrench_torque):
+                  applied_forces, applied_points, applied_point_forces, wrench_force, wrench_torque,
+                  apex_start, apex_weights, apex_rest):
     """One step of the inserted needle (module docstring). The arrays are NeedleTissue's (shaft
     points, cutting samples, and with ``faces_cut`` a sharp tip's contact); ``applied_forces``
-    is cleared and filled. Returns (friction force, cutting force, cutting samples found,
-    points of action written, work of the needle's forces over the step [J])."""
+    is cleared and filled. The tip's apex is walked to from element ``apex_start`` (< 0: not
+    walked), its weights in ``apex_weights`` and its rest coordinates in ``apex_rest``. Returns
+    (friction force, cutting force, cutting samples found, points of action written, work of the
+    needle's forces over the step [J], the apex's element (locate_walk: -1 outside, -2 not
+    found), the tip's travel along the axis [m], the deepest shaft point's axial coordinate [m],
+    the base's speed along the axis [m/s]): what the Python that follows decides on."""
     applied_forces[:] = 0.0
     needle_kinematics(position, axis, previous_position, previous_axis, length, dt, tip, travel,
                       base_velocity, axis_rate)
@@ -72,4 +79,21 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
         for r in range(3):
             work += applied_forces[i, r] * velocity[i, r]
     wrench_about(applied_points, applied_point_forces, n_applied, position, wrench_force, wrench_torque)
-    return friction, cutting, n_tip, n_applied, work * dt
+    apex = -2
+    if apex_start >= 0:
+        apex = locate_walk(rest, displacement, tetrahedra, neighbours, apex_start, tip, 64, apex_weights)
+        if apex >= 0:
+            for r in range(3):
+                x = 0.0
+                for k in range(4):
+                    x += apex_weights[k] * rest[tetrahedra[apex, k], r]
+                apex_rest[r] = x
+    travel_along = 0.0
+    speed_along = 0.0
+    for r in range(3):
+        travel_along += travel[r] * axis[r]
+        speed_along += base_velocity[r] * axis[r]
+    deepest = -np.inf
+    for k in range(n_points):
+        deepest = max(deepest, point_depths[k])
+    return friction, cutting, n_tip, n_applied, work * dt, apex, travel_along, deepest, speed_along
