@@ -177,11 +177,12 @@ class SimulationDriver:
         """The wrench and the displacement after an advance, or SimulationDiverged."""
         scene = self.scene
         force, torque = scene.reaction_wrench(self.wrench_frame)
-        if not (np.all(np.isfinite(force)) and np.all(np.isfinite(torque))):
+        if not (np.isfinite(force).all() and np.isfinite(torque).all()):
             raise SimulationDiverged(
                 f'non-finite reaction wrench {np.asarray(force).tolist()} {np.asarray(torque).tolist()}',
                 scene.simulation.step_count, float(scene.time), float(scene.dt), float('nan'))
-        largest = float(np.abs(scene.displacement).max(initial=0.0))
+        displacement = scene.displacement           # the largest |u| without an |u| array (NaN stays NaN)
+        largest = max(float(displacement.max(initial=0.0)), -float(displacement.min(initial=0.0)))
         if not largest < _FLOAT32_MAX:
             raise SimulationDiverged(f'displacement {largest:.3g} m does not fit a float32',
                                      scene.simulation.step_count, float(scene.time),

@@ -83,7 +83,7 @@ def unit_quaternion(quaternion, tolerance=QUATERNION_NORM_TOLERANCE):
     None when |‖q‖ - 1| > ``tolerance`` (refused); q itself when the norm is 1 within 1e-9
     (so a unit quaternion passes unchanged, bit for bit); else q / ‖q‖.
     """
-    norm = float(np.linalg.norm(quaternion))
+    norm = math.sqrt(float(quaternion @ quaternion))      # np.linalg.norm's arithmetic, without its overhead
     if not abs(norm - 1.0) <= tolerance:
         return None, norm
     if abs(norm - 1.0) > 1e-9:
@@ -106,9 +106,9 @@ def validate_pose(position, orientation, field_name='pose'):
         q = np.array(orientation, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
         raise NeedleInputError(field_name, (position, orientation), 'expected numbers') from None
-    if p.shape != (3,) or not np.all(np.isfinite(p)):
+    if p.shape != (3,) or not np.isfinite(p).all():
         raise NeedleInputError(f'{field_name}.position', p.tolist(), 'expected 3 finite numbers [m]')
-    if q.shape != (4,) or not np.all(np.isfinite(q)):
+    if q.shape != (4,) or not np.isfinite(q).all():
         raise NeedleInputError(f'{field_name}.orientation', q.tolist(),
                                'expected 4 finite numbers (quaternion x, y, z, w)')
     unit, norm = unit_quaternion(q)
@@ -137,9 +137,9 @@ class PoseJump:
 def pose_jump(position0, orientation0, position1, orientation1, length_m=0.0) -> PoseJump:
     """The jump from pose 0 to pose 1 (validated arrays): the larger of the base's move and, for
     ``length_m`` > 0, the move of the point at +z * length_m (the tip), and the rotation angle."""
-    distance = float(np.linalg.norm(position1 - position0))
+    move = position1 - position0
+    distance = math.sqrt(float(move @ move))
     if length_m > 0.0:
-        tip0 = position0 + length_m * needle_axis(orientation0)
-        tip1 = position1 + length_m * needle_axis(orientation1)
-        distance = max(distance, float(np.linalg.norm(tip1 - tip0)))
+        tip_move = (position1 + length_m * needle_axis(orientation1)) - (position0 + length_m * needle_axis(orientation0))
+        distance = max(distance, math.sqrt(float(tip_move @ tip_move)))
     return PoseJump(distance, rotation_angle(orientation0, orientation1))
