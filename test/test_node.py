@@ -899,18 +899,21 @@ def test_a_slow_engine_costs_no_tick_and_the_ladder_steps_down_and_back_up(harne
     slow = {'on': True}
     scene = make_scene()
     per_substep = 1.5 * 0.8 * scene.dt    # 1.5 times what the budget (80 % of real time) allows
-    h = harness(scene, slow_down=lambda substeps: per_substep * substeps if slow['on'] else 0.0)
+    lags = [0.0]
+
+    def slow_down(substeps):
+        # the lag after every advance, seen on the engine thread: sampled from the test, the peak
+        # (before the ladder's first step, while the harness still starts) was missed in some runs
+        lags.append(scene.target_time - scene.time)
+        return per_substep * substeps if slow['on'] else 0.0
+    h = harness(scene, slow_down=slow_down)
     engine, ladder = h.node.engine, h.node.engine.ladder
-    lag_seen, levels = 0.0, set()
-    start = time.monotonic()
-    while time.monotonic() - start < 0.5:   # the lag can peak here, before the ladder's first step
-        lag_seen = max(lag_seen, h.node.driver.lag_s)
-        time.sleep(0.01)
+    levels = set()
     n0, t0 = len(h.get('wrench')), time.monotonic()
     while time.monotonic() - t0 < 10.0:
-        lag_seen = max(lag_seen, h.node.driver.lag_s)
         levels.add(ladder.level)
         time.sleep(0.05)
+    lag_seen = max(lags)
     count = len(h.get('wrench')) - n0
     print(f'\nslow engine: {count} wrenches in 10 s, lag up to {lag_seen * 1e3:.0f} ms, '
           f'{h.node.driver.dropped_s:.2f} s dropped, ladder levels {sorted(levels)}')
