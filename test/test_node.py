@@ -920,7 +920,9 @@ def test_a_slow_engine_costs_no_tick_and_the_ladder_steps_down_and_back_up(harne
     assert count == pytest.approx(500, rel=0.01)     # every tick published: 50 Hz
     d = h.diagnostics_now()['tissue_sim: engine']
     assert d[0] == 1 and float(d[2]['lag_s']) >= 0.0      # WARN: degraded
-    assert lag_seen > 0.02 and lag_seen <= h.node.config.max_lag_s + 0.03
+    # behind by more than half a tick (an engine that keeps up lags 0.5-1 ms; this one peaked at
+    # 18-48 ms over runs, before the ladder's first step), and never past the bound
+    assert lag_seen > 0.01 and lag_seen <= h.node.config.max_lag_s + 0.03
     reached = ladder.level
     assert reached >= ladder.bottom - 1 and int(d[2]['ladder_level']) == reached
     assert ladder.rungs[reached].mass_factor >= 4.0       # fewer substeps: what helps here

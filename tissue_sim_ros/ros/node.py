@@ -40,7 +40,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rclpy.node import Node
-from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
 from std_srvs.srv import SetBool, Trigger
@@ -58,15 +58,12 @@ from tissue_sim_ros.ros.parameter_declaration import declare_parameters
 from tissue_sim_ros.ros.parameters import (NODE_NAME, PARAMETERS, ConfigError, NodeConfig,
                                            help_text as _help_text, load_scene, make_config)
 from tissue_sim_ros.ros.pose_input import PoseInput
+from tissue_sim_ros.ros.pose_cdr import decode_pose
 from tissue_sim_ros.ros.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODES_QOS, SURFACE_QOS,
                                        WRENCH_QOS, pose_qos)
 from tissue_sim_ros.units import NS_PER_S
 
 __all__ = ['NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'TissueSimNode', 'main']
-
-
-def _decode_pose(data: bytes):
-    return cv.pose_from_msg(deserialize_message(data, PoseStamped))
 
 
 def help_text() -> str:
@@ -105,7 +102,7 @@ class TissueSimNode(Node):
         self._logged_kinds: set[str] = set()
         self.engine = EngineLoop(
             self.driver, self.input, period_s=cfg.period_s, now_ns=self._now_ns,
-            decode=_decode_pose, log_once=self._log_once, log=self._log,
+            decode=decode_pose, log_once=self._log_once, log=self._log,
             budget_fraction=cfg.budget_fraction, max_lag_s=cfg.max_lag_s,
             ladder=DegradationLadder(self.scene) if cfg.ladder else None, threads=threads,
             sim_time=self._sim_time, slow_down=slow_down)
