@@ -90,8 +90,8 @@ def refine(objective, u, max_evaluations, fixed_jacobian) -> np.ndarray:
     objective.budget = len(objective.evaluations) + int(max_evaluations)
     try:
         u = _least_squares(objective, u, list(range(len(u))), None, max_evaluations, fixed_jacobian)
-    except BudgetSpent:
-        pass
+    except BudgetSpent:                   # the best point so far is the result
+        u = np.asarray(objective.best.u, dtype=float)
     finally:
         objective.budget = None
     best = objective.best

@@ -6,12 +6,12 @@ the shaft's lateral hold and friction (:func:`~.needle_kernels.shaft_solve`), th
 found again under the end (:func:`~.needle_kernels.follow_rigid_samples`), a sharp tip's faces
 pushing the displaced tissue aside (:func:`~.needle_tip.tip_contact_solve`), the cutting law on
 the samples, the reaction wrench with the work the needle put in, and the walk that finds the
-tip's apex in the deformed mesh. As a dozen Python calls
-into numba that sequence cost 70 us a step on the default scene, as much as 30 % of a coarse
-calibration run and a fifth of the node's engine thread, most of it calls and glue (issue 19
-item 3); here it is one call to the same kernels, so the forces are the same to the last bit.
-What depends on the step's outcome (shaft points released behind the tip, the layer the apex is
-in, a new membrane met) stays in Python, where it runs rarely.
+tip's apex in the deformed mesh. As a dozen Python calls into numba that sequence cost 63-71 us
+a step on the default scene (the kernels about 42 us of it, the calls and the Python between
+them the rest), 30 % of a coarse calibration run (issue 19 item 3, issue 16); here it is one
+call to the same kernels in the same order, so the forces are the same to the last bit. What
+the Python after it decides on the outcome (shaft points released behind the tip, the layer of
+the apex's material point, a new membrane met, a new shaft point) reads the floats returned.
 """
 import numpy as np
 from numba import njit

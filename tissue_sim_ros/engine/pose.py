@@ -140,6 +140,7 @@ def pose_jump(position0, orientation0, position1, orientation1, length_m=0.0) ->
     move = position1 - position0
     distance = math.sqrt(float(move @ move))
     if length_m > 0.0:
-        tip_move = (position1 + length_m * needle_axis(orientation1)) - (position0 + length_m * needle_axis(orientation0))
+        tip_move = ((position1 + length_m * needle_axis(orientation1))
+                    - (position0 + length_m * needle_axis(orientation0)))
         distance = max(distance, math.sqrt(float(tip_move @ tip_move)))
     return PoseJump(distance, rotation_angle(orientation0, orientation1))
