@@ -886,8 +886,9 @@ def test_the_cloud_is_recorded_at_its_own_rate(harness, tmp_path):
 
 
 def test_a_slow_engine_costs_no_tick_and_the_ladder_steps_down_and_back_up(harness, monkeypatch):
-    """The engine made artificially slow (each advance sleeps 4 ms per substep, as a scene far
-    too large for the machine would take; the sleep releases the GIL as the kernels do): the
+    """The engine made artificially slow (each advance sleeps twice the budget's share per
+    substep, as a scene far too large for the machine would take; the sleep releases the GIL
+    as the kernels do): the
     wrench still goes out every tick, the lag is reported and bounded, the ladder steps down
     until the engine keeps up within its budget, and back up once the engine is fast again.
     The ladder's timings are shortened (the same rules, quicker) to keep the test short."""
@@ -898,7 +899,7 @@ def test_a_slow_engine_costs_no_tick_and_the_ladder_steps_down_and_back_up(harne
     monkeypatch.setattr(engine_pacing, 'START_GRACE_S', 0.5)
     slow = {'on': True}
     scene = make_scene()
-    per_substep = 1.5 * 0.8 * scene.dt    # 1.5 times what the budget (80 % of real time) allows
+    per_substep = 2.0 * 0.8 * scene.dt    # twice what the budget (80 % of real time) allows
     lags = [0.0]
 
     def slow_down(substeps):
@@ -920,9 +921,7 @@ def test_a_slow_engine_costs_no_tick_and_the_ladder_steps_down_and_back_up(harne
     assert count == pytest.approx(500, rel=0.01)     # every tick published: 50 Hz
     d = h.diagnostics_now()['tissue_sim: engine']
     assert d[0] == 1 and float(d[2]['lag_s']) >= 0.0      # WARN: degraded
-    # behind by more than half a tick (an engine that keeps up lags 0.5-1 ms; this one peaked at
-    # 18-48 ms over runs, before the ladder's first step), and never past the bound
-    assert lag_seen > 0.01 and lag_seen <= h.node.config.max_lag_s + 0.03
+    assert lag_seen > 0.02 and lag_seen <= h.node.config.max_lag_s + 0.03
     reached = ladder.level
     assert reached >= ladder.bottom - 1 and int(d[2]['ladder_level']) == reached
     assert ladder.rungs[reached].mass_factor >= 4.0       # fewer substeps: what helps here
