@@ -16,11 +16,11 @@ correction is renewed. Each iteration costs one fine evaluation; it stops when t
 no longer falls, or before that evaluation when the point no longer moves or the corrected scene
 predicts less than ``MIN_PREDICTED_GAIN`` of improvement. The Jacobian of s_k is the coarse one
 whatever the shift, so after the first iteration (a full refinement, Jacobians taken as it goes)
-the coarse Jacobian is taken once where it landed and the later refinements are chord steps
-with it (``CHORD_EVALUATIONS`` coarse runs each, not a Jacobian's batch per step): with r linear
-the iterations then converge to the u where J_c^T r_f(u) = 0, as the full refinements would
-(the method's own fixed point). The standard errors at the optimum come from the coarse scene's
-Jacobian around the fine residuals.
+the coarse Jacobian is taken once at each accepted point and the next refinement takes chord
+steps with it (``CHORD_EVALUATIONS`` coarse runs, not a Jacobian's batch per step): with r
+linear the iterations then converge to the u where J_c^T r_f(u) = 0, as the full refinements
+would (the method's own fixed point). The standard errors at the optimum come from the coarse
+scene's Jacobian there (the last one taken) around the fine residuals.
 """
 from __future__ import annotations
 
@@ -32,8 +32,8 @@ __all__ = ['CorrectedObjective', 'space_mapping']
 
 #: a point that moved less than this (unit coordinates, every key) ends the iterations
 MOVE_TOLERANCE = 1e-3
-#: coarse evaluations of each iteration after the first (chord steps with the Jacobian taken
-#: where the first iteration landed)
+#: coarse evaluations of each refinement after the first (chord steps with the Jacobian taken
+#: where the last iteration landed)
 CHORD_EVALUATIONS = 4
 #: so does a corrected optimum predicted to lower the objective by less than this fraction: the
 #: fine evaluation it would cost buys less than the noise between the two scenes' predictions
@@ -102,6 +102,5 @@ def space_mapping(fine, coarse, u, *, iterations: int, evaluations_per_iteration
             break
         u, best = candidate, trial
         corrected = CorrectedObjective(coarse, best.residuals - coarse.evaluate(u).residuals)
-        if chord is None:
-            chord = jacobian(corrected, u, list(range(len(u))))
+        chord = jacobian(corrected, u, list(range(len(u))))   # the uncertainty's too if u is the last
     return u, corrected
