@@ -888,9 +888,9 @@ def test_the_cloud_is_recorded_at_its_own_rate(harness, tmp_path):
 def test_a_slow_engine_costs_no_tick_and_the_ladder_steps_down_and_back_up(harness, monkeypatch):
     """The engine made artificially slow (each advance sleeps twice the budget's share per
     substep, as a scene far too large for the machine would take; the sleep releases the GIL
-    as the kernels do): the
-    wrench still goes out every tick, the lag is reported and bounded, the ladder steps down
-    until the engine keeps up within its budget, and back up once the engine is fast again.
+    as the kernels do): the wrench still goes out every tick, the lag is reported and bounded,
+    the ladder steps down until the engine keeps up within its budget, and back up once the
+    engine is fast again.
     The ladder's timings are shortened (the same rules, quicker) to keep the test short."""
     from tissue_sim_ros.ros import engine_pacing
     monkeypatch.setattr(engine_pacing, 'DOWN_AFTER_S', 0.5)

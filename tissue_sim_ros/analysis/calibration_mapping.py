@@ -32,12 +32,12 @@ __all__ = ['CorrectedObjective', 'space_mapping']
 
 #: a point that moved less than this (unit coordinates, every key) ends the iterations
 MOVE_TOLERANCE = 1e-3
-#: coarse evaluations of each refinement after the first (chord steps with the Jacobian taken
-#: where the last iteration landed)
-CHORD_EVALUATIONS = 4
 #: so does a corrected optimum predicted to lower the objective by less than this fraction: the
 #: fine evaluation it would cost buys less than the noise between the two scenes' predictions
 MIN_PREDICTED_GAIN = 0.1
+#: coarse evaluations of each refinement after the first (chord steps with the Jacobian taken
+#: where the last iteration landed)
+CHORD_EVALUATIONS = 4
 
 
 class CorrectedObjective:
@@ -79,17 +79,15 @@ class CorrectedObjective:
 def space_mapping(fine, coarse, u, *, iterations: int, evaluations_per_iteration: int, log=print):
     """The best fine point from ``u`` after at most ``iterations`` fine evaluations, and the
     corrected objective at it (for the uncertainty); see the module docstring."""
-    from tissue_sim_ros.analysis.calibration_search import jacobian, refine, search
+    from tissue_sim_ros.analysis.calibration_search import jacobian, search
     u = np.asarray(u, dtype=float)
     best = fine.evaluate(u)
     corrected = CorrectedObjective(coarse, best.residuals - coarse.evaluate(u).residuals)
     chord = None
     for k in range(iterations):
-        if chord is None:
-            candidate = search(corrected, u, staged=False, joint_evaluations=evaluations_per_iteration,
-                               max_evaluations=evaluations_per_iteration, log=lambda text: None)
-        else:
-            candidate = refine(corrected, u, CHORD_EVALUATIONS, chord)
+        budget = evaluations_per_iteration if chord is None else CHORD_EVALUATIONS
+        candidate = search(corrected, u, staged=False, joint_evaluations=budget, max_evaluations=budget,
+                           fixed_jacobian=chord, log=lambda text: None)
         predicted = corrected.evaluate(candidate).objective
         if np.max(np.abs(candidate - u)) < MOVE_TOLERANCE or predicted > (1.0 - MIN_PREDICTED_GAIN) * best.objective:
             log(f'space mapping {k + 1}: the corrected scene predicts {predicted:.5g} against '

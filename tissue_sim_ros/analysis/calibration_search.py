@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['FD_STEP', 'CORRELATION_WARNING', 'STAGE_PHASES', 'search', 'refine', 'jacobian', 'uncertainty']
+__all__ = ['FD_STEP', 'CORRELATION_WARNING', 'STAGE_PHASES', 'search', 'jacobian', 'uncertainty']
 
 FD_STEP = 0.03
 SCAN_POINTS = 5
@@ -80,24 +80,6 @@ def _least_squares(objective, u, free, phases, max_evaluations, fixed_jacobian=N
     return full(result.x)
 
 
-def refine(objective, u, max_evaluations, fixed_jacobian) -> np.ndarray:
-    """A bounded least-squares refinement of every key on every residual from ``u``, with one
-    Jacobian for all its steps (the space mapping's later iterations: their corrected objectives
-    share the coarse scene's Jacobian)."""
-    from tissue_sim_ros.analysis.calibration_objective import BudgetSpent
-    u = np.asarray(u, dtype=float)
-    objective.evaluate(u)
-    objective.budget = len(objective.evaluations) + int(max_evaluations)
-    try:
-        u = _least_squares(objective, u, list(range(len(u))), None, max_evaluations, fixed_jacobian)
-    except BudgetSpent:                   # the best point so far is the result
-        u = np.asarray(objective.best.u, dtype=float)
-    finally:
-        objective.budget = None
-    best = objective.best
-    return np.asarray(best.u if best.objective < objective.evaluate(u).objective else u, dtype=float)
-
-
 def _scan(objective, u, i, phases) -> np.ndarray:
     """``u`` with coordinate ``i`` at the best of SCAN_POINTS values on a stage's residuals."""
     points = []
@@ -123,15 +105,17 @@ def _global(objective, u0, generations, seed):
 
 
 def search(objective, u0, *, staged=True, global_search=False, generations=5, seed=0,
-           stage_evaluations=6, joint_evaluations=20, max_evaluations=None, joint=True, log=print) -> np.ndarray:
-    """The optimum in unit coordinates, from ``u0`` (see the module docstring)."""
+           stage_evaluations=6, joint_evaluations=20, max_evaluations=None, joint=True, fixed_jacobian=None,
+           log=print) -> np.ndarray:
+    """The optimum in unit coordinates, from ``u0`` (see the module docstring); ``fixed_jacobian``
+    (residuals x keys): the joint refinement's one Jacobian for every step (chord steps)."""
     from tissue_sim_ros.analysis.calibration_objective import BudgetSpent
     u = np.clip(np.asarray(u0, dtype=float), 0.0, 1.0)
     objective.evaluate(u)
     objective.budget = None if max_evaluations is None else len(objective.evaluations) + int(max_evaluations)
     try:
         u = _stages(objective, u, staged, global_search, generations, seed, stage_evaluations,
-                    joint_evaluations if joint else 0, log)
+                    joint_evaluations if joint else 0, fixed_jacobian, log)
     except BudgetSpent:
         log(f'{max_evaluations} evaluations spent: the best so far is the result')
         u = np.asarray(objective.best.u, dtype=float)
@@ -141,7 +125,8 @@ def search(objective, u0, *, staged=True, global_search=False, generations=5, se
     return np.asarray(best.u if best.objective < objective.evaluate(u).objective else u, dtype=float)
 
 
-def _stages(objective, u, staged, global_search, generations, seed, stage_evaluations, joint_evaluations, log):
+def _stages(objective, u, staged, global_search, generations, seed, stage_evaluations, joint_evaluations,
+            fixed_jacobian, log):
     if global_search:
         log(f'global stage: differential evolution, {generations} generation(s)')
         u = _global(objective, u, generations, seed)
@@ -159,7 +144,7 @@ def _stages(objective, u, staged, global_search, generations, seed, stage_evalua
     if not joint_evaluations:
         return u
     log(f'joint refinement: {len(u)} key(s)')
-    return _least_squares(objective, u, list(range(len(u))), None, joint_evaluations)
+    return _least_squares(objective, u, list(range(len(u))), None, joint_evaluations, fixed_jacobian)
 
 
 def uncertainty(objective, u) -> dict:
