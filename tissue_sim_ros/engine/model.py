@@ -336,16 +336,19 @@ class TensorMassModel:
         forces.reduce_buffers(self._buffers, self.chunk_node_lo, self.chunk_node_hi, out)
         return out
 
-    def accumulate_forces(self, displacement, velocity=None, time_step=None):
+    def accumulate_forces(self, displacement, velocity=None, time_step=None, threshold_squared=None):
         """Run the element pass into the per-chunk buffers (see ``force_buffers``) without reducing.
 
         ``time_step`` [s]: a time step reached ``displacement``, ``time_step`` after the previous
         one (0: the first since reset): the relaxation's internal variables advance to it (the
         solver's step gives it). None: they are used as they are (a probe, a test).
+        ``threshold_squared``: the non-linearity threshold's square for this pass (None: the
+        model's; 0: every element non-linear, a force without the threshold's switch).
         """
         viscous = self.viscous and velocity is not None
         self._run_kernel(self.geometric, self.physical, viscous, displacement,
-                         velocity if viscous else self._zero_velocity, self.threshold_squared,
+                         velocity if viscous else self._zero_velocity,
+                         self.threshold_squared if threshold_squared is None else threshold_squared,
                          self.inversion_safeguard and self.geometric)
         if self.relaxation is not None:
             self.relaxation.accumulate(self, displacement, time_step)

@@ -352,11 +352,11 @@ class NeedleTissue(MembraneContact):
         self._update_phase(dt, speed_along)
 
     def _inverse_mass(self):
-        """(n, 3) inverse mass of each free DOF, 0 for held ones; rebuilt when the masses change."""
+        """(n, 3) inverse mass of each free DOF, 0 for held ones (the solver's compliance over a
+        step, Simulation.constraint_compliance); rebuilt when the masses or the step change."""
         sim = self.simulation
         if self._mass_version != (sim.mass_version, sim.dt):
-            self._inverse_mass_dofs = np.where(sim.dof_kind == 0, sim.inverse_mass[:, None], 0.0)
-            self._force_scale = 1.0 + sim.dt * sim.damping_rate
+            self._inverse_mass_dofs, self._force_scale = sim.constraint_compliance()
             self._mass_version = (sim.mass_version, sim.dt)
             self._mass_generation += 1
         return self._inverse_mass_dofs

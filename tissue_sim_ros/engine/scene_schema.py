@@ -108,7 +108,13 @@ SCHEMA = {
                                                 'x_min, x_max, y_min, y_max'),
     },
     'solver': {
-        'time_step_s': (None, 'float+', 'explicit time step [s]; null: time_step_safety x critical step'),
+        'integrator': ('explicit', ('explicit', 'implicit', 'quasi_static'),
+                       'explicit (symplectic Euler, dt below the critical step), implicit (backward Euler, '
+                       'Newton with a matrix-free conjugate-gradient solve: any dt) or quasi_static '
+                       '(equilibrium each step, no inertia)'),
+        'newton_tolerance': (1e-8, 'float+', 'implicit and quasi_static: Newton stops at this residual '
+                                             'relative to the forces acting'),
+        'time_step_s': (None, 'float+', 'time step [s]; null: time_step_safety x the explicit critical step'),
         'time_step_safety': (0.8, 'float+', 'fraction of the critical step used when time_step_s is null'),
         'damping_per_s': (50.0, 'float0', 'mass-proportional damping rate [1/s]'),
         'mass_scaling': (1.0, 'float+', 'factor on node masses for quasi-static runs (>= 1)'),

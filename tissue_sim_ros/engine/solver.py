@@ -17,6 +17,7 @@ import numpy as np
 from numba import njit, prange
 
 from tissue_sim_ros.engine.forces import FASTMATH, take_node_force
+from tissue_sim_ros.engine.implicit import INTEGRATORS, ImplicitStep
 
 FREE, FIXED, PRESCRIBED = 0, 1, 2
 _AXES = {'x': 0, 'y': 1, 'z': 2}
@@ -128,8 +129,12 @@ class Simulation:
     """
 
     def __init__(self, model, *, damping=0.0, fixed=None, dt=None, time_step_safety=0.8,
-                 check_interval=50, energy_growth_factor=2.0, allow_inverted=False, mass_scaling=1.0):
+                 check_interval=50, energy_growth_factor=2.0, allow_inverted=False, mass_scaling=1.0,
+                 integrator='explicit', newton_tolerance=1e-8):
         self.model = model
+        if integrator not in INTEGRATORS:
+            raise ValueError(f'integrator = {integrator!r}: expected one of {", ".join(INTEGRATORS)}')
+        self.integrator = integrator
         if not (isinstance(mass_scaling, (int, float)) and math.isfinite(mass_scaling) and mass_scaling >= 1.0):
             raise ValueError(f'mass_scaling = {mass_scaling!r}: expected a finite factor >= 1')
         self.mass_scaling = float(mass_scaling)
@@ -154,6 +159,8 @@ class Simulation:
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
             raise ValueError(f'dt = {dt!r}: expected a finite time step > 0 s')
         self.dt = float(dt)
+        self._implicit = None if integrator == 'explicit' else ImplicitStep(
+            self, quasi_static=integrator == 'quasi_static', newton_tolerance=newton_tolerance)
         self.check_interval = int(check_interval)
         self.energy_growth_factor = float(energy_growth_factor)
         self.allow_inverted = allow_inverted
@@ -221,6 +228,15 @@ class Simulation:
         self.dt *= math.sqrt(ratio)
         self._critical = None
 
+    def constraint_compliance(self):
+        """(inverse mass (n, 3) of each DOF, 0 for held ones; force scale (n,)): how a constraint
+        applied after a step (the needle's) moves a DOF and what force that takes, f = scale dx /
+        (inverse mass dt^2). Explicit: the lumped mass and 1 + dt gamma / m (the damping is
+        implicit in the update); the implicit integrators: their own (implicit.ImplicitStep)."""
+        if self._implicit is not None:
+            return self._implicit.constraint_compliance()
+        return np.where(self.dof_kind == 0, self.inverse_mass[:, None], 0.0), 1.0 + self.dt * self.damping_rate
+
     def critical_time_step(self):
         """Estimated critical (largest stable) time step [s] of the linearised model, cached.
 
@@ -263,24 +279,32 @@ class Simulation:
             check = (self.step_count + 1) % self.check_interval == 0
             if check:   # energy at u_n, matched with the velocity at t_n from the advance
                 strain, inverted = model.strain_energy(self.displacement)
-            kernel0 = time.thread_time()
-            # the time since the previous step's forces (none before the first): the relaxation's
-            # internal variables advance over it
-            model.accumulate_forces(self.displacement, self.velocity,
-                                    time_step=dt if self.step_count else 0.0)
-            work, kinetic, bad = _advance_free(self.displacement, self.velocity, *model.force_buffers,
-                                               self.internal_force,
-                                               self.external_forces, self.inverse_mass,
-                                               self.damping_rate, self.dof_kind, dt,
-                                               self.displacement_limit)
-            self.kernel_s += time.thread_time() - kernel0
             t_next = self.time + dt
-            for p in self._prescribed:
-                np.copyto(p.targets, p.displacement_at(t_next))
-                w, k = _apply_prescribed(p.nodes, p.axes, p.targets, self.displacement, self.velocity,
-                                         self.internal_force, self.external_forces, self.mass, dt)
-                work += w
-                kinetic += k
+            if self._implicit is not None:
+                kernel0 = time.thread_time()
+                for p in self._prescribed:
+                    np.copyto(p.targets, p.displacement_at(t_next))
+                work, kinetic = self._implicit.step([(p.nodes, p.axes, p.targets) for p in self._prescribed])
+                self.kernel_s += time.thread_time() - kernel0
+                bad = 0
+            else:
+                kernel0 = time.thread_time()
+                # the time since the previous step's forces (none before the first): the relaxation's
+                # internal variables advance over it
+                model.accumulate_forces(self.displacement, self.velocity,
+                                        time_step=dt if self.step_count else 0.0)
+                work, kinetic, bad = _advance_free(self.displacement, self.velocity, *model.force_buffers,
+                                                   self.internal_force,
+                                                   self.external_forces, self.inverse_mass,
+                                                   self.damping_rate, self.dof_kind, dt,
+                                                   self.displacement_limit)
+                self.kernel_s += time.thread_time() - kernel0
+                for p in self._prescribed:
+                    np.copyto(p.targets, p.displacement_at(t_next))
+                    w, k = _apply_prescribed(p.nodes, p.axes, p.targets, self.displacement, self.velocity,
+                                             self.internal_force, self.external_forces, self.mass, dt)
+                    work += w
+                    kinetic += k
             self.input_work += work
             self.kinetic_energy = kinetic
             self.time = t_next
@@ -302,7 +326,8 @@ class Simulation:
         self.max_safeguarded_elements = max(self.max_safeguarded_elements, self.safeguarded_elements)
         total = self.kinetic_energy + strain
         budget = self.reference_energy + max(self.input_work, 0.0)
-        swing = 1.0 / max(1.0 - (self.dt / self.critical_time_step()) ** 2, 0.05)
+        # the implicit integrators dissipate: no swing
+        swing = 1.0 if self._implicit is not None else 1.0 / max(1.0 - (self.dt / self.critical_time_step()) ** 2, 0.05)
         if not math.isfinite(total) or total > self.energy_growth_factor * swing * budget + self.energy_floor:
             self._diverged(f'energy grew without input: kinetic + strain energy {total:.4g} J against '
                            f'{budget:.4g} J initial plus work put in')

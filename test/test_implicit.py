@@ -1,0 +1,168 @@
+"""Implicit integrators (engine/implicit.py): backward Euler against the dense recursion and the
+analytic modal step response, the static answer against the explicit solver's, stability far
+past the explicit limit, and a needle insertion against the explicit run."""
+import numpy as np
+import pytest
+
+import tissue_sim_ros as ts
+from tissue_sim_ros.engine.driver import SimulationDriver
+from tissue_sim_ros.engine.scene import Scene, SceneError
+
+COARSE = ['mesh.fine_size_m=0.003', 'mesh.divisions=[6,6,5]']
+
+
+@pytest.fixture(scope='module')
+def cube():
+    return ts.box_mesh(size=(0.02, 0.02, 0.02), divisions=(3, 3, 3))
+
+
+def _bottom(mesh):
+    return np.flatnonzero(np.isclose(mesh.rest_positions[:, 2], 0.0))
+
+
+def _top(mesh):
+    return np.flatnonzero(np.isclose(mesh.rest_positions[:, 2], mesh.rest_positions[:, 2].max()))
+
+
+def _loaded(sim, mesh):
+    """A shear and compression load on the top face."""
+    top = _top(mesh)
+    sim.external_forces[top, 0] = 0.01 / len(top)
+    sim.external_forces[top, 2] = -0.02 / len(top)
+    return sim
+
+
+def _dense_stiffness(model, free):
+    """K (free DOFs) from the linear force kernel, one unit displacement a column."""
+    n = model.mesh.n_nodes
+    columns = []
+    for j in np.flatnonzero(free.ravel()):
+        unit = np.zeros(3 * n)
+        unit[j] = 1.0
+        columns.append(-model.linear_forces(unit.reshape(n, 3)).ravel()[free.ravel()])
+    return np.array(columns).T
+
+
+def test_backward_euler_matches_dense_recursion_and_modal_step_response(cube, liver):
+    """A suddenly applied load on the linear model: the implicit step equals the backward Euler
+    recursion solved with numpy's dense matrices (a second formulation), and converges to the
+    exact modal solution at first order in dt."""
+    import scipy.linalg
+    rate, duration = 30.0, 0.04
+    model = ts.TensorMassModel(cube, liver)
+    probe = ts.Simulation(model, fixed=_bottom(cube))
+    free = probe.dof_kind == 0
+    stiffness = _dense_stiffness(model, free)
+    assert np.allclose(stiffness, stiffness.T, atol=1e-9 * np.abs(stiffness).max())
+    mass = np.repeat(probe.mass, 3).reshape(-1, 3)[free]
+    load = _loaded(probe, cube).external_forces[free]
+    # exact: q'' + rate q' + w^2 q = g per mode, from rest
+    w2, modes = scipy.linalg.eigh(stiffness, np.diag(mass))
+    g = modes.T @ load
+    roots = np.stack([-rate / 2 + np.sqrt(rate ** 2 / 4 - w2 + 0j), -rate / 2 - np.sqrt(rate ** 2 / 4 - w2 + 0j)])
+    r1, r2 = roots
+    q = g / w2 * (1.0 + (r2 * np.exp(r1 * duration) - r1 * np.exp(r2 * duration)) / (r1 - r2))
+    errors = []
+    for n_steps in (40, 80):
+        dt = duration / n_steps
+        sim = _loaded(ts.Simulation(model, fixed=_bottom(cube), damping=rate, dt=dt, integrator='implicit',
+                                    newton_tolerance=1e-12), cube)
+        sim.step(n_steps)
+        # backward Euler: (M / dt^2 + gamma / dt + K) x+ = M / dt^2 (x + dt v) + gamma / dt x + f
+        matrix = stiffness + np.diag(mass * (1.0 + dt * rate) / dt ** 2)
+        x, v = np.zeros_like(load), np.zeros_like(load)
+        for _ in range(n_steps):
+            x_next = np.linalg.solve(matrix, mass / dt ** 2 * (x + dt * v) + mass * rate / dt * x + load)
+            x, v = x_next, (x_next - x) / dt
+        scale = np.abs(x).max()
+        assert np.abs(sim.displacement[free] - x).max() < 1e-7 * scale
+        assert np.abs(sim.velocity[free] - v).max() < 1e-6 * np.abs(v).max()
+        # the three lowest modes (w dt <= 0.1: backward Euler's asymptotic range; the highest,
+        # w dt near 2, are damped by the method whatever the step)
+        modal = modes.T @ (mass * sim.displacement[free])
+        errors.append(np.abs(modal[:3] - q.real[:3]).max() / np.abs(q.real[:3]).max())
+    assert errors[1] < 0.03                       # near the exact response
+    assert 1.8 < errors[0] / errors[1] < 2.2      # and first order in dt
+
+
+@pytest.mark.parametrize('full', [False, True], ids=['linear', 'full'])
+def test_static_answer_same_for_all_integrators(cube, liver, full):
+    """Under a constant load, the explicit run settled at rest, quasi-static steps and an
+    implicit run at 10x the explicit limit reach the same equilibrium (1e-6 relative)."""
+    options = dict(geometric=True, physical=ts.MeanRatioLaw.exponential(mu_amplitude=0.5, mu_rate=4.0),
+                   viscosity=ts.Viscosity(0.0, 5.0)) if full else {}
+
+    def simulation(**kwargs):
+        return _loaded(ts.Simulation(ts.TensorMassModel(cube, liver, **options), damping=200.0,
+                                     fixed=_bottom(cube), newton_tolerance=1e-11, **kwargs), cube)
+
+    explicit = simulation()
+    for _ in range(400):
+        explicit.step(100)
+        if np.abs(explicit.velocity).max() < 1e-14:
+            break
+    assert np.abs(explicit.velocity).max() < 1e-13
+    reference = explicit.displacement
+    quasi_static = simulation(integrator='quasi_static', dt=100.0)
+    quasi_static.step(2)      # the first step's strain rate (u / 100 s) loads the viscosity; the second's is 0
+    implicit = simulation(integrator='implicit', dt=10.0 * explicit.critical_time_step())
+    implicit.step(400)
+    for sim in (quasi_static, implicit):
+        assert np.abs(sim.displacement - reference).max() < 1e-6 * np.abs(reference).max()
+
+
+def test_implicit_stable_and_dissipative_ten_times_past_the_explicit_limit(cube, liver):
+    """Free vibration from a random displacement, no damping: at 10x the critical step the
+    explicit solver's watchdog stops it; backward Euler's energy falls every step."""
+    model = ts.TensorMassModel(cube, liver)
+    rng = np.random.default_rng(1)
+
+    def perturbed(**kwargs):
+        sim = ts.Simulation(model, fixed=_bottom(cube), **kwargs)
+        free = sim.dof_kind == 0
+        sim.displacement[free] = rng.normal(scale=1e-4, size=free.sum())
+        return sim
+
+    dt = 10.0 * perturbed().critical_time_step()
+    with pytest.raises(ts.SimulationDiverged):
+        perturbed(dt=dt).step(200)
+    sim = perturbed(dt=dt, integrator='implicit')
+    energies = [sum(sim.energy())]
+    for _ in range(100):
+        sim.step()
+        energies.append(sum(sim.energy()))
+    assert np.all(np.diff(energies) <= 1e-12 * energies[0])
+    assert energies[-1] < 0.5 * energies[0]
+
+
+def test_needle_insertion_implicit_against_explicit():
+    """The coarse default scene's insertion through the capsule: the implicit integrator at 4x
+    the explicit step punctures at the same peak force (within 3 %: the tissue's elastic response
+    to the tip). After the puncture the shaft's forces differ (implicit.py's docstring: the
+    uncoupled constraint correction), so only their finiteness is asserted there."""
+    def insert(sets):
+        scene = Scene.from_file(None, sets=COARSE + sets)
+        driver = SimulationDriver(scene)
+        start, axis = scene.needle_pose[0], scene.needle.axis.copy()
+        times = np.arange(1, 231) * 0.02
+        samples = driver.follow(times, start + (5e-3 * times)[:, None] * axis)
+        return scene, samples.force[:, 2]
+
+    explicit, f_explicit = insert([])
+    implicit, f_implicit = insert(['solver.integrator=implicit', f'solver.time_step_s={4 * explicit.dt!r}'])
+    assert implicit.dt > explicit.simulation.critical_time_step()
+    assert explicit.phase == implicit.phase == 'inserted'
+    assert abs(f_implicit.max() / f_explicit.max() - 1.0) < 0.03
+    assert np.isfinite(f_implicit).all()
+
+
+def test_implicit_scene_checks():
+    with pytest.raises(SceneError, match='time_step_s'):
+        Scene.from_file(None, sets=COARSE + ['solver.time_step_s=0.05'])
+    scene = Scene.from_file(None, sets=COARSE + ['solver.integrator=implicit', 'solver.time_step_s=0.05'])
+    assert scene.dt == 0.05
+    with pytest.raises(SceneError, match='integrator'):
+        Scene.from_file(None, sets=COARSE + ['solver.integrator=newmark'])
+    with pytest.raises((SceneError, ValueError), match='relaxation'):
+        Scene.from_file(None, sets=COARSE + ['solver.integrator=quasi_static',
+                                             'model.relaxation=[{relative_modulus: 0.3, time_constant_s: 1.0}]'])
