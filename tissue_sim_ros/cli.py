@@ -186,6 +186,12 @@ def _compare(args):
          tick_ms=args.tick_ms, workers=args.jobs, scheduler=args.scheduler, out=args.out)
 
 
+def _stability(args):
+    from tissue_sim_ros.analysis.stability import main
+    return main(scene_file=args.scene, sets=args.set, quick=args.quick, speed_mm_s=args.speed_mm_s, out=args.out,
+                workers=args.jobs, scheduler=args.scheduler)
+
+
 def _calibrate(args):
     from tissue_sim_ros.analysis.calibration import parse_phase_weights, main
     try:
@@ -373,6 +379,21 @@ def build_parser():
     drive.add_argument('--hold-s', type=_NON_NEGATIVE, default=0.5, help='pause at full depth [s] (default 0.5)')
     drive.add_argument('--scene-file', type=_input_file, default=None, help="scene the node runs (default: the packaged one)")
     drive.set_defaults(run=_drive)
+    stability = commands.add_parser('stability', help="each model's and integrator's largest stable time "
+                                    'step against the estimate, and induced failures (caught or survived)')
+    stability.add_argument('--scene', type=_input_file, default=None, help='scene YAML (default: the packaged one)')
+    _add_scene_sets(stability)
+    stability.add_argument('--quick', action='store_true',
+                           help='the coarse mesh and shorter searches (under 5 minutes on 2 cores)')
+    stability.add_argument('--speed-mm-s', type=_POSITIVE, default=5.0,
+                           help="the loading's needle speed [mm/s] (default 5)")
+    stability.add_argument('--jobs', type=_number(1, inclusive=True, whole=True), default=None,
+                           help='worker processes (default: every core this process may use)')
+    stability.add_argument('--scheduler', default=None, metavar='ADDRESS',
+                           help='run the searches on a Dask distributed cluster (tcp://host:8786)')
+    stability.add_argument('--out', type=_output_dir, default='out/stability',
+                           help='output directory (default out/stability); an interrupted run resumes there')
+    stability.set_defaults(run=_stability)
     node_bench = commands.add_parser('node-bench', help='run the node as a process and print its timing figures')
     node_bench.add_argument('--duration-s', type=_number(1, inclusive=True), default=20.0,
                             help='measured run length [s], at least 1 (default 20)')

@@ -314,6 +314,12 @@ class Simulation:
                                f'or a displacement passed {self.displacement_limit:.3g} m (100 body sizes)')
             if check:
                 self._check_energy(strain, inverted)
+            elif not kinetic <= self._energy_limit():
+                # every step, the kinetic part alone (the step computes it anyway): an unstable
+                # step's energy is half kinetic, so it is caught within a step or two of crossing
+                self._diverged(f'energy grew without input: kinetic energy {kinetic:.4g} J above the '
+                               f'{self._energy_limit():.4g} J a stable run can hold (initial energy '
+                               f'{self.reference_energy:.4g} J plus work put in {self.input_work:.4g} J)')
 
     def _check_energy(self, strain, inverted):
         """Energy (kinetic at t_n + strain at u_n) against the initial energy plus the work put in.
@@ -326,13 +332,19 @@ class Simulation:
         self.max_safeguarded_elements = max(self.max_safeguarded_elements, self.safeguarded_elements)
         total = self.kinetic_energy + strain
         budget = self.reference_energy + max(self.input_work, 0.0)
-        # the implicit integrators dissipate: no swing
-        swing = 1.0 if self._implicit is not None else 1.0 / max(1.0 - (self.dt / self.critical_time_step()) ** 2, 0.05)
-        if not math.isfinite(total) or total > self.energy_growth_factor * swing * budget + self.energy_floor:
+        if not math.isfinite(total) or total > self._energy_limit():
             self._diverged(f'energy grew without input: kinetic + strain energy {total:.4g} J against '
                            f'{budget:.4g} J initial plus work put in')
         if inverted and not self.allow_inverted and not (self.model.geometric and self.model.inversion_safeguard):
             self._diverged(f'{inverted} inverted elements (det F <= 0)')
+
+    def _energy_limit(self):
+        """The most energy [J] a stable run can hold: the growth factor times the initial energy
+        plus the work put in, widened by the discrete swing (the implicit integrators dissipate:
+        none), plus a floor."""
+        budget = self.reference_energy + max(self.input_work, 0.0)
+        swing = 1.0 if self._implicit is not None else 1.0 / max(1.0 - (self.dt / self.critical_time_step()) ** 2, 0.05)
+        return self.energy_growth_factor * swing * budget + self.energy_floor
 
     def _diverged(self, reason):
         raise SimulationDiverged(reason, self.step_count, self.time, self.dt, self.critical_time_step())
