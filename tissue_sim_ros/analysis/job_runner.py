@@ -16,12 +16,13 @@ and its cached kernels) costs seconds, more than a small batch's simulations.
 """
 from __future__ import annotations
 
+import json
 import multiprocessing
 import os
 import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
-__all__ = ['default_workers', 'run_jobs', 'WorkerPool']
+__all__ = ['default_workers', 'run_jobs', 'run_logged', 'WorkerPool']
 
 
 def default_workers() -> int:
@@ -99,6 +100,37 @@ def run_jobs(function, jobs, *, workers: int | None = None, scheduler=None, labe
                 for future in as_completed(futures):
                     done(futures[future], future.result())
     return results
+
+
+def run_logged(function, jobs, log, **options) -> list:
+    """run_jobs over the jobs that ``log`` (a JSON-lines file) has no result for, appending each
+    result as it arrives; returns every job's result in order. Each job is a dict with a 'key'
+    (a string naming it, its settings included) and ``function`` returns a dict carrying that key.
+    A line cut by an interrupted run is skipped (its job runs again) and ended, so the next line
+    starts on its own: this is what makes a study resumable."""
+    from pathlib import Path
+    log = Path(log)
+    done = {}
+    if log.exists():
+        text = log.read_text()
+        for line in text.splitlines():
+            try:
+                row = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if isinstance(row, dict):
+                done[row.get('key')] = row
+        if text and not text.endswith('\n'):
+            with log.open('a') as f:
+                f.write('\n')
+
+    def save(index, row):
+        with log.open('a') as f:
+            f.write(json.dumps(row) + '\n')
+        done[row['key']] = row
+
+    run_jobs(function, [job for job in jobs if job['key'] not in done], on_result=save, **options)
+    return [done[job['key']] for job in jobs]
 
 
 def _run_dask(function, jobs, scheduler, done) -> None:

@@ -8,7 +8,9 @@ it (issue 17 item 3): ``tissue-sim stability --scene SCENE --out DIR``.
    a bisection on log(dt) between 0.5x and 4x the solver's estimate (``critical_time_step``,
    mass scaling included), ``iterations`` halvings. Implicit and quasi-static (no limit in
    theory): the step multiplied by ``IMPLICIT_FACTORS`` until a run fails; the largest tried is a
-   lower bound (``limit_reached``).
+   lower bound (``limit_reached``). The reason of the first failure above the result is kept:
+   a run can fail for the model's sake (a small-strain model inverting elements under the tip)
+   or the method's, not only the step's.
 2. **Induced failures**, each on the scene's model unless it says otherwise: the step 2x and 4x
    over the estimate, a block compressed to 70 %, sliver elements (mean ratio below 0.05), a
    Poisson ratio of 0.499, a 50 mm/s needle, strong law coefficients. Outcomes: ``caught`` (the
@@ -120,38 +122,39 @@ def bisect_job(job: dict) -> dict:
     scene = _scene(job['scene_file'], sets)
     estimate = scene.simulation.critical_time_step()
     window, speed = job['window_s'], job['speed']
-    trials = []
+    trials, reasons = [], {}
+
+    def trial(factor):
+        ok, reason = _stable_at(scene, factor * estimate, window, speed)
+        trials.append((factor, ok))
+        if reason:
+            reasons[factor] = reason
+        return ok
+
     if job['integrator'] == 'explicit':
         lo, hi = 0.5, 4.0
-        stable_hi, _ = _stable_at(scene, hi * estimate, window, speed)
-        trials.append((hi, stable_hi))
-        if stable_hi:
+        if trial(hi):
             best, limit_reached = hi, True
+        elif not trial(lo):
+            best, limit_reached = 0.0, False       # unstable at half the estimate: the reason says why
         else:
-            stable_lo, reason = _stable_at(scene, lo * estimate, window, speed)
-            trials.append((lo, stable_lo))
-            if not stable_lo:
-                raise RuntimeError(f"{job['model']}, explicit: unstable at 0.5x the estimated critical step "
-                                   f'{estimate:.4g} s ({reason})')
             for _ in range(job['iterations']):
                 mid = math.sqrt(lo * hi)
-                ok, _ = _stable_at(scene, mid * estimate, window, speed)
-                trials.append((mid, ok))
-                lo, hi = (mid, hi) if ok else (lo, mid)
+                lo, hi = (mid, hi) if trial(mid) else (lo, mid)
             best, limit_reached = lo, False
     else:
         best, limit_reached = 0.0, True
         for factor in IMPLICIT_FACTORS:
-            ok, _ = _stable_at(scene, factor * estimate, window, speed)
-            trials.append((factor, ok))
-            if not ok:
+            if not trial(factor):
                 limit_reached = False
                 break
             best = factor
+    failed_above = [f for f, ok in trials if not ok and f > best]
     return dict(key=job['key'], kind='bisect', model=job['model'], integrator=job['integrator'],
                 tetrahedra=int(scene.mesh.n_elements), estimated_dt_s=estimate,
                 measured_max_dt_s=best * estimate, ratio=best, limit_reached=limit_reached,
-                trials=[[f, bool(ok)] for f, ok in trials], wall_s=time.perf_counter() - t0)
+                trials=[[f, bool(ok)] for f, ok in trials],
+                reason=reasons[min(failed_above)] if failed_above else '', wall_s=time.perf_counter() - t0)
 
 
 # -- induced failures --------------------------------------------------------------------------
@@ -282,34 +285,14 @@ def run_stability(scene_file=None, sets=(), *, quick=False, speed=0.005, out='ou
                   scheduler=None, models=tuple(MODELS), integrators=INTEGRATORS, cases=FAILURE_CASES,
                   quiet=False) -> dict:
     """Run the study (module docstring) and write its outputs into ``out``; returns the report."""
-    from tissue_sim_ros.analysis.job_runner import run_jobs
+    from tissue_sim_ros.analysis.job_runner import run_logged
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    log = out / 'runs.jsonl'
     jobs = jobs_for(scene_file, sets, quick=quick, speed=speed, models=models, integrators=integrators,
                     cases=cases)
-    done = {}
-    if log.exists():
-        for line in log.read_text().splitlines():
-            try:
-                row = json.loads(line)
-            except json.JSONDecodeError:
-                continue          # a line cut by an interrupted run: that job runs again
-            done[row.get('key')] = row
-    todo = [job for job in jobs if job['key'] not in done]
-    if log.exists() and not log.read_text().endswith('\n') and log.stat().st_size:
-        with log.open('a') as f:          # a line cut by an interruption ends before the next
-            f.write('\n')
-
-    def save(index, row):
-        with log.open('a') as f:
-            f.write(json.dumps(row) + '\n')
-        done[row['key']] = row
-
     t0 = time.perf_counter()
-    run_jobs(_run_job, todo, workers=workers, scheduler=scheduler, label='stability runs', on_result=save,
-             quiet=quiet)
-    rows = [done[job['key']] for job in jobs]
+    rows = run_logged(_run_job, jobs, out / 'runs.jsonl', workers=workers, scheduler=scheduler,
+                      label='stability runs', quiet=quiet)
     report = dict(scene=str(scene_file) if scene_file else 'packaged liver sample', sets=list(sets),
                   quick=quick, speed_m_s=speed, window_s=jobs[0]['window_s'] if jobs else None,
                   wall_s=time.perf_counter() - t0,
@@ -324,10 +307,10 @@ def _write_outputs(out: Path, report: dict) -> None:
     with (out / 'stability.csv').open('w', newline='') as f:
         w = csv.writer(f)
         w.writerow(['model', 'integrator', 'tetrahedra', 'estimated_dt_s', 'measured_max_dt_s', 'ratio',
-                    'limit_reached'])
+                    'limit_reached', 'failure_above'])
         for r in report['stability']:
             w.writerow([r['model'], r['integrator'], r['tetrahedra'], f"{r['estimated_dt_s']:.6g}",
-                        f"{r['measured_max_dt_s']:.6g}", f"{r['ratio']:.4g}", r['limit_reached']])
+                        f"{r['measured_max_dt_s']:.6g}", f"{r['ratio']:.4g}", r['limit_reached'], r['reason']])
     with (out / 'failures.csv').open('w', newline='') as f:
         w = csv.writer(f)
         w.writerow(['case', 'model', 'integrator', 'outcome', 'steps_to_detect', 'reason', 'steps', 'detail'])
@@ -346,12 +329,12 @@ def _markdown(report: dict) -> str:
              f"Loading: the needle from the surface at {report['speed_m_s'] * 1e3:g} mm/s for "
              f"{report['window_s']:g} s{' (quick: coarse mesh)' if report['quick'] else ''}; "
              f"{report['wall_s']:.0f} s of wall time.", '',
-             '| model | integrator | estimated dt [s] | measured largest stable dt [s] | ratio |',
-             '|---|---|---|---|---|']
+             '| model | integrator | estimated dt [s] | measured largest stable dt [s] | ratio | what failed above it |',
+             '|---|---|---|---|---|---|']
     for r in report['stability']:
         bound = '>= ' if r['limit_reached'] else ''
         lines.append(f"| {r['model']} | {r['integrator']} | {r['estimated_dt_s']:.4g} | "
-                     f"{bound}{r['measured_max_dt_s']:.4g} | {bound}{r['ratio']:.3g} |")
+                     f"{bound}{r['measured_max_dt_s']:.4g} | {bound}{r['ratio']:.3g} | {r['reason']} |")
     lines += ['', f'Explicit models with the measured step within 25 % of the estimate: {len(within)} of '
                   f'{len(explicit)}.', '', '| case | outcome | steps to detect | reason |', '|---|---|---|---|']
     for r in report['failures']:
