@@ -186,6 +186,12 @@ def _compare(args):
          tick_ms=args.tick_ms, workers=args.jobs, scheduler=args.scheduler, out=args.out)
 
 
+def _chart(args):
+    from tissue_sim_ros.analysis.chart import main
+    return main(scene_file=args.scene, sets=args.set, quick=args.quick, speed_mm_s=args.speed_mm_s,
+                travel_mm=args.travel_mm, out=args.out, workers=args.jobs, scheduler=args.scheduler)
+
+
 def _stability(args):
     from tissue_sim_ros.analysis.stability import main
     return main(scene_file=args.scene, sets=args.set, quick=args.quick, speed_mm_s=args.speed_mm_s, out=args.out,
@@ -379,6 +385,23 @@ def build_parser():
     drive.add_argument('--hold-s', type=_NON_NEGATIVE, default=0.5, help='pause at full depth [s] (default 0.5)')
     drive.add_argument('--scene-file', type=_input_file, default=None, help="scene the node runs (default: the packaged one)")
     drive.set_defaults(run=_drive)
+    chart = commands.add_parser('chart', help='speed against accuracy over models, meshes, time steps and '
+                                'integrators on the scene\'s insertion, with the Pareto front')
+    chart.add_argument('--scene', type=_input_file, default=None, help='scene YAML (default: the packaged one)')
+    _add_scene_sets(chart)
+    chart.add_argument('--quick', action='store_true',
+                       help='three mesh levels, the reference on the scene\'s mesh (under 5 minutes on 2 cores)')
+    chart.add_argument('--speed-mm-s', type=_POSITIVE, default=5.0, help='needle speed [mm/s] (default 5)')
+    chart.add_argument('--travel-mm', type=_POSITIVE, default=12.0,
+                       help='tip travel from 1 mm above the surface [mm] (default 12: past the default '
+                            "scene's capsule puncture)")
+    chart.add_argument('--jobs', type=_number(1, inclusive=True, whole=True), default=None,
+                       help='worker processes (default: every core this process may use)')
+    chart.add_argument('--scheduler', default=None, metavar='ADDRESS',
+                       help='run the configurations on a Dask distributed cluster (tcp://host:8786)')
+    chart.add_argument('--out', type=_output_dir, default='out/chart',
+                       help='output directory (default out/chart); an interrupted run resumes there')
+    chart.set_defaults(run=_chart)
     stability = commands.add_parser('stability', help="each model's and integrator's largest stable time "
                                     'step against the estimate, and induced failures (caught or survived)')
     stability.add_argument('--scene', type=_input_file, default=None, help='scene YAML (default: the packaged one)')

@@ -1,0 +1,290 @@
+"""Speed against accuracy (issue 17 item 2): ``tissue-sim chart --scene SCENE --out DIR``.
+
+Every configuration runs the scene's insertion task: the needle from 1 mm above the surface,
+``speed`` along its axis for ``travel`` (through the first layer's puncture on the default
+scene), sampled every 20 ms, no retraction. A configuration is the scene plus ``--set``
+overrides along four axes:
+
+* the model (linear, physically non-linear, geometric, full; the full model without viscosity and
+  with other non-linearity thresholds), on each mesh level;
+* the mesh refinement (``mesh.fine_size_m`` and ``mesh.divisions`` scaled: coarse, medium, the
+  scene's, and in the full preset a finer one);
+* the time step through the mass scaling (the full model on the scene's mesh);
+* the integrator (implicit and quasi-static at a multiple of the explicit step).
+
+**Error** (named ``force_nrmse``): the RMS difference of the axial force from the reference's
+over the insertion's ticks, over the reference's force range. The reference is the converged
+solution as far as the preset goes: the finest mesh, the full model, explicit, no mass scaling
+(its row has error 0 by definition and is marked). Beside it: the peak force's relative error and
+the first puncture's depth error [mm].
+
+**Cost**: wall seconds per simulated second in a worker with one numba thread (the simulation
+alone, not the scene's set-up), tet-steps per second, and the share of one core the node would
+spend on the physics at real time (the cost itself; above 1, one core cannot keep up).
+
+Outputs in DIR: chart.csv (a row per configuration: ``model``, ``tetrahedra``, ``integrator``,
+``time_step_s``, ``cost_s_per_sim_s``, ``error``, ``pareto``, ``reference``, ``overrides`` (the
+``--set`` list that reproduces it) and more), chart.png (error against cost, log axes, the
+Pareto front, one colour per model), chart.md, chart.json; runs.jsonl makes a rerun resume.
+"""
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ['configurations', 'run_chart', 'main']
+
+_NO_VISCOSITY = ['model.viscosity_mu_pa_s=0', 'model.viscosity_lambda_pa_s=0']
+#: model name -> overrides (the law, the viscosity and the threshold: the scene's unless set)
+MODELS = {
+    'linear': ['model.geometric=false', 'model.physical.law=none'] + _NO_VISCOSITY,
+    'physical': ['model.geometric=false'] + _NO_VISCOSITY,
+    'geometric': ['model.geometric=true', 'model.physical.law=none'] + _NO_VISCOSITY,
+    'full': ['model.geometric=true'],
+    'full, no viscosity': ['model.geometric=true'] + _NO_VISCOSITY,
+    'full, threshold 0': ['model.geometric=true', 'model.nonlinearity_threshold=0'],
+    'full, threshold 0.05': ['model.geometric=true', 'model.nonlinearity_threshold=0.05'],
+    'full, threshold 0.1': ['model.geometric=true', 'model.nonlinearity_threshold=0.1'],
+}
+#: mesh level -> overrides (the default scene's graded box: near-needle cell, far-field divisions)
+MESHES = {
+    'coarse': ['mesh.fine_size_m=0.004', 'mesh.divisions=[5,5,4]'],
+    'medium': ['mesh.fine_size_m=0.003', 'mesh.divisions=[6,6,5]'],
+    'scene': [],
+    'fine': ['mesh.fine_size_m=0.001', 'mesh.divisions=[12,12,10]'],
+}
+MASS_SCALINGS = (25.0, 100.0, 1600.0)
+#: (integrator, multiple of the scene's explicit step, mass scaling or None for the scene's)
+INTEGRATOR_RUNS = (('implicit', 1.0, None), ('implicit', 4.0, None), ('implicit', 4.0, 1.0),
+                   ('quasi_static', 4.0, None))
+START_GAP_M = 0.001
+
+
+def _model_family(name: str) -> str:
+    return name.split(',')[0]
+
+
+def configurations(scene_dt: float, *, quick: bool) -> list[dict]:
+    """The grid (module docstring) as rows of (name fields, overrides); the first is the reference.
+    ``scene_dt``: the scene's explicit step, which the implicit runs multiply."""
+    levels = ['coarse', 'medium', 'scene'] + ([] if quick else ['fine'])
+    finest = levels[-1]
+    rows = [dict(model='full', mesh=finest, integrator='explicit', mass_scaling=1.0, reference=True,
+                 overrides=MODELS['full'] + MESHES[finest] + ['solver.mass_scaling=1'])]
+    for model, model_sets in MODELS.items():
+        for level in levels:
+            rows.append(dict(model=model, mesh=level, integrator='explicit', mass_scaling=None, reference=False,
+                             overrides=model_sets + MESHES[level]))
+    for scaling in MASS_SCALINGS:
+        rows.append(dict(model='full', mesh='scene', integrator='explicit', mass_scaling=scaling, reference=False,
+                         overrides=MODELS['full'] + [f'solver.mass_scaling={scaling:g}']))
+    for integrator, multiple, scaling in INTEGRATOR_RUNS:
+        sets = MODELS['full'] + [f'solver.integrator={integrator}', f'solver.time_step_s={multiple * scene_dt!r}']
+        if scaling is not None:
+            sets.append(f'solver.mass_scaling={scaling:g}')
+        rows.append(dict(model='full', mesh='scene', integrator=integrator, mass_scaling=scaling, reference=False,
+                         overrides=sets))
+    return rows
+
+
+def simulate_job(job: dict) -> dict:
+    """One configuration's insertion: the axial force per tick, the punctures, and the cost."""
+    from tissue_sim_ros.analysis.insertion import run_insertion
+    from tissue_sim_ros.engine.scene import Scene, SceneError
+    from tissue_sim_ros.engine.solver import SimulationDiverged
+    row = {k: job[k] for k in ('key', 'model', 'mesh', 'integrator', 'reference')}
+    row['mass_scaling'] = job.get('mass_scaling')
+    row['overrides'] = list(job['overrides'])
+    try:
+        scene = Scene.from_file(job['scene_file'], sets=list(job['sets']) + list(job['overrides'])
+                                + [f'needle.start_gap_m={START_GAP_M!r}'])
+    except (SceneError, ValueError) as exc:
+        return dict(row, failure=f'refused: {exc}')
+    row.update(tetrahedra=int(scene.mesh.n_elements), time_step_s=float(scene.dt),
+               mass_scaling=float(scene.spec['solver']['mass_scaling']))
+    try:
+        result = run_insertion(scene, job['speed'], job['travel'], retract=False)
+    except SimulationDiverged as exc:
+        return dict(row, failure=f'diverged: {exc.reason}')
+    sim_time = float(result.time[-1])
+    row.update(failure='', wall_s=result.wall_time, sim_time_s=sim_time, steps=int(result.steps),
+               cost_s_per_sim_s=result.wall_time / sim_time,
+               tet_steps_per_s=scene.mesh.n_elements * result.steps / result.wall_time,
+               axial_force=result.axial_force.tolist(),
+               puncture_depth_m=(result.puncture_events[0]['tip_depth_m'] if result.puncture_events else None))
+    return row
+
+
+def _errors(rows: list[dict]) -> None:
+    """Each row's errors against the reference row (module docstring), in place."""
+    reference = next(r for r in rows if r['reference'])
+    if reference.get('failure'):
+        raise RuntimeError(f"the reference configuration failed: {reference['failure']}")
+    ref = np.asarray(reference['axial_force'])
+    span = float(ref.max() - ref.min()) or 1.0
+    for r in rows:
+        if r.get('failure'):
+            r.update(error=None, peak_force_error=None, puncture_depth_error_mm=None)
+            continue
+        force = np.asarray(r['axial_force'])
+        r['error'] = float(np.sqrt(np.mean((force - ref) ** 2)) / span)
+        r['peak_force_error'] = float(force.max() / ref.max() - 1.0)
+        both = r['puncture_depth_m'] is not None and reference['puncture_depth_m'] is not None
+        r['puncture_depth_error_mm'] = (1e3 * (r['puncture_depth_m'] - reference['puncture_depth_m'])
+                                        if both else None)
+
+
+def _pareto(rows: list[dict]) -> None:
+    """pareto = no other finished, non-reference row is at most as costly and as wrong, and
+    better in one."""
+    candidates = [r for r in rows if not r['reference'] and r.get('error') is not None]
+    for r in rows:
+        r['pareto'] = r in candidates and not any(
+            o is not r and o['cost_s_per_sim_s'] <= r['cost_s_per_sim_s'] and o['error'] <= r['error']
+            and (o['cost_s_per_sim_s'] < r['cost_s_per_sim_s'] or o['error'] < r['error']) for o in candidates)
+
+
+def make_job(config: dict, scene_file=None, sets=(), *, speed=0.005, travel=0.012) -> dict:
+    """A job for simulate_job: a configuration (``model``, ``mesh``, ``integrator``, ``reference``,
+    ``overrides``) on the scene and task."""
+    job = dict(config, scene_file=None if scene_file is None else str(scene_file), sets=list(sets), speed=speed,
+               travel=travel)
+    job['key'] = json.dumps(job, sort_keys=True)
+    return job
+
+
+def jobs_for(scene_file, sets, *, quick, speed, travel) -> list[dict]:
+    from tissue_sim_ros.engine.scene import Scene
+    scene_dt = Scene.from_file(scene_file, sets=list(sets)).dt
+    return [make_job(config, scene_file, sets, speed=speed, travel=travel)
+            for config in configurations(scene_dt, quick=quick)]
+
+
+def run_chart(scene_file=None, sets=(), *, quick=False, speed=0.005, travel=0.012, out='out', workers=None,
+              scheduler=None, jobs=None, quiet=False) -> dict:
+    """Run the grid (or ``jobs``, a subset of jobs_for's) and write the outputs; returns the report."""
+    from tissue_sim_ros.analysis.job_runner import run_logged
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    jobs = jobs_for(scene_file, sets, quick=quick, speed=speed, travel=travel) if jobs is None else jobs
+    # the costly ones first, so the pool's last minutes are not one long run
+    order = sorted(range(len(jobs)), key=lambda i: (jobs[i]['mesh'] != 'fine', not jobs[i]['reference'],
+                                                    jobs[i]['integrator'] == 'explicit'))
+    t0 = time.perf_counter()
+    done = run_logged(simulate_job, [jobs[i] for i in order], out / 'runs.jsonl', workers=workers,
+                      scheduler=scheduler, label='chart configurations', quiet=quiet)
+    rows = [None] * len(jobs)
+    for i, row in zip(order, done):
+        rows[i] = dict(row)
+    _errors(rows)
+    _pareto(rows)
+    report = dict(scene=str(scene_file) if scene_file else 'packaged liver sample', sets=list(sets), quick=quick,
+                  task=dict(speed_m_s=speed, travel_m=travel, start_gap_m=START_GAP_M, tick_s=0.02),
+                  error_metric='force_nrmse: RMS difference of the axial force from the reference over the '
+                               "insertion's ticks / the reference's force range",
+                  wall_s=time.perf_counter() - t0,
+                  rows=[{k: v for k, v in r.items() if k not in ('axial_force', 'key')} for r in rows])
+    _write_outputs(out, report, rows)
+    return report
+
+
+_CSV_COLUMNS = ('model', 'mesh', 'tetrahedra', 'integrator', 'time_step_s', 'mass_scaling', 'cost_s_per_sim_s',
+                'tet_steps_per_s', 'error', 'peak_force_error', 'puncture_depth_error_mm', 'pareto', 'reference',
+                'failure', 'overrides')
+
+
+def _cell(value):
+    if value is None:
+        return ''
+    if isinstance(value, float):
+        return f'{value:.6g}'
+    return value
+
+
+def _overrides_text(overrides) -> str:
+    return ' '.join(f'--set {shlex.quote(s)}' for s in overrides)
+
+
+def _write_outputs(out: Path, report: dict, rows: list[dict]) -> None:
+    import csv
+    with (out / 'chart.csv').open('w', newline='') as f:
+        w = csv.writer(f)
+        w.writerow(_CSV_COLUMNS)
+        for r in rows:
+            w.writerow([_overrides_text(r['overrides']) if c == 'overrides' else _cell(r.get(c))
+                        for c in _CSV_COLUMNS])
+    (out / 'chart.json').write_text(json.dumps(report, indent=1))
+    _plot(out / 'chart.png', rows)
+    (out / 'chart.md').write_text(_markdown(report, rows))
+
+
+def _markdown(report: dict, rows: list[dict]) -> str:
+    task = report['task']
+    lines = [f"# Speed against accuracy: {report['scene']}", '',
+             f"Task: the needle from {task['start_gap_m'] * 1e3:g} mm above the surface, "
+             f"{task['travel_m'] * 1e3:g} mm at {task['speed_m_s'] * 1e3:g} mm/s. Error: {report['error_metric']}. "
+             f"Cost: wall seconds per simulated second, one thread. {report['wall_s']:.0f} s of wall time"
+             f"{' (quick preset)' if report['quick'] else ''}.", '',
+             '| model | mesh | tetrahedra | integrator | mass scaling | dt [s] | cost [s/s] | error | peak | '
+             'puncture [mm] | Pareto |', '|---|---|---|---|---|---|---|---|---|---|---|']
+    finished = sorted((r for r in rows if not r.get('failure')), key=lambda r: r['cost_s_per_sim_s'])
+    for r in finished:
+        puncture = '' if r['puncture_depth_error_mm'] is None else f"{r['puncture_depth_error_mm']:+.2f}"
+        lines.append(f"| {r['model']} | {r['mesh']} | {r['tetrahedra']} | {r['integrator']} | {r['mass_scaling']:g} "
+                     f"| {r['time_step_s']:.3g} "
+                     f"| {r['cost_s_per_sim_s']:.3g} | {'reference' if r['reference'] else format(r['error'], '.4f')} "
+                     f"| {r['peak_force_error']:+.3f} | {puncture} | {'yes' if r['pareto'] else ''} |")
+    failed = [r for r in rows if r.get('failure')]
+    if failed:
+        lines += ['', 'Failed:', ''] + [f"- {r['model']}, {r['mesh']}, {r['integrator']}: {r['failure']}" for r in failed]
+    return '\n'.join(lines) + '\n'
+
+
+def _plot(path: Path, rows: list[dict]) -> None:
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    families = list(dict.fromkeys(_model_family(r['model']) for r in rows))
+    markers = dict(explicit='o', implicit='s', quasi_static='^')
+    finished = [r for r in rows if not r.get('failure') and not r['reference']]
+    for k, family in enumerate(families):
+        for integrator, marker in markers.items():
+            sel = [r for r in finished if _model_family(r['model']) == family and r['integrator'] == integrator]
+            if sel:
+                ax.scatter([r['cost_s_per_sim_s'] for r in sel], [max(r['error'], 1e-5) for r in sel],
+                           color=f'C{k}', marker=marker, s=36,
+                           label=f'{family}' + ('' if integrator == 'explicit' else f', {integrator.replace("_", "-")}'))
+    front = sorted((r for r in finished if r['pareto']), key=lambda r: r['cost_s_per_sim_s'])
+    if front:
+        ax.step([r['cost_s_per_sim_s'] for r in front], [max(r['error'], 1e-5) for r in front], where='post',
+                color='black', lw=1, label='Pareto front')
+    reference = next(r for r in rows if r['reference'])
+    if not reference.get('failure'):
+        ax.axvline(reference['cost_s_per_sim_s'], color='grey', ls=':', lw=1,
+                   label=f"reference's cost ({reference['tetrahedra']} tetrahedra)")
+    ax.axvline(1.0, color='red', ls='--', lw=0.8, label='real time on one core')
+    ax.set_xscale('log')
+    ax.set_yscale('log')
+    ax.set_xlabel('cost [wall s per simulated s, one thread]')
+    ax.set_ylabel('force NRMSE against the reference')
+    ax.set_title('speed against accuracy: needle insertion')
+    ax.grid(alpha=0.3, which='both')
+    ax.legend(fontsize=7, loc='best')
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(scene_file=None, sets=(), quick=False, speed_mm_s=5.0, travel_mm=12.0, out='out', workers=None,
+         scheduler=None) -> int:
+    run_chart(scene_file, sets, quick=quick, speed=speed_mm_s * 1e-3, travel=travel_mm * 1e-3, out=out,
+              workers=workers, scheduler=scheduler)
+    print((Path(out) / 'chart.md').read_text())
+    print(f'wrote {out}/chart.csv, chart.png, chart.md, chart.json', file=sys.stderr)
+    return 0
