@@ -192,6 +192,13 @@ def _chart(args):
                 travel_mm=args.travel_mm, out=args.out, workers=args.jobs, scheduler=args.scheduler)
 
 
+def _recommend(args):
+    from tissue_sim_ros.analysis.recommend import main
+    return main(scene_file=args.scene, sets=args.set, tolerance=args.tolerance, rate_hz=args.rate_hz,
+                quick=args.quick, speed_mm_s=args.speed_mm_s, travel_mm=args.travel_mm, out=args.out,
+                workers=args.jobs, scheduler=args.scheduler)
+
+
 def _stability(args):
     from tissue_sim_ros.analysis.stability import main
     return main(scene_file=args.scene, sets=args.set, quick=args.quick, speed_mm_s=args.speed_mm_s, out=args.out,
@@ -402,6 +409,23 @@ def build_parser():
     chart.add_argument('--out', type=_output_dir, default='out/chart',
                        help='output directory (default out/chart); an interrupted run resumes there')
     chart.set_defaults(run=_chart)
+    recommend = commands.add_parser('recommend', help='the cheapest model, mesh, step and integrator within a '
+                                    'force error tolerance that keeps real time (runs the chart)')
+    recommend.add_argument('--scene', type=_input_file, default=None, help='scene YAML (default: the packaged one)')
+    _add_scene_sets(recommend)
+    recommend.add_argument('--tolerance', type=_POSITIVE, default=0.05,
+                           help="the force NRMSE allowed against the chart's reference (default 0.05)")
+    recommend.add_argument('--rate-hz', type=_POSITIVE, default=50.0, help="the node's tick rate (default 50)")
+    recommend.add_argument('--quick', action='store_true', help="the chart's quick preset")
+    recommend.add_argument('--speed-mm-s', type=_POSITIVE, default=5.0, help='needle speed [mm/s] (default 5)')
+    recommend.add_argument('--travel-mm', type=_POSITIVE, default=12.0, help='tip travel [mm] (default 12)')
+    recommend.add_argument('--jobs', type=_number(1, inclusive=True, whole=True), default=None,
+                           help='worker processes (default: every core this process may use)')
+    recommend.add_argument('--scheduler', default=None, metavar='ADDRESS',
+                           help='run the chart on a Dask distributed cluster (tcp://host:8786)')
+    recommend.add_argument('--out', type=_output_dir, default='out/recommend',
+                           help='output directory (default out/recommend; the chart in its chart/, resumable)')
+    recommend.set_defaults(run=_recommend)
     stability = commands.add_parser('stability', help="each model's and integrator's largest stable time "
                                     'step against the estimate, and induced failures (caught or survived)')
     stability.add_argument('--scene', type=_input_file, default=None, help='scene YAML (default: the packaged one)')

@@ -23,7 +23,6 @@ import math
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 __all__ = ['write_report']
 
@@ -102,16 +101,14 @@ def _warnings(fit, rows, spread) -> list[str]:
 
 
 def _calibrated_yaml(path, spec, report, *, scene_file, sets, data_spec, base_dir) -> None:
-    spec = json.loads(json.dumps(spec))
-    if spec['mesh'].get('file'):
-        spec['mesh']['file'] = str((Path(base_dir) / spec['mesh']['file']).resolve())
-    lines = ['# A scene calibrated by tissue-sim calibrate (every key; `tissue-sim scene-keys` explains them).',
-             f'# data: {data_spec}; starting scene: {scene_file or "the packaged default"}'
+    from tissue_sim_ros.engine.scene import scene_yaml
+    lines = ['A scene calibrated by tissue-sim calibrate (every key; `tissue-sim scene-keys` explains them).',
+             f'data: {data_spec}; starting scene: {scene_file or "the packaged default"}'
              + (f' with {" ".join("--set " + s for s in sets)}' if sets else ''),
-             f"# fit NRMSE {report['fit']['nrmse_mean']:.4f} (start {report['fit']['nrmse_mean_start']:.4f})",
-             '# fitted values (standard error from the Jacobian at the optimum; a lower bound):']
-    lines += [f"#   {key} = {p['value']:.6g} +- {p['stderr']:.2g}" for key, p in report['parameters'].items()]
-    path.write_text('\n'.join(lines) + '\n' + yaml.safe_dump(spec, sort_keys=False))
+             f"fit NRMSE {report['fit']['nrmse_mean']:.4f} (start {report['fit']['nrmse_mean_start']:.4f})",
+             'fitted values (standard error from the Jacobian at the optimum; a lower bound):']
+    lines += [f"  {key} = {p['value']:.6g} +- {p['stderr']:.2g}" for key, p in report['parameters'].items()]
+    path.write_text(scene_yaml(spec, base_dir, lines))
 
 
 def _plot(out, study_start, study_final, role) -> dict:

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['configurations', 'run_chart', 'main']
+__all__ = ['configurations', 'force_nrmse', 'make_job', 'read_reference', 'run_chart', 'simulate_job', 'main']
 
 _NO_VISCOSITY = ['model.viscosity_mu_pa_s=0', 'model.viscosity_lambda_pa_s=0']
 #: model name -> overrides (the law, the viscosity and the threshold: the scene's unless set)
@@ -120,19 +120,30 @@ def simulate_job(job: dict) -> dict:
     return row
 
 
+def force_nrmse(force, reference) -> float:
+    """The chart's error: RMS of (force - reference) over the ticks / the reference's range."""
+    force, reference = np.asarray(force, dtype=float), np.asarray(reference, dtype=float)
+    span = float(reference.max() - reference.min()) or 1.0
+    return float(np.sqrt(np.mean((force - reference) ** 2)) / span)
+
+
+def read_reference(out) -> np.ndarray:
+    """The reference's axial force per tick [N] from a chart's output directory."""
+    return np.asarray(json.loads((Path(out) / 'chart.json').read_text())['reference_axial_force_n'])
+
+
 def _errors(rows: list[dict]) -> None:
     """Each row's errors against the reference row (module docstring), in place."""
     reference = next(r for r in rows if r['reference'])
     if reference.get('failure'):
         raise RuntimeError(f"the reference configuration failed: {reference['failure']}")
     ref = np.asarray(reference['axial_force'])
-    span = float(ref.max() - ref.min()) or 1.0
     for r in rows:
         if r.get('failure'):
             r.update(error=None, peak_force_error=None, puncture_depth_error_mm=None)
             continue
         force = np.asarray(r['axial_force'])
-        r['error'] = float(np.sqrt(np.mean((force - ref) ** 2)) / span)
+        r['error'] = force_nrmse(force, ref)
         r['peak_force_error'] = float(force.max() / ref.max() - 1.0)
         both = r['puncture_depth_m'] is not None and reference['puncture_depth_m'] is not None
         r['puncture_depth_error_mm'] = (1e3 * (r['puncture_depth_m'] - reference['puncture_depth_m'])
@@ -188,7 +199,8 @@ def run_chart(scene_file=None, sets=(), *, quick=False, speed=0.005, travel=0.01
                   error_metric='force_nrmse: RMS difference of the axial force from the reference over the '
                                "insertion's ticks / the reference's force range",
                   wall_s=time.perf_counter() - t0,
-                  rows=[{k: v for k, v in r.items() if k not in ('axial_force', 'key')} for r in rows])
+                  rows=[{k: v for k, v in r.items() if k not in ('axial_force', 'key')} for r in rows],
+                  reference_axial_force_n=next(r for r in rows if r['reference'])['axial_force'])
     _write_outputs(out, report, rows)
     return report
 

@@ -364,6 +364,17 @@ class Scene:
         return self.needle.puncture_events
 
 
+def scene_yaml(spec, base_dir='.', header=()) -> str:
+    """A complete scene file's text: ``header`` as comment lines, then every key of ``spec`` (a
+    mesh file made absolute from ``base_dir``, so the file loads from anywhere)."""
+    import json
+    spec = json.loads(json.dumps(spec))
+    if spec['mesh'].get('file'):
+        spec['mesh']['file'] = str((Path(base_dir) / spec['mesh']['file']).resolve())
+    comments = ''.join(f'# {line}\n' for line in header)
+    return comments + yaml.safe_dump(spec, sort_keys=False)
+
+
 def _current_surface(model):
     from tissue_sim_ros.engine.mesh import surface_triangles
     return surface_triangles(model.tetrahedra, model.mesh.rest_positions)

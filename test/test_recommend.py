@@ -1,0 +1,58 @@
+"""tissue-sim recommend (analysis/recommend.py): the choice rule against the rows, and the
+recommended scene's error measured afresh within the tolerance."""
+import json
+
+import pytest
+import yaml
+
+from tissue_sim_ros.analysis import chart, recommend
+from tissue_sim_ros.engine.scene import Scene
+
+MEDIUM = chart.MESHES['medium']
+
+
+def _rows():
+    row = lambda name, cost, error, **kw: dict(model=name, cost_s_per_sim_s=cost, error=error, reference=False, **kw)
+    return [row('reference', 5.0, 0.0), row('cheap, wrong', 0.05, 0.3), row('good', 0.3, 0.04),
+            row('better, slower', 0.6, 0.01), row('failed', None, None, failure='diverged: x')]
+
+
+def test_choice_is_the_cheapest_within_tolerance_that_keeps_real_time():
+    rows = _rows()
+    chosen, verdicts = recommend.choose(rows, 0.05, 50.0)
+    assert chosen['model'] == 'good'
+    assert recommend.choose(rows, 0.02, 50.0)[0]['model'] == 'better, slower'
+    # nothing within 0.001 keeps real time: the most accurate one that does
+    assert recommend.choose(rows, 0.001, 50.0)[0]['model'] == 'better, slower'
+    # at 200 Hz the node's own work per tick leaves less for the physics (0.8 - 0.24)
+    assert recommend.choose(rows, 0.02, 200.0)[0]['model'] == 'good'
+    assert 4 not in verdicts
+
+
+def test_recommended_scene_measured_afresh_within_tolerance(tmp_path):
+    """On the medium mesh (the reference: the full model at mass scaling 25), candidates at mass
+    scaling 400 and 100 and the linear model; a tolerance the 400 run misses. No cost limit (the
+    machine's load must not decide the test; the rule is tested above)."""
+    configs = [dict(model='full', mesh='medium', integrator='explicit', mass_scaling=None, reference=True,
+                    overrides=chart.MODELS['full'] + MEDIUM + ['solver.mass_scaling=25'])]
+    configs += [dict(model=m, mesh='medium', integrator='explicit', mass_scaling=None, reference=False,
+                     overrides=chart.MODELS[m] + MEDIUM + extra)
+                for m, extra in (('full', []), ('full', ['solver.mass_scaling=100']), ('linear', []))]
+    jobs = [chart.make_job(c, travel=0.010) for c in configs]
+    errors = {}
+    for tolerance in (1.0, 0.12):
+        out = tmp_path / f'tol{tolerance}'
+        result = recommend.recommend(tolerance=tolerance, travel=0.010, out=out, workers=1, jobs=jobs, quiet=True,
+                                     budget=float('inf'))
+        saved = json.loads((out / 'recommend.json').read_text())
+        assert saved['candidates'] == 4 and saved['overrides'] == result['overrides']
+        assert result['measured_error'] == pytest.approx(result['predicted_error'], abs=1e-9)   # deterministic
+        assert result['measured_error'] <= tolerance
+        text = (out / 'recommended.yaml').read_text()
+        assert yaml.safe_load(text)['solver']['mass_scaling'] == result['chosen']['mass_scaling']
+        Scene.from_file(out / 'recommended.yaml')          # a scene every command accepts
+        errors[tolerance] = result
+    # a loose tolerance buys the cheapest run; a tight one a costlier, more accurate one
+    assert errors[1.0]['chosen']['model'] == 'linear'
+    assert errors[0.12]['chosen']['mass_scaling'] == 100.0
+    assert errors[0.12]['predicted_error'] < errors[1.0]['predicted_error']
