@@ -52,7 +52,11 @@ def test_recommended_scene_measured_afresh_within_tolerance(tmp_path):
         assert yaml.safe_load(text)['solver']['mass_scaling'] == result['chosen']['mass_scaling']
         Scene.from_file(out / 'recommended.yaml')          # a scene every command accepts
         errors[tolerance] = result
-    # a loose tolerance buys the cheapest run; a tight one a costlier, more accurate one
-    assert errors[1.0]['chosen']['model'] == 'linear'
-    assert errors[0.12]['chosen']['mass_scaling'] == 100.0
-    assert errors[0.12]['predicted_error'] < errors[1.0]['predicted_error']
+    # the choice is the cheapest row within the tolerance (costs are measured: which one that is
+    # depends on the machine's load, so the test reads them from the chart it ran)
+    for tolerance, result in errors.items():
+        rows = json.loads((tmp_path / f'tol{tolerance}' / 'chart' / 'chart.json').read_text())['rows']
+        within = [r for r in rows if r['error'] is not None and r['error'] <= tolerance]
+        assert result['cost_s_per_sim_s'] == min(r['cost_s_per_sim_s'] for r in within)
+    # the tight tolerance rules out the mass scaling 400 and linear rows (errors about 0.14 and 0.24)
+    assert errors[0.12]['chosen']['mass_scaling'] in (25.0, 100.0)

@@ -18,6 +18,13 @@ solution as far as the preset goes: the finest mesh, the full model, explicit, n
 (its row has error 0 by definition and is marked). Beside it: the peak force's relative error and
 the first puncture's depth error [mm].
 
+A second task, **plate compression**, has an analytic answer: a cube of the scene's material and
+model on a frictionless floor, a frictionless plate pressing its top by 0.5 % and held (the
+reaction settles); the error is the plate force's relative difference from E A strain (exact for
+the linear model on linear tetrahedra; the non-linear models' own departure at 0.5 % strain is a
+few 1e-3). It compares the integrators where all of them apply: every model x explicit, implicit
+at 10x and quasi-static at 10x the explicit step, on 4^3 and 6^3 cubes (8^3 in the full preset).
+
 **Cost**: wall seconds per simulated second in a worker with one numba thread (the simulation
 alone, not the scene's set-up), tet-steps per second, and the share of one core the node would
 spend on the physics at real time (the cost itself; above 1, one core cannot keep up).
@@ -63,6 +70,9 @@ MASS_SCALINGS = (25.0, 100.0, 1600.0)
 INTEGRATOR_RUNS = (('implicit', 1.0, None), ('implicit', 4.0, None), ('implicit', 4.0, 1.0),
                    ('quasi_static', 4.0, None))
 START_GAP_M = 0.001
+#: plate compression: (integrator, multiple of the cube's explicit step)
+COMPRESSION_INTEGRATORS = (('explicit', 1.0), ('implicit', 10.0), ('quasi_static', 10.0))
+COMPRESSION_STRAIN = 0.005
 
 
 def _model_family(name: str) -> str:
@@ -74,30 +84,72 @@ def configurations(scene_dt: float, *, quick: bool) -> list[dict]:
     ``scene_dt``: the scene's explicit step, which the implicit runs multiply."""
     levels = ['coarse', 'medium', 'scene'] + ([] if quick else ['fine'])
     finest = levels[-1]
-    rows = [dict(model='full', mesh=finest, integrator='explicit', mass_scaling=1.0, reference=True,
+    rows = [dict(task='insertion', model='full', mesh=finest, integrator='explicit', mass_scaling=1.0, reference=True,
                  overrides=MODELS['full'] + MESHES[finest] + ['solver.mass_scaling=1'])]
     for model, model_sets in MODELS.items():
         for level in levels:
-            rows.append(dict(model=model, mesh=level, integrator='explicit', mass_scaling=None, reference=False,
-                             overrides=model_sets + MESHES[level]))
+            rows.append(dict(task='insertion', model=model, mesh=level, integrator='explicit', mass_scaling=None,
+                             reference=False, overrides=model_sets + MESHES[level]))
     for scaling in MASS_SCALINGS:
-        rows.append(dict(model='full', mesh='scene', integrator='explicit', mass_scaling=scaling, reference=False,
-                         overrides=MODELS['full'] + [f'solver.mass_scaling={scaling:g}']))
+        rows.append(dict(task='insertion', model='full', mesh='scene', integrator='explicit', mass_scaling=scaling,
+                         reference=False, overrides=MODELS['full'] + [f'solver.mass_scaling={scaling:g}']))
     for integrator, multiple, scaling in INTEGRATOR_RUNS:
         sets = MODELS['full'] + [f'solver.integrator={integrator}', f'solver.time_step_s={multiple * scene_dt!r}']
         if scaling is not None:
             sets.append(f'solver.mass_scaling={scaling:g}')
-        rows.append(dict(model='full', mesh='scene', integrator=integrator, mass_scaling=scaling, reference=False,
-                         overrides=sets))
+        rows.append(dict(task='insertion', model='full', mesh='scene', integrator=integrator, mass_scaling=scaling,
+                         reference=False, overrides=sets))
+    for model in ('linear', 'physical', 'geometric', 'full'):
+        for divisions in (4, 6) if quick else (4, 6, 8):
+            for integrator, multiple in COMPRESSION_INTEGRATORS:
+                rows.append(dict(task='compression', model=model, mesh=f'{divisions}^3 cube', divisions=divisions,
+                                 integrator=integrator, step_multiple=multiple, mass_scaling=None, reference=False,
+                                 overrides=MODELS[model] + [f'solver.integrator={integrator}']))
     return rows
 
 
 def simulate_job(job: dict) -> dict:
+    """One configuration: its task's outputs and cost (module docstring)."""
+    if job.get('task', 'insertion') == 'compression':
+        return _compression_job(job)
+    return _insertion_job(job)
+
+
+def _compression_job(job: dict) -> dict:
+    """The plate compression of the scene's material and model, error against E A strain."""
+    from tissue_sim_ros.analysis.compression import scene_block
+    from tissue_sim_ros.engine.scene import Scene
+    from tissue_sim_ros.engine.solver import SimulationDiverged
+    row = {k: job[k] for k in ('key', 'task', 'model', 'mesh', 'integrator', 'reference')}
+    row['overrides'] = list(job['overrides'])
+    scene = Scene.from_file(job['scene_file'], sets=list(job['sets']) + list(job['overrides']))
+    explicit = Scene.from_file(job['scene_file'], sets=list(job['sets']) + list(job['overrides'])
+                               + ['solver.integrator=explicit'])
+    dt = scene_block(explicit, COMPRESSION_STRAIN, divisions=job['divisions']).simulation.dt * job['step_multiple']
+    block = scene_block(scene, COMPRESSION_STRAIN, divisions=job['divisions'], dt=dt)
+    sim = block.simulation
+    row.update(tetrahedra=int(sim.model.mesh.n_elements), time_step_s=float(sim.dt),
+               mass_scaling=float(sim.mass_scaling))
+    t0 = time.perf_counter()
+    try:
+        sim.step(block.steps)
+    except SimulationDiverged as exc:
+        return dict(row, failure=f'diverged: {exc.reason}')
+    wall = time.perf_counter() - t0
+    reaction = float(sim.reaction_force(block.plate_nodes)[2])
+    return dict(row, failure='', wall_s=wall, sim_time_s=float(sim.time), steps=block.steps,
+                cost_s_per_sim_s=wall / sim.time, tet_steps_per_s=sim.model.mesh.n_elements * block.steps / wall,
+                error=abs(reaction / block.expected_reaction - 1.0), reaction_n=reaction,
+                peak_force_error=None, puncture_depth_error_mm=None)
+
+
+def _insertion_job(job: dict) -> dict:
     """One configuration's insertion: the axial force per tick, the punctures, and the cost."""
     from tissue_sim_ros.analysis.insertion import run_insertion
     from tissue_sim_ros.engine.scene import Scene, SceneError
     from tissue_sim_ros.engine.solver import SimulationDiverged
     row = {k: job[k] for k in ('key', 'model', 'mesh', 'integrator', 'reference')}
+    row['task'] = 'insertion'
     row['mass_scaling'] = job.get('mass_scaling')
     row['overrides'] = list(job['overrides'])
     try:
@@ -134,6 +186,7 @@ def read_reference(out) -> np.ndarray:
 
 def _errors(rows: list[dict]) -> None:
     """Each row's errors against the reference row (module docstring), in place."""
+    rows = [r for r in rows if r['task'] == 'insertion']
     reference = next(r for r in rows if r['reference'])
     if reference.get('failure'):
         raise RuntimeError(f"the reference configuration failed: {reference['failure']}")
@@ -153,6 +206,11 @@ def _errors(rows: list[dict]) -> None:
 def _pareto(rows: list[dict]) -> None:
     """pareto = no other finished, non-reference row is at most as costly and as wrong, and
     better in one."""
+    for task in {r.get('task', 'insertion') for r in rows}:
+        _pareto_of([r for r in rows if r.get('task', 'insertion') == task])
+
+
+def _pareto_of(rows: list[dict]) -> None:
     candidates = [r for r in rows if not r['reference'] and r.get('error') is not None]
     for r in rows:
         r['pareto'] = r in candidates and not any(
@@ -185,6 +243,7 @@ def run_chart(scene_file=None, sets=(), *, quick=False, speed=0.005, travel=0.01
     jobs = jobs_for(scene_file, sets, quick=quick, speed=speed, travel=travel) if jobs is None else jobs
     # the costly ones first, so the pool's last minutes are not one long run
     order = sorted(range(len(jobs)), key=lambda i: (jobs[i]['mesh'] != 'fine', not jobs[i]['reference'],
+                                                    jobs[i].get('task') == 'compression',
                                                     jobs[i]['integrator'] == 'explicit'))
     t0 = time.perf_counter()
     done = run_logged(simulate_job, [jobs[i] for i in order], out / 'runs.jsonl', workers=workers,
@@ -192,20 +251,22 @@ def run_chart(scene_file=None, sets=(), *, quick=False, speed=0.005, travel=0.01
     rows = [None] * len(jobs)
     for i, row in zip(order, done):
         rows[i] = dict(row)
+        rows[i].setdefault('task', 'insertion')
     _errors(rows)
     _pareto(rows)
     report = dict(scene=str(scene_file) if scene_file else 'packaged liver sample', sets=list(sets), quick=quick,
                   task=dict(speed_m_s=speed, travel_m=travel, start_gap_m=START_GAP_M, tick_s=0.02),
                   error_metric='force_nrmse: RMS difference of the axial force from the reference over the '
                                "insertion's ticks / the reference's force range",
+                  compression_error_metric=f'|plate force / (E A strain) - 1| at {COMPRESSION_STRAIN:g} strain, held',
                   wall_s=time.perf_counter() - t0,
                   rows=[{k: v for k, v in r.items() if k not in ('axial_force', 'key')} for r in rows],
-                  reference_axial_force_n=next(r for r in rows if r['reference'])['axial_force'])
+                  reference_axial_force_n=next(r for r in rows if r['reference'] and r['task'] == 'insertion')['axial_force'])
     _write_outputs(out, report, rows)
     return report
 
 
-_CSV_COLUMNS = ('model', 'mesh', 'tetrahedra', 'integrator', 'time_step_s', 'mass_scaling', 'cost_s_per_sim_s',
+_CSV_COLUMNS = ('task', 'model', 'mesh', 'tetrahedra', 'integrator', 'time_step_s', 'mass_scaling', 'cost_s_per_sim_s',
                 'tet_steps_per_s', 'error', 'peak_force_error', 'puncture_depth_error_mm', 'pareto', 'reference',
                 'failure', 'overrides')
 
@@ -238,22 +299,32 @@ def _write_outputs(out: Path, report: dict, rows: list[dict]) -> None:
 def _markdown(report: dict, rows: list[dict]) -> str:
     task = report['task']
     lines = [f"# Speed against accuracy: {report['scene']}", '',
-             f"Task: the needle from {task['start_gap_m'] * 1e3:g} mm above the surface, "
-             f"{task['travel_m'] * 1e3:g} mm at {task['speed_m_s'] * 1e3:g} mm/s. Error: {report['error_metric']}. "
              f"Cost: wall seconds per simulated second, one thread. {report['wall_s']:.0f} s of wall time"
              f"{' (quick preset)' if report['quick'] else ''}.", '',
+             f"## Needle insertion: from {task['start_gap_m'] * 1e3:g} mm above the surface, "
+             f"{task['travel_m'] * 1e3:g} mm at {task['speed_m_s'] * 1e3:g} mm/s", '',
+             f"Error: {report['error_metric']}.", '',
              '| model | mesh | tetrahedra | integrator | mass scaling | dt [s] | cost [s/s] | error | peak | '
              'puncture [mm] | Pareto |', '|---|---|---|---|---|---|---|---|---|---|---|']
-    finished = sorted((r for r in rows if not r.get('failure')), key=lambda r: r['cost_s_per_sim_s'])
-    for r in finished:
+    insertion = [r for r in rows if r['task'] == 'insertion']
+    for r in sorted((r for r in insertion if not r.get('failure')), key=lambda r: r['cost_s_per_sim_s']):
         puncture = '' if r['puncture_depth_error_mm'] is None else f"{r['puncture_depth_error_mm']:+.2f}"
         lines.append(f"| {r['model']} | {r['mesh']} | {r['tetrahedra']} | {r['integrator']} | {r['mass_scaling']:g} "
                      f"| {r['time_step_s']:.3g} "
                      f"| {r['cost_s_per_sim_s']:.3g} | {'reference' if r['reference'] else format(r['error'], '.4f')} "
                      f"| {r['peak_force_error']:+.3f} | {puncture} | {'yes' if r['pareto'] else ''} |")
+    compression = [r for r in rows if r['task'] == 'compression']
+    if compression:
+        lines += ['', '## Plate compression', '', f"Error: {report['compression_error_metric']}.", '',
+                  '| model | cube | tetrahedra | integrator | dt [s] | cost [s/s] | error | Pareto |',
+                  '|---|---|---|---|---|---|---|---|']
+        for r in sorted((r for r in compression if not r.get('failure')), key=lambda r: r['cost_s_per_sim_s']):
+            lines.append(f"| {r['model']} | {r['mesh']} | {r['tetrahedra']} | {r['integrator']} | {r['time_step_s']:.3g} "
+                         f"| {r['cost_s_per_sim_s']:.3g} | {r['error']:.2e} | {'yes' if r['pareto'] else ''} |")
     failed = [r for r in rows if r.get('failure')]
     if failed:
-        lines += ['', 'Failed:', ''] + [f"- {r['model']}, {r['mesh']}, {r['integrator']}: {r['failure']}" for r in failed]
+        lines += ['', 'Failed:', ''] + [f"- {r['task']}: {r['model']}, {r['mesh']}, {r['integrator']}: {r['failure']}"
+                                        for r in failed]
     return '\n'.join(lines) + '\n'
 
 
@@ -261,36 +332,46 @@ def _plot(path: Path, rows: list[dict]) -> None:
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(8, 5.5))
+    tasks = [t for t in ('insertion', 'compression') if any(r['task'] == t for r in rows)]
+    fig, axes = plt.subplots(1, len(tasks), figsize=(8 * len(tasks), 5.5), squeeze=False)
     families = list(dict.fromkeys(_model_family(r['model']) for r in rows))
+    for ax, task in zip(axes[0], tasks):
+        _plot_task(ax, [r for r in rows if r['task'] == task], families, task)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _plot_task(ax, rows: list[dict], families: list[str], task: str) -> None:
     markers = dict(explicit='o', implicit='s', quasi_static='^')
     finished = [r for r in rows if not r.get('failure') and not r['reference']]
     for k, family in enumerate(families):
         for integrator, marker in markers.items():
             sel = [r for r in finished if _model_family(r['model']) == family and r['integrator'] == integrator]
             if sel:
-                ax.scatter([r['cost_s_per_sim_s'] for r in sel], [max(r['error'], 1e-5) for r in sel],
+                ax.scatter([r['cost_s_per_sim_s'] for r in sel], [max(r['error'], 1e-6) for r in sel],
                            color=f'C{k}', marker=marker, s=36,
                            label=f'{family}' + ('' if integrator == 'explicit' else f', {integrator.replace("_", "-")}'))
     front = sorted((r for r in finished if r['pareto']), key=lambda r: r['cost_s_per_sim_s'])
     if front:
-        ax.step([r['cost_s_per_sim_s'] for r in front], [max(r['error'], 1e-5) for r in front], where='post',
+        ax.step([r['cost_s_per_sim_s'] for r in front], [max(r['error'], 1e-6) for r in front], where='post',
                 color='black', lw=1, label='Pareto front')
-    reference = next(r for r in rows if r['reference'])
-    if not reference.get('failure'):
-        ax.axvline(reference['cost_s_per_sim_s'], color='grey', ls=':', lw=1,
-                   label=f"reference's cost ({reference['tetrahedra']} tetrahedra)")
+    reference = [r for r in rows if r['reference'] and not r.get('failure')]
+    if reference:
+        ax.axvline(reference[0]['cost_s_per_sim_s'], color='grey', ls=':', lw=1,
+                   label=f"reference's cost ({reference[0]['tetrahedra']} tetrahedra)")
     ax.axvline(1.0, color='red', ls='--', lw=0.8, label='real time on one core')
     ax.set_xscale('log')
     ax.set_yscale('log')
     ax.set_xlabel('cost [wall s per simulated s, one thread]')
-    ax.set_ylabel('force NRMSE against the reference')
-    ax.set_title('speed against accuracy: needle insertion')
+    if task == 'insertion':
+        ax.set_ylabel('force NRMSE against the reference')
+        ax.set_title('needle insertion')
+    else:
+        ax.set_ylabel('|plate force / (E A strain) - 1|')
+        ax.set_title('plate compression (analytic reference)')
     ax.grid(alpha=0.3, which='both')
     ax.legend(fontsize=7, loc='best')
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def main(scene_file=None, sets=(), quick=False, speed_mm_s=5.0, travel_mm=12.0, out='out', workers=None,

@@ -64,6 +64,52 @@ def plate_compression(size=(0.05, 0.05, 0.03), divisions=(10, 10, 6), material=N
                              mesh.n_elements, sim.dt, wall)
 
 
+@dataclass
+class SceneBlock:
+    simulation: object          # engine.solver.Simulation
+    plate_nodes: np.ndarray     # the top face's nodes (z prescribed)
+    steps: int                  # steps of the travel and the hold
+    expected_reaction: float    # E A strain [N] (A the top's area), the small-strain plate force at the end
+
+
+def scene_block(scene, strain, *, size=0.02, divisions=6, speed=0.01, hold_s=0.3, mesh_filter=None,
+                dt=None) -> SceneBlock:
+    """A cube of side ``size`` [m] of the scene's first material and model, its solver's damping,
+    mass scaling, step rule and integrator, on a frictionless floor (two nodes pinned against rigid
+    motion), a frictionless plate pressing its top to ``strain`` at ``speed`` [m/s], then held for
+    ``hold_s`` (the mass-proportional damping's 1 / e time at 50/s is 0.04 s). ``mesh_filter``
+    changes the box mesh before use (stability's slivers); ``dt`` overrides the scene's step rule."""
+    import math
+
+    from tissue_sim_ros.engine.mesh import box_mesh
+    mesh = box_mesh(size=(size, size, size), divisions=(divisions, divisions, divisions))
+    if mesh_filter is not None:
+        mesh = mesh_filter(mesh)
+    region = scene.spec['regions'][0]
+    material = Material(region['young_modulus_pa'], region['poisson_ratio'], region['density_kg_per_m3'])
+    m = scene.model
+    model = TensorMassModel(mesh, material, geometric=m.geometric, physical=m.physical_law, viscosity=m.viscosity,
+                            nonlinearity_threshold=m.nonlinearity_threshold, inversion_safeguard=m.inversion_safeguard)
+    solver = scene.spec['solver']
+    sim = Simulation(model, damping=solver['damping_per_s'], mass_scaling=solver['mass_scaling'],
+                     time_step_safety=solver['time_step_safety'], dt=dt, integrator=solver['integrator'],
+                     newton_tolerance=solver['newton_tolerance'])
+    x = mesh.rest_positions
+    top = np.flatnonzero(np.isclose(x[:, 2], size))
+    sim.fix(np.flatnonzero(np.isclose(x[:, 2], 0.0)), axes='z')
+    sim.fix(np.flatnonzero(np.all(np.isclose(x, 0.0), axis=1)), axes='xy')
+    sim.fix(np.flatnonzero(np.all(np.isclose(x, [size, 0.0, 0.0]), axis=1)), axes='y')
+    plate = np.zeros(3)
+
+    def plate_at(t):
+        plate[2] = -min(speed * t, strain * size)
+        return plate
+
+    sim.prescribe(top, plate_at, axes='z')
+    return SceneBlock(sim, top, int(math.ceil((strain * size / speed + hold_s) / sim.dt)),
+                      material.young_modulus * size * size * strain)
+
+
 def plot_compression(result, path):
     """Force against plate travel, with the small-strain line E A / h."""
     import matplotlib

@@ -70,7 +70,7 @@ def recommend(scene_file=None, sets=(), *, tolerance=0.05, rate_hz=50.0, quick=F
     out = Path(out)
     report = chart.run_chart(scene_file, sets, quick=quick, speed=speed, travel=travel, out=out / 'chart',
                              workers=workers, scheduler=scheduler, jobs=jobs, quiet=quiet)
-    rows = report['rows']
+    rows = [r for r in report['rows'] if r['task'] == 'insertion']
     chosen, verdicts = choose(rows, tolerance, rate_hz, budget)
     base = Scene.from_file(scene_file, sets=list(sets))
     spec = Scene.from_file(scene_file, sets=list(sets) + list(chosen['overrides'])).spec

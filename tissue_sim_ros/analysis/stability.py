@@ -158,41 +158,6 @@ def bisect_job(job: dict) -> dict:
 
 
 # -- induced failures --------------------------------------------------------------------------
-def _block_simulation(scene, strain, slivers=False):
-    """A 20 mm block of the scene's first material and model, on a frictionless floor, a plate
-    pressing its top to ``strain`` at 10 mm/s; ``slivers``: an interior node moved until elements
-    around it have a mean ratio below 0.05. Returns (simulation, plate nodes, steps to run)."""
-    import tissue_sim_ros as ts
-    from tissue_sim_ros.engine.solver import Simulation
-    size = 0.02
-    mesh = ts.box_mesh(size=(size, size, size), divisions=(6, 6, 6))
-    if slivers:
-        mesh = _with_slivers(mesh)
-    region = scene.spec['regions'][0]
-    material = ts.Material(region['young_modulus_pa'], region['poisson_ratio'], region['density_kg_per_m3'])
-    m = scene.model
-    model = ts.TensorMassModel(mesh, material, geometric=m.geometric, physical=m.physical_law,
-                               viscosity=m.viscosity, nonlinearity_threshold=m.nonlinearity_threshold,
-                               inversion_safeguard=m.inversion_safeguard)
-    solver = scene.spec['solver']
-    sim = Simulation(model, damping=solver['damping_per_s'], mass_scaling=solver['mass_scaling'],
-                     time_step_safety=solver['time_step_safety'])
-    x = mesh.rest_positions
-    top = np.flatnonzero(np.isclose(x[:, 2], size))
-    sim.fix(np.flatnonzero(np.isclose(x[:, 2], 0.0)), axes='z')
-    sim.fix(np.flatnonzero(np.all(np.isclose(x, 0.0), axis=1)), axes='xy')
-    sim.fix(np.flatnonzero(np.all(np.isclose(x, [size, 0.0, 0.0]), axis=1)), axes='y')
-    speed = 0.01
-    plate = np.zeros(3)
-
-    def plate_at(t):
-        plate[2] = -min(speed * t, strain * size)
-        return plate
-
-    sim.prescribe(top, plate_at, axes='z')
-    return sim, top, int(math.ceil(strain * size / speed / sim.dt)) + 50
-
-
 def _with_slivers(mesh):
     """The mesh with its most central node moved toward the opposite face of one of its elements
     until that element's mean ratio is below 0.05 (a sliver), every element still positive."""
@@ -231,8 +196,10 @@ def failure_job(job: dict) -> dict:
         if case in ('poisson_0499', 'strong_law'):
             scene = _scene(job['scene_file'], sets)
         if case in ('compression_70', 'sliver_elements'):
-            sim, top, steps = _block_simulation(scene, 0.7 if case == 'compression_70' else 0.2,
-                                                slivers=case == 'sliver_elements')
+            from tissue_sim_ros.analysis.compression import scene_block
+            block = scene_block(scene, 0.7 if case == 'compression_70' else 0.2,
+                                mesh_filter=_with_slivers if case == 'sliver_elements' else None)
+            sim, top, steps = block.simulation, block.plate_nodes, block.steps
             row['detail'] = (f'block of {sim.model.mesh.n_elements} tetrahedra, smallest mean ratio '
                              f'{sim.model.mesh.mean_ratio().min():.3g}, dt {sim.dt:.3g} s')
             watch = _Watch(sim)

@@ -198,13 +198,16 @@ class Simulation:
         self.inverse_mass = np.where(massless, 0.0, 1.0 / np.where(massless, 1.0, self.mass))
         self.dof_kind[massless] = FIXED
         self._topology_version = self.model.topology_version
-        self.mass_version = getattr(self, 'mass_version', -1) + 1   # what depends on masses rebuilds
+        # what depends on the masses or on which DOFs are free (compliances, the implicit
+        # solve's diagonals) rebuilds when this changes
+        self.mass_version = getattr(self, 'mass_version', -1) + 1
 
     # -- set-up -------------------------------------------------------------------------------
     def fix(self, nodes, axes='xyz'):
         """Hold the given nodes' displacement at zero along ``axes``."""
         idx = _node_indices(nodes, self.model.mesh.n_nodes, 'fixed')
         self.dof_kind[np.ix_(idx, np.flatnonzero(_axes_mask(axes, 'fixed')))] = FIXED
+        self.mass_version += 1          # the held DOFs changed: what depends on them rebuilds
 
     def prescribe(self, nodes, displacement_at, axes='xyz'):
         """Drive nodes along ``axes``: displacement_at(t) gives (3,) or (k, 3) metres at time t."""
@@ -212,6 +215,7 @@ class Simulation:
         mask = _axes_mask(axes, 'prescribed')
         self.dof_kind[np.ix_(idx, np.flatnonzero(mask))] = PRESCRIBED
         self._prescribed.append(_Prescribed(idx, mask, displacement_at))
+        self.mass_version += 1
 
     def rescale_masses(self, mass_scaling):
         """Change the mass scaling at run time (the node's degradation ladder): node masses scale
