@@ -60,3 +60,31 @@ def test_recommended_scene_measured_afresh_within_tolerance(tmp_path):
         assert result['cost_s_per_sim_s'] == min(r['cost_s_per_sim_s'] for r in within)
     # the tight tolerance rules out the mass scaling 400 and linear rows (errors about 0.14 and 0.24)
     assert errors[0.12]['chosen']['mass_scaling'] in (25.0, 100.0)
+
+
+def test_model_auto_uses_the_cached_recommendation(tmp_path, monkeypatch):
+    """`model: auto`: the scene is the recommendation's (its study stood in for here by one that
+    picks the linear model on the medium mesh), found once and then read from the cache."""
+    import tissue_sim_ros.user_cache
+    monkeypatch.setattr(tissue_sim_ros.user_cache, 'user_cache_dir', lambda name: str(tmp_path / 'cache' / name))
+    calls = []
+
+    def study(scene_file, sets, *, tolerance, out, **options):
+        calls.append(tolerance)
+        chosen = Scene.from_file(scene_file, sets=chart.MODELS['linear'] + MEDIUM).spec
+        out.mkdir(parents=True)
+        (out / 'recommended.yaml').write_text(yaml.safe_dump(chosen))
+
+    monkeypatch.setattr(recommend, 'recommend', study)
+    scene_file = tmp_path / 'auto.yaml'
+    base = yaml.safe_load(Scene.from_file(None).text)
+    scene_file.write_text(yaml.safe_dump(dict(base, model='auto')))
+    first = Scene.from_file(scene_file)
+    assert calls == [0.05]
+    assert first.spec['model']['geometric'] is False and first.spec['model']['auto'] is False
+    assert first.recommended_from['model']['auto'] is True
+    assert first.mesh.n_elements == Scene.from_file(None, sets=MEDIUM).mesh.n_elements
+    again = Scene.from_file(scene_file)                                  # from the cache
+    assert calls == [0.05] and again.spec == first.spec
+    Scene.from_file(scene_file, sets=['model.auto_tolerance=0.01'])     # another scene: another study
+    assert calls == [0.05, 0.01]

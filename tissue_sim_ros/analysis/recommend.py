@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['TICK_OVERHEAD_S', 'CORE_BUDGET', 'choose', 'recommend', 'main']
+__all__ = ['TICK_OVERHEAD_S', 'CORE_BUDGET', 'auto_spec', 'choose', 'recommend', 'main']
 
 TICK_OVERHEAD_S = 1.2e-3
 CORE_BUDGET = 0.8
@@ -107,6 +107,42 @@ def recommend(scene_file=None, sets=(), *, tolerance=0.05, rate_hz=50.0, quick=F
     _plot(out / 'recommend.png', rows, chosen, tolerance, rate_hz, budget)
     (out / 'recommend.md').write_text(_markdown(result))
     return result
+
+
+def auto_spec(spec: dict, base_dir='.', *, quiet=False) -> dict:
+    """The scene keys ``model: auto`` stands for: ``spec`` (auto on) with the recommendation's
+    choices, from the per-user cache (``recommendations/<hash of the keys>.yaml``), else found now
+    by the quick chart (minutes, said on stderr) and cached. The recommendation is for this
+    machine: its costs decided it."""
+    import hashlib
+    import tempfile
+
+    import yaml
+
+    from tissue_sim_ros.engine.scene import scene_yaml
+    from tissue_sim_ros.user_cache import user_cache_dir
+    tolerance = spec['model']['auto_tolerance']
+    base = json.loads(json.dumps(spec))
+    base['model']['auto'] = False
+    text = scene_yaml(base, base_dir)          # mesh files made absolute: the key is where it points
+    key = hashlib.sha256(text.encode()).hexdigest()[:20]
+    where = user_cache_dir('recommendations')
+    cache = Path(where) if where else Path(tempfile.gettempdir()) / 'tissue_sim_ros_recommendations'
+    cached = cache / f'{key}.yaml'
+    if cached.exists():
+        return yaml.safe_load(cached.read_text())
+    cache.mkdir(parents=True, exist_ok=True)
+    scene_file = cache / f'{key}-scene.yaml'
+    scene_file.write_text(text)
+    if not quiet:
+        print(f'tissue_sim_ros: model: auto: finding the least model within {tolerance:g} for this scene '
+              f'(the quick chart, a few minutes, once; cached in {cache})', file=sys.stderr, flush=True)
+    recommend(scene_file, (), tolerance=tolerance, quick=True, out=cache / f'{key}-study', quiet=quiet)
+    chosen = yaml.safe_load((cache / f'{key}-study' / 'recommended.yaml').read_text())
+    partial = cached.with_suffix('.partial')
+    partial.write_text(yaml.safe_dump(chosen, sort_keys=False))
+    partial.replace(cached)                    # never a half-written cache entry
+    return chosen
 
 
 def _write_table(path: Path, rows, verdicts, chosen) -> None:

@@ -168,7 +168,13 @@ class Scene:
     """A ready-to-run needle insertion scene (see the module docstring)."""
 
     def __init__(self, spec, text='', base_dir='.', mesh_frame_id='world'):
-        self.spec = apply_schema('', spec, SCHEMA)
+        self.spec = apply_schema('', _auto_model_section(spec), SCHEMA)
+        self.recommended_from = None
+        if self.spec['model']['auto']:
+            # the one place the engine calls up into analysis: the recommendation runs the chart
+            from tissue_sim_ros.analysis.recommend import auto_spec
+            self.recommended_from = self.spec
+            self.spec = apply_schema('', auto_spec(self.spec, base_dir), SCHEMA)
         self.text = text
         self.base_dir = Path(base_dir)
         self.mesh_frame_id = mesh_frame_id
@@ -232,7 +238,7 @@ class Scene:
         if spec is not None and not isinstance(spec, dict):
             raise SceneError(f'scene_file = {str(path)!r}: expected a mapping of scene keys at the top '
                              f'level, found a {type(spec).__name__}')
-        spec = apply_overrides(merge(spec or {}, overrides), sets)
+        spec = apply_overrides(merge(_auto_model_section(spec or {}), overrides), sets)
         return cls(spec, text=text, base_dir=path.parent)
 
     def copy(self):
@@ -362,6 +368,13 @@ class Scene:
     @property
     def puncture_events(self):
         return self.needle.puncture_events
+
+
+def _auto_model_section(spec):
+    """`model: auto` is short for `model: {auto: true}` (the full model's keys at their defaults)."""
+    if isinstance(spec, dict) and spec.get('model') == 'auto':
+        return dict(spec, model={'auto': True})
+    return spec
 
 
 def scene_yaml(spec, base_dir='.', header=()) -> str:

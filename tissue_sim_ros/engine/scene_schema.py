@@ -102,6 +102,10 @@ SCHEMA = {
         }, PronySeries), 'stress relaxation, a Prony series on the deviatoric stress: shear modulus '
                          'mu (1 - sum_i g_i (1 - exp(-t / tau_i))), the bulk modulus unrelaxed; a list '
                          'of terms, [] for none'),
+        'auto': (False, 'bool', 'let tissue-sim recommend choose the model, threshold, mesh, mass scaling and '
+                                'integrator within auto_tolerance (the keys above: the full model it starts '
+                                'from); cached per scene; `model: auto` alone means this with the defaults'),
+        'auto_tolerance': (0.05, 'float+', 'auto: the force NRMSE allowed against the converged solution'),
     },
     'boundary': {
         'fixed': (['bottom', 'walls'], 'faces', 'bounding-box faces held fixed: bottom, top, walls, '
