@@ -159,7 +159,7 @@ def test_every_probed_kernel_is_refused_not_only_the_first():
     from tissue_sim_ros.engine import compile_cache
     for offset in (1.0, 2.0, 3.0):
         probed = njit(lambda x, offset=offset: x + offset)
-        found, _ = compile_cache._from_cache(probed, (1.0,))
+        found, _ = compile_cache._from_cache(probed, (1.0,), 'float64')
         assert not found and compile_cache.REPORTER.depth == 0
         assert probed(1.0) == 1.0 + offset         # an ordinary call afterwards compiles it
         assert compile_cache.REPORTER.depth == 0

@@ -76,18 +76,19 @@ def bench_model(model, steps_per_call=10):
     return force_time, step_time, fraction
 
 
-def run(sizes=None, models=None, material=None, stream=print):
+def run(sizes=None, models=None, material=None, stream=print, precision='float64'):
     material = material or Material(young_modulus=5e3, poisson_ratio=0.45, density=1060.0)
     sizes = sizes or list(SIZES)
     models = {name: MODELS[name] for name in (models or MODELS)}
-    stream(f'threads: {numba.get_num_threads()} ({numba.config.THREADING_LAYER} layer); best of 5 batches')
+    stream(f'threads: {numba.get_num_threads()} ({numba.config.THREADING_LAYER} layer); best of 5 batches; '
+           f'element constants in {precision}')
     stream('displacement: a needle-like dent, 5 mm deep, 5 mm Gaussian radius, at the top centre')
     stream(f'{"model":<15} {"tets":>8} {"force [ms]":>11} {"step [ms]":>10} {"tet-steps/s":>12} {"non-linear":>11}')
     rows = []
     for label in sizes:
         mesh = box_mesh(size=(0.1, 0.1, 0.05), divisions=SIZES[label])
         for name, options in models.items():
-            model = TensorMassModel(mesh, material, **options)
+            model = TensorMassModel(mesh, material, precision=precision, **options)
             force_time, step_time, fraction = bench_model(model)
             rate = mesh.n_elements / step_time
             rows.append((name, mesh.n_elements, force_time, step_time, rate))

@@ -228,7 +228,7 @@ def start_up():
         _State.in_start_up -= 1
 
 
-def _from_cache(kernel, args):
+def _from_cache(kernel, args, precision):
     """(True, ``kernel(*args)``) when the kernel loads from the cache; (False, None) when it would
     have to be compiled here (the reporter refuses that compile)."""
     _State.refuse = kernel
@@ -238,33 +238,34 @@ def _from_cache(kernel, args):
         return False, None
     finally:
         _State.refuse = None
-    LOADED.add(kernel)
+    LOADED.add((kernel, precision))
     return True, result
 
 
-def call_compiled_apart(kernel, args, model):
+def call_compiled_apart(kernel, args, model, precision='float64'):
     """``kernel(*args)`` for an element pass not yet run in this process: loaded from the cache,
     or, when the cache lacks it, compiled first in a separate process (then loaded).
 
-    model: (geometric, physical, viscous), the pass's flags (forces.element_kernel)."""
+    model: (geometric, physical, viscous), the pass's flags (forces.element_kernel); precision:
+    its element constants' (model.PRECISIONS), another signature of the same pass."""
     if _processes_allowed():
-        found, result = _from_cache(kernel, args)
+        found, result = _from_cache(kernel, args, precision)
         if found:
             return result
         from tissue_sim_ros.engine.forces import model_name
-        if model == (False, False, False) and _State.helper is not None:
+        if model == (False, False, False) and precision == 'float64' and _State.helper is not None:
             wait_for_helper()                    # the helper compiles the linear pass
         else:
-            what = f'element pass, {model_name(*model)} model'
+            what = f'element pass, {model_name(*model)} model' + ('' if precision == 'float64' else f', {precision}')
             _say(f'compiling {what} in a separate process ...')
             _Process(what, f'from tissue_sim_ros.engine.compile_cache import compile_element_pass; '
-                           f'compile_element_pass{tuple(model)!r}').wait()
+                           f'compile_element_pass{tuple(model) + (precision,)!r}').wait()
     result = kernel(*args)           # loads it now, or compiles it here if that process failed
-    LOADED.add(kernel)
+    LOADED.add((kernel, precision))
     return result
 
 
-def compile_element_pass(geometric, physical, viscous):
+def compile_element_pass(geometric, physical, viscous, precision='float64'):
     """In a compile process: compile one model's element pass into the cache, on a one-element
     model (the arrays it passes have the types every model's have)."""
     from tissue_sim_ros.engine.material import Material, MeanRatioLaw, Viscosity
@@ -272,7 +273,7 @@ def compile_element_pass(geometric, physical, viscous):
     from tissue_sim_ros.engine.model import TensorMassModel
     TensorMassModel(box_mesh((1.0, 1.0, 1.0), (1, 1, 1)), Material(1e4, 0.3, 1000.0), geometric=geometric,
                     physical=MeanRatioLaw.exponential(mu_amplitude=1.0, mu_rate=1.0) if physical else None,
-                    viscosity=Viscosity(1.0, 1.0) if viscous else None)
+                    viscosity=Viscosity(1.0, 1.0) if viscous else None, precision=precision)
 
 
 def _stop_helper():

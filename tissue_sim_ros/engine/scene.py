@@ -194,7 +194,7 @@ class Scene:
                                          physical=_physical_law(m['physical']), viscosity=viscosity,
                                          nonlinearity_threshold=m['nonlinearity_threshold'],
                                          inversion_safeguard=m['inversion_safeguard'],
-                                         relaxation=m['relaxation'])
+                                         relaxation=m['relaxation'], precision=m['precision'])
             sol = s['solver']
             if sol['mass_scaling'] < 1:
                 raise SceneError(f"solver.mass_scaling = {sol['mass_scaling']!r}: expected >= 1")
