@@ -5,8 +5,9 @@ Every configuration runs the scene's insertion task: the needle from 1 mm above 
 scene), sampled every 20 ms, no retraction. A configuration is the scene plus ``--set``
 overrides along four axes:
 
-* the model (linear, physically non-linear, geometric, full; the full model without viscosity and
-  with other non-linearity thresholds), on each mesh level;
+* the model (linear, physically non-linear, geometric, full; the full model without viscosity,
+  with other non-linearity thresholds, and with its element constants in float32), on each mesh
+  level;
 * the mesh refinement (``mesh.fine_size_m`` and ``mesh.divisions`` scaled: coarse, medium, the
   scene's, and in the full preset a finer one);
 * the time step through the mass scaling (the full model on the scene's mesh);
@@ -27,7 +28,8 @@ at 10x and quasi-static at 10x the explicit step, on 4^3 and 6^3 cubes (8^3 in t
 
 **Cost**: wall seconds per simulated second in a worker with one numba thread (the simulation
 alone, not the scene's set-up), tet-steps per second, and the share of one core the node would
-spend on the physics at real time (the cost itself; above 1, one core cannot keep up).
+take at 50 Hz: the cost (the physics at real time) plus TICK_OVERHEAD_S a tick (above 1, one
+core cannot keep up).
 
 Outputs in DIR: chart.csv (a row per configuration: ``model``, ``tetrahedra``, ``integrator``,
 ``time_step_s``, ``cost_s_per_sim_s``, ``error``, ``pareto``, ``reference``, ``overrides`` (the
@@ -57,6 +59,7 @@ MODELS = {
     'full, threshold 0': ['model.geometric=true', 'model.nonlinearity_threshold=0'],
     'full, threshold 0.05': ['model.geometric=true', 'model.nonlinearity_threshold=0.05'],
     'full, threshold 0.1': ['model.geometric=true', 'model.nonlinearity_threshold=0.1'],
+    'full, float32': ['model.geometric=true', 'model.precision=float32'],
 }
 #: mesh level -> overrides (the default scene's graded box: near-needle cell, far-field divisions)
 MESHES = {
@@ -73,6 +76,9 @@ START_GAP_M = 0.001
 #: plate compression: (integrator, multiple of the cube's explicit step)
 COMPRESSION_INTEGRATORS = (('explicit', 1.0), ('implicit', 10.0), ('quasi_static', 10.0))
 COMPRESSION_STRAIN = 0.005
+#: the node's own work per tick beside the physics [s]: node-bench's main thread, 6 % of a core at
+#: 50 Hz (message building, the executor, recording and diagnostics)
+TICK_OVERHEAD_S = 1.2e-3
 
 
 def _model_family(name: str) -> str:
@@ -195,6 +201,7 @@ def _errors(rows: list[dict]) -> None:
         if r.get('failure'):
             r.update(error=None, peak_force_error=None, puncture_depth_error_mm=None)
             continue
+        r['core_share_at_50hz'] = r['cost_s_per_sim_s'] + 50.0 * TICK_OVERHEAD_S
         force = np.asarray(r['axial_force'])
         r['error'] = force_nrmse(force, ref)
         r['peak_force_error'] = float(force.max() / ref.max() - 1.0)
@@ -267,7 +274,7 @@ def run_chart(scene_file=None, sets=(), *, quick=False, speed=0.005, travel=0.01
 
 
 _CSV_COLUMNS = ('task', 'model', 'mesh', 'tetrahedra', 'integrator', 'time_step_s', 'mass_scaling', 'cost_s_per_sim_s',
-                'tet_steps_per_s', 'error', 'peak_force_error', 'puncture_depth_error_mm', 'pareto', 'reference',
+                'tet_steps_per_s', 'core_share_at_50hz', 'error', 'peak_force_error', 'puncture_depth_error_mm', 'pareto', 'reference',
                 'failure', 'overrides')
 
 

@@ -27,9 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_sim_ros.analysis.chart import TICK_OVERHEAD_S   # the node's own work per tick
+
 __all__ = ['TICK_OVERHEAD_S', 'CORE_BUDGET', 'auto_spec', 'choose', 'recommend', 'main']
 
-TICK_OVERHEAD_S = 1.2e-3
 CORE_BUDGET = 0.8
 
 
