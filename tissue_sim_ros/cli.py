@@ -305,11 +305,7 @@ def build_parser():
     compare.add_argument('--per-trial', action='store_true',
                          help="simulate every trial's own motion (default: one simulation per speed)")
     compare.add_argument('--tick-ms', type=_POSITIVE, default=10.0, help='simulation sampling [ms] (default 10)')
-    compare.add_argument('--jobs', type=_number(1, inclusive=True, whole=True), default=None,
-                         help='simulations in parallel (default: the cores)')
-    compare.add_argument('--scheduler', default=None, metavar='ADDRESS',
-                         help='run the simulations on a Dask distributed cluster at ADDRESS')
-    compare.add_argument('--out', type=_output_dir, default='out/compare', help='output directory (default out/compare)')
+    _add_pool_and_out(compare, 'out/compare')
     columns = compare.add_argument_group('columns of the data files (without --data-spec)')
     columns.add_argument('--time-column', default=None, help='time column: header name or 0-based index')
     columns.add_argument('--time-unit', default=None, help='s, ms, us, ns (default s)')
@@ -368,12 +364,7 @@ def build_parser():
     calibrate.add_argument('--fine-evaluations', type=_number(1, inclusive=True, whole=True), default=4,
                            help='with --coarse-set: space-mapping iterations on the scene as asked, one '
                                 'evaluation there each (default 4)')
-    calibrate.add_argument('--jobs', type=_number(1, inclusive=True, whole=True), default=None,
-                           help='worker processes (default: every core this process may use)')
-    calibrate.add_argument('--scheduler', default=None, metavar='ADDRESS',
-                           help='run the simulations on a Dask distributed cluster (tcp://host:8786)')
-    calibrate.add_argument('--out', type=_output_dir, default='out/calibrate',
-                           help='output directory (default out/calibrate); an interrupted run resumes there')
+    _add_pool_and_out(calibrate, 'out/calibrate')
     calibrate.set_defaults(run=_calibrate)
     replay = commands.add_parser('replay', help='run a recorded node log through the engine again: '
                                  'the same wrenches (exact), or the same motion through --scene/--set')
@@ -394,55 +385,7 @@ def build_parser():
     drive.add_argument('--hold-s', type=_NON_NEGATIVE, default=0.5, help='pause at full depth [s] (default 0.5)')
     drive.add_argument('--scene-file', type=_input_file, default=None, help="scene the node runs (default: the packaged one)")
     drive.set_defaults(run=_drive)
-    chart = commands.add_parser('chart', help='speed against accuracy over models, meshes, time steps and '
-                                'integrators on the scene\'s insertion, with the Pareto front')
-    chart.add_argument('--scene', type=_input_file, default=None, help='scene YAML (default: the packaged one)')
-    _add_scene_sets(chart)
-    chart.add_argument('--quick', action='store_true',
-                       help='three mesh levels, the reference on the scene\'s mesh (under 5 minutes on 2 cores)')
-    chart.add_argument('--speed-mm-s', type=_POSITIVE, default=5.0, help='needle speed [mm/s] (default 5)')
-    chart.add_argument('--travel-mm', type=_POSITIVE, default=12.0,
-                       help='tip travel from 1 mm above the surface [mm] (default 12: past the default '
-                            "scene's capsule puncture)")
-    chart.add_argument('--jobs', type=_number(1, inclusive=True, whole=True), default=None,
-                       help='worker processes (default: every core this process may use)')
-    chart.add_argument('--scheduler', default=None, metavar='ADDRESS',
-                       help='run the configurations on a Dask distributed cluster (tcp://host:8786)')
-    chart.add_argument('--out', type=_output_dir, default='out/chart',
-                       help='output directory (default out/chart); an interrupted run resumes there')
-    chart.set_defaults(run=_chart)
-    recommend = commands.add_parser('recommend', help='the cheapest model, mesh, step and integrator within a '
-                                    'force error tolerance that keeps real time (runs the chart)')
-    recommend.add_argument('--scene', type=_input_file, default=None, help='scene YAML (default: the packaged one)')
-    _add_scene_sets(recommend)
-    recommend.add_argument('--tolerance', type=_POSITIVE, default=0.05,
-                           help="the force NRMSE allowed against the chart's reference (default 0.05)")
-    recommend.add_argument('--rate-hz', type=_POSITIVE, default=50.0, help="the node's tick rate (default 50)")
-    recommend.add_argument('--quick', action='store_true', help="the chart's quick preset")
-    recommend.add_argument('--speed-mm-s', type=_POSITIVE, default=5.0, help='needle speed [mm/s] (default 5)')
-    recommend.add_argument('--travel-mm', type=_POSITIVE, default=12.0, help='tip travel [mm] (default 12)')
-    recommend.add_argument('--jobs', type=_number(1, inclusive=True, whole=True), default=None,
-                           help='worker processes (default: every core this process may use)')
-    recommend.add_argument('--scheduler', default=None, metavar='ADDRESS',
-                           help='run the chart on a Dask distributed cluster (tcp://host:8786)')
-    recommend.add_argument('--out', type=_output_dir, default='out/recommend',
-                           help='output directory (default out/recommend; the chart in its chart/, resumable)')
-    recommend.set_defaults(run=_recommend)
-    stability = commands.add_parser('stability', help="each model's and integrator's largest stable time "
-                                    'step against the estimate, and induced failures (caught or survived)')
-    stability.add_argument('--scene', type=_input_file, default=None, help='scene YAML (default: the packaged one)')
-    _add_scene_sets(stability)
-    stability.add_argument('--quick', action='store_true',
-                           help='the coarse mesh and shorter searches (under 5 minutes on 2 cores)')
-    stability.add_argument('--speed-mm-s', type=_POSITIVE, default=5.0,
-                           help="the loading's needle speed [mm/s] (default 5)")
-    stability.add_argument('--jobs', type=_number(1, inclusive=True, whole=True), default=None,
-                           help='worker processes (default: every core this process may use)')
-    stability.add_argument('--scheduler', default=None, metavar='ADDRESS',
-                           help='run the searches on a Dask distributed cluster (tcp://host:8786)')
-    stability.add_argument('--out', type=_output_dir, default='out/stability',
-                           help='output directory (default out/stability); an interrupted run resumes there')
-    stability.set_defaults(run=_stability)
+    _add_model_studies(commands)
     node_bench = commands.add_parser('node-bench', help='run the node as a process and print its timing figures')
     node_bench.add_argument('--duration-s', type=_number(1, inclusive=True), default=20.0,
                             help='measured run length [s], at least 1 (default 20)')
@@ -459,6 +402,48 @@ def build_parser():
                                  'beside the node (default 0: none)')
     node_bench.set_defaults(run=_node_bench)
     return parser
+
+
+def _add_pool_and_out(parser, out_default, extra_out_help=''):
+    """--jobs, --scheduler and a resumable --out: a study's process pool or Dask cluster."""
+    parser.add_argument('--jobs', type=_number(1, inclusive=True, whole=True), default=None,
+                        help='worker processes (default: every core this process may use)')
+    parser.add_argument('--scheduler', default=None, metavar='ADDRESS',
+                        help='run the simulations on a Dask distributed cluster (tcp://host:8786)')
+    parser.add_argument('--out', type=_output_dir, default=out_default,
+                        help=f'output directory (default {out_default}{extra_out_help}); an interrupted run '
+                             'resumes there')
+
+
+def _add_model_studies(commands):
+    """chart, recommend and stability: studies of the models and methods on a scene."""
+    def study(name, help_text, quick_help, run, out_default, extra_out_help=''):
+        parser = commands.add_parser(name, help=help_text)
+        parser.add_argument('--scene', type=_input_file, default=None, help='scene YAML (default: the packaged one)')
+        _add_scene_sets(parser)
+        parser.add_argument('--quick', action='store_true', help=quick_help)
+        parser.add_argument('--speed-mm-s', type=_POSITIVE, default=5.0, help='needle speed [mm/s] (default 5)')
+        _add_pool_and_out(parser, out_default, extra_out_help)
+        parser.set_defaults(run=run)
+        return parser
+
+    chart = study('chart', "speed against accuracy over models, meshes, time steps and integrators on the "
+                  "scene's insertion and a plate compression, with the Pareto front",
+                  "three mesh levels, the reference on the scene's mesh (under 5 minutes on 2 cores)",
+                  _chart, 'out/chart')
+    chart.add_argument('--travel-mm', type=_POSITIVE, default=12.0,
+                       help='tip travel from 1 mm above the surface [mm] (default 12: past the default '
+                            "scene's capsule puncture)")
+    recommend = study('recommend', 'the cheapest model, mesh, step and integrator within a force error '
+                      'tolerance that keeps real time (runs the chart)', "the chart's quick preset", _recommend,
+                      'out/recommend', '; the chart in its chart/')
+    recommend.add_argument('--tolerance', type=_POSITIVE, default=0.05,
+                           help="the force NRMSE allowed against the chart's reference (default 0.05)")
+    recommend.add_argument('--rate-hz', type=_POSITIVE, default=50.0, help="the node's tick rate (default 50)")
+    recommend.add_argument('--travel-mm', type=_POSITIVE, default=12.0, help='tip travel [mm] (default 12)')
+    study('stability', "each model's and integrator's largest stable time step against the estimate, and "
+          'induced failures (caught or survived)', 'the coarse mesh and shorter searches (under 5 minutes on '
+          '2 cores)', _stability, 'out/stability')
 
 
 def _input_errors():
