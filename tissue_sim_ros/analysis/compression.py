@@ -73,12 +73,13 @@ class SceneBlock:
 
 
 def scene_block(scene, strain, *, size=0.02, divisions=6, speed=0.01, hold_s=0.3, mesh_filter=None,
-                dt=None) -> SceneBlock:
+                dt=None, integrator=None) -> SceneBlock:
     """A cube of side ``size`` [m] of the scene's first material and model, its solver's damping,
     mass scaling, step rule and integrator, on a frictionless floor (two nodes pinned against rigid
     motion), a frictionless plate pressing its top to ``strain`` at ``speed`` [m/s], then held for
     ``hold_s`` (the mass-proportional damping's 1 / e time at 50/s is 0.04 s). ``mesh_filter``
-    changes the box mesh before use (stability's slivers); ``dt`` overrides the scene's step rule."""
+    changes the box mesh before use (stability's slivers); ``dt`` and ``integrator`` override the
+    scene's step rule and integrator."""
     import math
 
     from tissue_sim_ros.engine.mesh import box_mesh
@@ -92,7 +93,8 @@ def scene_block(scene, strain, *, size=0.02, divisions=6, speed=0.01, hold_s=0.3
                             nonlinearity_threshold=m.nonlinearity_threshold, inversion_safeguard=m.inversion_safeguard)
     solver = scene.spec['solver']
     sim = Simulation(model, damping=solver['damping_per_s'], mass_scaling=solver['mass_scaling'],
-                     time_step_safety=solver['time_step_safety'], dt=dt, integrator=solver['integrator'],
+                     time_step_safety=solver['time_step_safety'], dt=dt,
+                     integrator=integrator or solver['integrator'],
                      newton_tolerance=solver['newton_tolerance'])
     x = mesh.rest_positions
     top = np.flatnonzero(np.isclose(x[:, 2], size))
