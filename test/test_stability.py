@@ -45,7 +45,7 @@ def test_induced_failure_caught_or_survived_never_nan(case):
         assert 'energy grew without input' in row['reason']
         assert 0 <= row['steps_to_detect'] <= 5
     if case == 'sliver_elements':
-        assert 'smallest mean ratio 0.0' in row['detail']
+        assert 'smallest mean ratio at rest 0.0' in row['detail']
 
 
 def test_command_outputs_and_resume(tmp_path):

@@ -200,14 +200,17 @@ def failure_job(job: dict) -> dict:
             block = scene_block(scene, 0.7 if case == 'compression_70' else 0.2,
                                 mesh_filter=_with_slivers if case == 'sliver_elements' else None)
             sim, top, steps = block.simulation, block.plate_nodes, block.steps
-            row['detail'] = (f'block of {sim.model.mesh.n_elements} tetrahedra, smallest mean ratio '
-                             f'{sim.model.mesh.mean_ratio().min():.3g}, dt {sim.dt:.3g} s')
+            mesh = sim.model.mesh
+            row['detail'] = (f'block of {mesh.n_elements} tetrahedra, smallest mean ratio at rest '
+                             f'{mesh.mean_ratio().min():.3g}, dt {sim.dt:.3g} s')
             watch = _Watch(sim)
             outputs = []
             for _ in range(steps):
                 sim.step(1)
                 watch.after_step()
                 outputs.append(sim.reaction_force(top))
+            deformed = mesh.mean_ratio(mesh.rest_positions + sim.displacement).min()
+            row['detail'] += f', compressed {deformed:.3g}'
         else:
             sim = scene.simulation
             if case in ('step_2x', 'step_4x'):
