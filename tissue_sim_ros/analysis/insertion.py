@@ -31,6 +31,11 @@ class InsertionResult:
     wall_time: float
     steps: int
     time_step: float
+    target_names: tuple = ()        # the scene's targets (engine.targets)
+    target_positions: np.ndarray = None   # (k, n_targets, 3) m, world frame, each tick
+    target_tip_distance: np.ndarray = None  # (k, n_targets) m, needle tip to target
+    target_lateral_miss: np.ndarray = None  # (k, n_targets) m, target to the needle's line
+    target_positions_at_rest: np.ndarray = None  # (n_targets, 3) m
 
     @property
     def real_time_factor(self):
@@ -64,9 +69,16 @@ def run_insertion(scene, speed, travel, *, hold_s=0.0, tick=0.02, retract=True, 
     depths = np.array(depths)
     driver = SimulationDriver(scene, wrench_frame='world', on_divergence='raise')
     wall0, next_report = time.perf_counter(), [1.0]
+    n_targets = len(scene.targets)
+    target_positions = np.zeros((len(times), n_targets, 3))
+    target_distance = np.zeros((len(times), n_targets))
+    target_miss = np.zeros((len(times), n_targets))
 
     def report(k, drv):
-        if drv.time >= next_report[0]:
+        if n_targets:
+            target_positions[k] = scene.target_positions()
+            target_distance[k], target_miss[k], _ = scene.targets_relative_to_needle()
+        if progress is not None and drv.time >= next_report[0]:
             elapsed = time.perf_counter() - wall0
             print(f'  t = {drv.time:6.2f} s  depth {depths[k] * 1e3:6.2f} mm  axial '
                   f'{-float(np.dot(drv.force, axis)):7.3f} N  {drv.scene.phase:<10}  real-time factor '
@@ -74,21 +86,35 @@ def run_insertion(scene, speed, travel, *, hold_s=0.0, tick=0.02, retract=True, 
             next_report[0] += 1.0
 
     samples = driver.follow(times, start + depths[:, None] * axis,
-                            progress=None if progress is None else report)
+                            progress=None if progress is None and not n_targets else report)
     return InsertionResult(samples.time, depths, samples.force, samples.torque,
                            -(samples.force @ axis), samples.phase, np.array(retracting),
                            list(scene.puncture_events), time.perf_counter() - wall0,
-                           samples.substeps, scene.dt)
+                           samples.substeps, scene.dt, tuple(scene.targets.names), target_positions,
+                           target_distance, target_miss, scene.targets.rest.copy())
+
+
+def target_columns(names) -> list[str]:
+    """The CSV columns of each target: its position now, its displacement from rest, the needle
+    tip's distance to it and the lateral miss of the needle's line [m]."""
+    return [f'target/{name}/{column}' for name in names
+            for column in ('x_m', 'y_m', 'z_m', 'displacement_m', 'tip_distance_m', 'lateral_miss_m')]
 
 
 def write_csv(result, path):
     with open(path, 'w', newline='') as f:
         writer = csv.writer(f)
-        writer.writerow(CSV_HEADER)
+        writer.writerow(CSV_HEADER + tuple(target_columns(result.target_names)))
         for k in range(len(result.time)):
+            targets = []
+            for j in range(len(result.target_names)):
+                position = result.target_positions[k, j]
+                targets += [*(f'{v:.7g}' for v in position),
+                            f'{np.linalg.norm(position - result.target_positions_at_rest[j]):.6g}',
+                            f'{result.target_tip_distance[k, j]:.6g}', f'{result.target_lateral_miss[k, j]:.6g}']
             writer.writerow([f'{result.time[k]:.6f}', f'{result.depth[k]:.7f}',
                              *(f'{v:.6g}' for v in result.force[k]), *(f'{v:.6g}' for v in result.torque[k]),
-                             f'{result.axial_force[k]:.6g}', result.phase[k]])
+                             f'{result.axial_force[k]:.6g}', result.phase[k], *targets])
 
 
 def plot_insertion(result, path, *, title='needle insertion'):
@@ -134,6 +160,12 @@ def main(scene_file, speed_mm_s, out, *, travel_mm=None, depth_mm=None, hold_s=0
     for event in result.puncture_events:
         print(f'puncture of {event["region"]} at travel {np.interp(event["time_s"], result.time, result.depth) * 1e3:.2f} mm, '
               f'axial force {event["axial_force_n"]:.3f} N', file=stream)
+    for j, name in enumerate(result.target_names):
+        closest = int(np.argmin(result.target_tip_distance[:, j]))
+        moved = np.linalg.norm(result.target_positions[:, j] - result.target_positions_at_rest[j], axis=1)
+        print(f'target {name}: the tip came within {result.target_tip_distance[closest, j] * 1e3:.2f} mm of it '
+              f'(t = {result.time[closest]:.2f} s, lateral miss {result.target_lateral_miss[closest, j] * 1e3:.2f} mm); '
+              f'the tissue carried it {moved.max() * 1e3:.2f} mm at most', file=stream)
     print(f'peak axial force {result.axial_force.max():.3f} N; simulated {result.time[-1]:.2f} s in '
           f'{result.wall_time:.2f} s wall: real-time factor {result.real_time_factor:.2f} '
           f'({result.steps} steps)', file=stream)

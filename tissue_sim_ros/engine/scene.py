@@ -26,6 +26,7 @@ from tissue_sim_ros.engine.pose import needle_axis
 from tissue_sim_ros.engine.scene_overrides import apply_overrides
 from tissue_sim_ros.engine.scene_schema import SCHEMA, SceneError, apply_schema, describe_keys  # noqa: F401
 from tissue_sim_ros.engine.solver import Simulation
+from tissue_sim_ros.engine.targets import Targets
 
 
 def default_scene_path():
@@ -211,6 +212,7 @@ class Scene:
                                        [_region_interaction(r) for r in s['regions']], geometry,
                                        _start_position(self.mesh, n), n['initial_orientation_xyzw'],
                                        selectors=self.selectors)
+            self.targets = Targets(self.mesh.rest_positions, self.mesh.tetrahedra, s['targets'])
         except SceneError:
             raise
         except ValueError as exc:        # MaterialError, MeshError, NeedleInputError...
@@ -337,6 +339,14 @@ class Scene:
     @property
     def tip_depth(self):
         return self.needle.tip_depth()
+
+    def target_positions(self):
+        """(k, 3) where the scene's targets are now [m] (engine.targets)."""
+        return self.targets.positions(self.simulation.displacement)
+
+    def targets_relative_to_needle(self):
+        """(tip distance, lateral miss, ahead of the tip), each (k,) [m], per target."""
+        return self.targets.relative_to_needle(self.target_positions(), self.needle.tip, self.needle.axis)
 
     @property
     def start_gap_m(self):

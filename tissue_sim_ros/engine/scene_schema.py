@@ -28,6 +28,11 @@ class MappingList:
     check: Callable
 
 
+def check_targets(entries, name):
+    from tissue_sim_ros.engine.targets import check_targets as check
+    check(entries, name)
+
+
 # -- the schema: key -> (default, kind, meaning) -----------------------------------------------
 # kinds: 'float+' (> 0), 'float0' (>= 0), 'float', 'int+', 'bool', 'vec3', 'vec3+', 'quat',
 # 'str', a tuple of allowed strings, 'floats' (list of numbers), a MappingList, or a nested dict.
@@ -109,6 +114,11 @@ SCHEMA = {
                                 'from); cached per scene; `model: auto` alone means this with the defaults'),
         'auto_tolerance': (0.05, 'float+', 'auto: the force NRMSE allowed against the converged solution'),
     },
+    'targets': ([], MappingList({
+        'name': (None, 'str', 'the name planners use (topics, diagnostics, CSV columns); required'),
+        'position_m': (None, 'vec3', 'its position at rest [m], inside the mesh; required'),
+    }, check_targets), 'named points carried by the tissue (a tumour, a fiducial): embedded in the mesh at '
+                       'rest, they move with its deformation; [] for none'),
     'boundary': {
         'fixed': (['bottom', 'walls'], 'faces', 'bounding-box faces held fixed: bottom, top, walls, '
                                                 'x_min, x_max, y_min, y_max'),
