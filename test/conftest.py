@@ -73,9 +73,9 @@ def mcap_js(tmp_path_factory):
 
 def subscribe_node_outputs(client, keeper, *, rosout=False):
     """Subscribe ``client`` to every output of tissue_sim with the QoS the node offers; keeper(key)
-    gives each topic's callback ('wrench', 'nodes', 'surface', 'marker', 'diag', 'log')."""
+    gives each topic's callback ('wrench', 'nodes', 'surface', 'marker', 'diag', 'targets', 'log')."""
     from diagnostic_msgs.msg import DiagnosticArray
-    from geometry_msgs.msg import WrenchStamped
+    from geometry_msgs.msg import PoseArray, WrenchStamped
     from rcl_interfaces.msg import Log
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import PointCloud2
@@ -88,7 +88,8 @@ def subscribe_node_outputs(client, keeper, *, rosout=False):
               ('nodes', PointCloud2, 'tissue/nodes', reliable),
               ('surface', Mesh, 'tissue/surface', latched),
               ('marker', Marker, 'tissue/marker', reliable),
-              ('diag', DiagnosticArray, '/diagnostics', reliable)]
+              ('diag', DiagnosticArray, '/diagnostics', reliable),
+              ('targets', PoseArray, 'tissue/targets', reliable)]
     if rosout:
         topics.append(('log', Log, '/rosout', QoSProfile(depth=1000)))
     for key, msg_type, topic, qos in topics:

@@ -19,7 +19,7 @@ EXAMPLES = sorted((ROOT / 'msg_examples').glob('*.yaml'))
 
 
 def test_there_are_examples():
-    assert len(EXAMPLES) == 8
+    assert len(EXAMPLES) == 9
 
 
 @pytest.mark.parametrize('path', EXAMPLES, ids=lambda p: p.name)
@@ -46,7 +46,8 @@ def node_facts(tmp_path_factory):
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=90 + os.getpid() % 20)
-    scene = Scene.from_file(None, mesh={'generator': 'box', 'divisions': [4, 4, 3]})
+    scene = Scene.from_file(None, mesh={'generator': 'box', 'divisions': [4, 4, 3]},
+                            targets=[{'name': 'tumour', 'position_m': [0.002, 0.0, -0.015]}])
     node = TissueSimNode(scene=scene, context=ctx, parameter_overrides=[Parameter(
         'recording.directory', value=str(tmp_path_factory.mktemp('ex')))])
     try:

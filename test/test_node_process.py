@@ -106,7 +106,7 @@ class Client:
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, domain_id=domain_id)
         self.node = rclpy.create_node('test_process_client', context=self.ctx)
-        self.received = {k: [] for k in ('wrench', 'nodes', 'surface', 'marker', 'diag')}
+        self.received = {k: [] for k in ('wrench', 'nodes', 'surface', 'marker', 'diag', 'targets')}
         self.lock = threading.Lock()
         reliable = subscribe_node_outputs(self.node, self._keeper)
         self.pose_pub = self.node.create_publisher(PoseStamped, 'needle/pose', reliable)

@@ -51,6 +51,8 @@ class Snapshot:
         self.punctures = 0
         self.topology_version = 0
         self.held = False
+        self.tip = np.zeros(3)               # the needle tip [m] and axis, for the targets' figures
+        self.axis = np.zeros(3)
 
 
 class _TripleBuffer:
@@ -317,6 +319,8 @@ class EngineLoop:
         snap.punctures = len(scene.puncture_events)
         snap.topology_version = int(scene.topology_version)
         snap.held = bool(driver.held)
+        snap.tip[:] = scene.needle.tip
+        snap.axis[:] = scene.needle.axis
         self._snapshots.publish()
 
     @property

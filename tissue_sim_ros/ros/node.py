@@ -38,7 +38,7 @@ import time
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped, WrenchStamped
+from geometry_msgs.msg import PoseArray, PoseStamped, WrenchStamped
 from rclpy.node import Node
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import PointCloud2
@@ -52,6 +52,7 @@ from tissue_sim_ros.engine.ladder_probe import cached_probe_errors
 from tissue_sim_ros.ros import conversions as cv
 from tissue_sim_ros.ros.engine_loop import EngineLoop
 from tissue_sim_ros.ros.node_diagnostics import NodeStats, diagnostics_statuses
+from tissue_sim_ros.ros.node_targets import targets_msg, targets_status
 from tissue_sim_ros.ros.node_recording import (every_kth_tick, node_log_topics, open_node_log,
                                                record_service_call, record_trace)
 from tissue_sim_ros.ros.parameter_declaration import declare_parameters
@@ -116,6 +117,10 @@ class TissueSimNode(Node):
         self.marker_pub = (self.create_publisher(Marker, 'tissue/marker', MARKER_QOS)
                            if cfg.marker_rate_hz > 0 else None)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
+        self.targets_pub = self.create_publisher(PoseArray, 'tissue/targets', NODES_QOS)
+        self._target_positions = np.zeros((len(self.scene.targets), 3))
+        self._target_figures = self.scene.targets.relative_to_needle(self.scene.targets.rest, self.scene.needle.tip,
+                                                                     self.scene.needle.axis)
         self.pose_qos = pose_qos(cfg.input_reliability)
         self.pose_sub = self.create_subscription(PoseStamped, 'needle/pose', self._on_pose,
                                                  self.pose_qos, raw=True)
@@ -234,6 +239,12 @@ class TissueSimNode(Node):
                 self._publish_surface(publish_ns)
             if self._marker_every and self.ticks % self._marker_every == 0:
                 self._publish_marker(now_ns)
+            if len(self._target_positions):
+                targets = self.scene.targets
+                targets.positions(snap.displacement, out=self._target_positions)
+                self._target_figures = targets.relative_to_needle(self._target_positions, snap.tip, snap.axis)
+                self._publish(self.targets_pub, targets_msg(self._target_positions, self.config.frame_id, now_ns),
+                              publish_ns)
         for receipt in self.engine.take_receipts(snap.index):
             self._stats.rings['latency_s'].add((publish_ns - receipt) / NS_PER_S)
         if self._recorder is not None:
@@ -283,7 +294,8 @@ class TissueSimNode(Node):
     def diagnostics_statuses(self, now_ns: int) -> list:
         """The DiagnosticStatus tuples (name, level, message, values) of this moment."""
         return diagnostics_statuses(self.get_name(), now_ns, stats=self._stats, engine=self.engine,
-                                    pose_input=self.input, ticks=self.ticks, recorder=self._recorder)
+                                    pose_input=self.input, ticks=self.ticks, recorder=self._recorder) + \
+            [targets_status(self.get_name(), self.scene.targets.names, self._target_figures)]
 
     def publish_diagnostics(self) -> None:
         now_ns = self._now_ns()

@@ -26,12 +26,14 @@ def every_kth_tick(publish_rate_hz: float, rate_hz: float) -> int:
 
 
 def node_log_topics(node, qos_to_dict) -> list:
-    """(resolved topic, ROS type, QoS dict) of every channel of the node's log: its publishers,
-    its pose subscription and its two services' event topics."""
+    """(resolved topic, ROS type, QoS dict) of every channel of the node's log: its publishers
+    (tissue/targets only for a scene with targets: nothing is published on it otherwise), its
+    pose subscription and its two services' event topics."""
     entities = {'needle/wrench': (node.wrench_pub, WRENCH_QOS),
                 'tissue/nodes': (node.nodes_pub, NODES_QOS),
                 'tissue/surface': (node.surface_pub, SURFACE_QOS),
                 'tissue/marker': (node.marker_pub, MARKER_QOS),
+                'tissue/targets': (node.targets_pub if len(node.scene.targets) else None, NODES_QOS),
                 '/diagnostics': (node.diagnostics_pub, DIAGNOSTICS_QOS),
                 'needle/pose': (node.pose_sub, node.pose_qos)}
     topics = [(entity.topic_name, NODE_TOPIC_TYPES[name], qos_to_dict(profile))

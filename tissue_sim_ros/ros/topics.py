@@ -17,6 +17,8 @@ Topics (relative names; remap with ``--ros-args -r``), all reliable:
                                                       topology change
 ``tissue/marker``    visualization_msgs/msg/Marker    out, ``marker_rate_hz`` (from a tick): surface,
                                                       TRIANGLE_LIST, decimated for RViz
+``tissue/targets``   geometry_msgs/msg/PoseArray      out, every tick: the scene's targets where
+                                                      the tissue carried them (scene order)
 ``/diagnostics``     diagnostic_msgs/DiagnosticArray  out, ``diagnostics_rate_hz``
 ==================== ================================ ===================================
 
@@ -56,6 +58,7 @@ NODE_TOPIC_TYPES = {
     'tissue/nodes': 'sensor_msgs/msg/PointCloud2',
     'tissue/surface': 'shape_msgs/msg/Mesh',
     'tissue/marker': 'visualization_msgs/msg/Marker',
+    'tissue/targets': 'geometry_msgs/msg/PoseArray',
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
     'needle/pose': 'geometry_msgs/msg/PoseStamped',
 }
