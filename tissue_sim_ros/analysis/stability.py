@@ -74,19 +74,12 @@ class _Watch:
             self.onset = sim.step_count
 
 
-def _needle_run(scene, duration_s, speed, watch=None):
-    """Push the scene's needle along its axis at ``speed`` [m/s] for ``duration_s``; one step at
-    a time with ``watch``, else in 20 ms ticks. Returns the wrench forces seen (k, 3)."""
+def _needle_run(scene, duration_s, speed, watch):
+    """Push the scene's needle along its axis at ``speed`` [m/s] for ``duration_s``, one step at
+    a time so that ``watch`` sees each. Returns the wrench forces seen (k, 3)."""
     start, axis = scene.needle_pose[0].copy(), scene.needle.axis.copy()
     orientation = scene.needle_pose[1].copy()
     forces = []
-    if watch is None:
-        ticks = max(1, int(round(duration_s / 0.02)))
-        for k in range(1, ticks + 1):
-            t = k * duration_s / ticks
-            scene.advance(duration_s / ticks, start + speed * t * axis, orientation)
-            forces.append(scene.reaction_wrench()[0])
-        return np.array(forces)
     while scene.time < duration_s:
         dt = scene.dt
         scene.advance(dt, start + speed * min(scene.target_time + dt, duration_s) * axis, orientation,
@@ -103,11 +96,12 @@ def _scene(scene_file, sets):
 
 def _stable_at(scene, dt, window_s, speed):
     """(stable, reason): the loading at time step ``dt`` from rest."""
+    from tissue_sim_ros.analysis.insertion import run_insertion
     from tissue_sim_ros.engine.solver import SimulationDiverged
     scene.reset()
     scene.simulation.dt = dt
     try:
-        forces = _needle_run(scene, window_s, speed)
+        forces = run_insertion(scene, speed, speed * window_s, retract=False).force
     except SimulationDiverged as exc:
         return False, exc.reason
     if not np.isfinite(forces).all():

@@ -121,11 +121,9 @@ class ImplicitStep:
         self._free = (sim.dof_kind == 0).astype(float)
         jacobi = self._inertia + stiffness + viscous / dt
         self._inverse_diagonal = np.where(jacobi > 0, 1.0 / np.where(jacobi > 0, jacobi, 1.0), 0.0) * self._free
-        # the compliance each DOF offers a constraint over this step (module docstring)
-        effective_mass = dt * dt * (self._inertia + stiffness + viscous / dt)
-        self.constraint_inverse_mass = np.where(effective_mass > 0, 1.0 / np.where(effective_mass > 0,
-                                                                                  effective_mass, 1.0), 0.0)
-        self.constraint_inverse_mass *= self._free
+        # the compliance each DOF offers a constraint over this step (module docstring): the
+        # preconditioner's diagonal is its stiffness over dt^2
+        self.constraint_inverse_mass = self._inverse_diagonal / (dt * dt)
         self._unit_scale = np.ones(n)
         size = float(np.ptp(model.mesh.rest_positions, axis=0).max())
         # a residual this small is a displacement of 1e-12 body sizes against the stiffest DOF
