@@ -64,8 +64,8 @@ def _diverging(scene, on_call, nan=False):
             raise SimulationDiverged('injected', 1, scene.time, scene.dt, scene.dt)
         return steps
 
-    def wrench(frame='world'):
-        force, torque = real_wrench(frame)
+    def wrench(frame='world', needle=0):
+        force, torque = real_wrench(frame, needle)
         return (force * np.nan if nan and calls['n'] >= on_call else force), torque
     scene.advance, scene.reaction_wrench = advance, wrench
 

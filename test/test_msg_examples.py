@@ -19,7 +19,7 @@ EXAMPLES = sorted((ROOT / 'msg_examples').glob('*.yaml'))
 
 
 def test_there_are_examples():
-    assert len(EXAMPLES) == 9
+    assert len(EXAMPLES) == 11
 
 
 @pytest.mark.parametrize('path', EXAMPLES, ids=lambda p: p.name)
@@ -49,7 +49,7 @@ def node_facts(tmp_path_factory):
     scene = Scene.from_file(None, mesh={'generator': 'box', 'divisions': [4, 4, 3]},
                             targets=[{'name': 'tumour', 'position_m': [0.002, 0.0, -0.015]}])
     node = TissueSimNode(scene=scene, context=ctx, parameter_overrides=[Parameter(
-        'recording.directory', value=str(tmp_path_factory.mktemp('ex')))])
+        'recording.directory', value=str(tmp_path_factory.mktemp('ex'))), Parameter('prediction.prestart', value=False)])
     try:
         ns = node.get_fully_qualified_name()
         facts = {

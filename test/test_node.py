@@ -81,6 +81,7 @@ class Harness:
     def __init__(self, scene=None, slow_down=None, **params):
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, domain_id=DOMAIN_ID)
+        params.setdefault('prediction.workers', -1)     # no worker processes unless a test asks
         overrides = [Parameter(k, value=v) for k, v in params.items()]
         self.scene = scene if scene is not None else make_scene()
         self.node = node_mod.TissueSimNode(scene=self.scene, context=self.ctx, slow_down=slow_down,

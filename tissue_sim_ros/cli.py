@@ -145,7 +145,8 @@ def _drive(args):
 def _node_bench(args):
     from tissue_sim_ros.analysis import node_bench
     node_bench.run(duration_s=args.duration_s, rate_hz=args.rate_hz, scene_file=args.scene_file,
-                   out=args.out, threads=args.threads, executor=args.executor, load=args.load)
+                   out=args.out, threads=args.threads, executor=args.executor, load=args.load,
+                   predictions=args.predictions, prediction_s=args.prediction_s)
 
 
 def _insert(args):
@@ -225,6 +226,11 @@ def _column(text):
     if text is None:
         return None
     return int(text) if text.strip().isdigit() else text
+
+
+def _predict(args):
+    from tissue_sim_ros.analysis.predict import main
+    main(args.scene, args.path, args.out, sets=args.set)
 
 
 def _replay(args):
@@ -376,6 +382,18 @@ def build_parser():
                         help="another scene for the same motion (default: the log's own scene)")
     _add_scene_sets(replay)
     replay.set_defaults(run=_replay)
+    predict = commands.add_parser('predict', help='what a candidate needle path would do (force, tip '
+                                  'depth, target displacements) from the scene at rest, as the node '
+                                  'answers on plan/candidate')
+    predict.add_argument('--scene', type=_input_file, default=None,
+                         help='scene YAML (default: the packaged liver sample)')
+    predict.add_argument('--path', type=_input_file, required=True,
+                         help='CSV of the needle base poses: t, x, y, z, qx, qy, qz, qw (s, m; the first '
+                              "pose the scene's initial one; example: config/candidate_path.csv)")
+    _add_scene_sets(predict)
+    predict.add_argument('--out', type=_output_dir, default='out/predict',
+                         help='output directory for prediction.csv, .png, .md, .json (default: out/predict)')
+    predict.set_defaults(run=_predict)
     drive = commands.add_parser('drive', help='publish a scripted needle insertion and retraction on needle/pose')
     drive.add_argument('--speed-mm-s', type=_POSITIVE, required=True, help='needle speed [mm/s]')
     _add_travel_or_depth(drive, default_help='one of the two is required')
@@ -400,6 +418,11 @@ def build_parser():
     node_bench.add_argument('--load', type=_number(0, inclusive=True, whole=True), default=0, metavar='N',
                             help='run N busy processes and one listening ROS client (wrench, cloud) '
                                  'beside the node (default 0: none)')
+    node_bench.add_argument('--predictions', type=_number(0, inclusive=True, whole=True), default=0, metavar='N',
+                            help='send N candidate paths on plan/candidate at once, 1 s into the window, '
+                                 'and report how fast they are answered (default 0: none)')
+    node_bench.add_argument('--prediction-s', type=_POSITIVE, default=10.0,
+                            help='length of each candidate path [s] (default 10)')
     node_bench.set_defaults(run=_node_bench)
     return parser
 

@@ -23,7 +23,10 @@ The numbers are figures of this machine at the time of the run (other load shows
 report gives the load average before the run); the issue's goals are printed beside them, not
 enforced. ``load`` > 0 runs that many busy processes and one listening ROS client (wrench and
 point cloud) beside the node during the window (:mod:`tissue_sim_ros.analysis.background_load`),
-so that a figure under load can be reproduced.
+so that a figure under load can be reproduced. ``predictions`` > 0 sends that many candidate paths
+on ``plan/candidate`` at once, 1 s into the window (:mod:`tissue_sim_ros.analysis.prediction_burst`):
+the live figures then show what a burst of planner requests costs the loop, and the report adds
+how fast they were answered.
 """
 from __future__ import annotations
 
@@ -141,11 +144,11 @@ class _Window:
         return 100.0 * (self.cpu1 - self.cpu0) / self.seconds
 
 
-def _drive_window(node, client: _BenchClient, start, times, positions, rate_hz: float,
+def _drive_window(node, client: _BenchClient, message, times, positions, rate_hz: float,
                   duration_s: float) -> _Window:
-    """Stream the scripted poses for ``duration_s``, the node's CPU time read at both ends."""
-    from tissue_sim_ros.ros.drive import pose_message, publish_trajectory
-    message = pose_message(start.frame_id, start.orientation)
+    """Stream the scripted poses (``message`` moved along them) for ``duration_s``, the node's
+    CPU time read at both ends."""
+    from tissue_sim_ros.ros.drive import publish_trajectory
     cpu0, wall0_ns = _cpu_seconds(node.pid), time.time_ns()
     sent = publish_trajectory(client.pose_pub, message, times, positions, time.time_ns,
                               repeat_for_s=duration_s, cycle_s=times[-1] + 1.0 / rate_hz)
@@ -230,6 +233,7 @@ def _diagnostic_figures(diagnostics: list, window_start_ns: int | None = None) -
     from tissue_sim_ros.ros.conversions import stamp_to_ns
     last = diagnostics[-1] if diagnostics else None
     engine, inputs = _status_values(last, 'engine'), _status_values(last, 'input')
+    predictions = _status_values(last, 'predictions')
     before = [m for m in diagnostics if window_start_ns is not None
               and stamp_to_ns(m.header.stamp) <= window_start_ns]
     engine0 = _status_values(before[-1] if before else None, 'engine')
@@ -246,6 +250,8 @@ def _diagnostic_figures(diagnostics: list, window_start_ns: int | None = None) -
         'kernel_share_of_engine': float(engine.get('kernel_share_of_engine', 'nan')),
         'kernel_s_in_window': kernel,
         'node_latency_ms_p99_own': float(inputs.get('latency_ms_p99', 'nan')),
+        'prediction_real_time_factor': float(predictions.get('real_time_factor_median', 'nan')),
+        'prediction_workers': int(predictions.get('workers', -1)),
     }
 
 
@@ -257,20 +263,30 @@ def _new_log(log_dir: Path, earlier: set) -> Path:
 
 
 def _run_node(log_dir: Path, params: list[str], domain_id: int | None, start, times, positions,
-              rate_hz: float, duration_s: float, load: int) -> dict:
-    """Start the node (and the load), wait until it is up, stream poses for the window, stop it;
-    what was seen here, as a dict."""
+              rate_hz: float, duration_s: float, load: int, predictions: int = 0,
+              prediction_s: float = 10.0) -> dict:
+    """Start the node (and the load), wait until it is up, stream poses for the window (a burst
+    of ``predictions`` 1 s into it), stop it; what was seen here, as a dict."""
     from tissue_sim_ros.analysis.background_load import BackgroundLoad, machine_load
+    from tissue_sim_ros.analysis.prediction_burst import PredictionBurst
+    from tissue_sim_ros.ros.drive import pose_message
     from tissue_sim_ros.ros.node_process import NodeProcess, client_context
     machine = machine_load()
+    message = pose_message(start.frame_id, start.orientation)
+    burst = None
     with NodeProcess(params, log_dir / 'node.log', domain_id) as node, \
             client_context(node.domain_id) as context:
         client = _BenchClient(context)
         try:
+            if predictions:
+                burst = PredictionBurst(client.node, predictions, path_s=prediction_s)
             startup_s = node.wait_until(client.node_is_up, 300.0)
             with BackgroundLoad(load, node.env) as background:
                 time.sleep(1.0)  # let the first ticks (caches, page faults) pass
-                window = _drive_window(node, client, start, times, positions, rate_hz, duration_s)
+                if burst is not None:
+                    p = message.pose.position
+                    burst.start(1.0, lambda: ([p.x, p.y, p.z], start.orientation, start.frame_id))
+                window = _drive_window(node, client, message, times, positions, rate_hz, duration_s)
                 time.sleep(0.3)
                 client.await_next_diagnostics()
             exit_code = node.stop()
@@ -278,6 +294,7 @@ def _run_node(log_dir: Path, params: list[str], domain_id: int | None, start, ti
         finally:
             client.close()
     return {'window': window, 'startup_s': startup_s, 'exit_code': exit_code,
+            'predictions': burst.figures() if burst is not None else {},
             'wrench_rx': np.array(client.wrench_rx, dtype=np.int64),
             'diagnostics': client.diagnostics, 'load': background.describe(),
             'listener': background.listener, 'machine': machine}
@@ -286,9 +303,11 @@ def _run_node(log_dir: Path, params: list[str], domain_id: int | None, start, ti
 def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | None = None,
             log_dir: str | Path | None = None, speed_mm_s: float = 5.0, depth_mm: float = 15.0,
             domain_id: int | None = None, publish_rate_hz: float = 50.0,
-            threads: int | None = None, executor: str | None = None, load: int = 0) -> dict:
+            threads: int | None = None, executor: str | None = None, load: int = 0,
+            predictions: int = 0, prediction_s: float = 10.0) -> dict:
     """Run the node and the scripted driver for ``duration_s`` (with ``load`` busy processes and
-    a listening client beside them when ``load`` > 0); the figures as a dict."""
+    a listening client beside them when ``load`` > 0, a burst of ``predictions`` candidate paths
+    of ``prediction_s`` seconds); the figures as a dict."""
     from tissue_sim_ros.ros.drive import insertion_trajectory, scene_start
     start = scene_start(scene_file)
     times, positions = insertion_trajectory(start, speed_mm_s * 1e-3, depth_mm * 1e-3, 0.5,
@@ -298,7 +317,7 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
     log_dir.mkdir(parents=True, exist_ok=True)
     earlier_logs = set(log_dir.glob('*.mcap'))
     run = _run_node(log_dir, _node_params(log_dir, publish_rate_hz, scene_file, threads, executor),
-                    domain_id, start, times, positions, rate_hz, duration_s, load)
+                    domain_id, start, times, positions, rate_hz, duration_s, load, predictions, prediction_s)
     path = _new_log(log_dir, earlier_logs)
     log, window = _log_timings(path), run['window']
     result = {
@@ -319,6 +338,7 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
         'node_cpu_pct_of_one_core': window.cpu_pct(),
         **_diagnostic_figures(run['diagnostics'], window.wall0_ns),
         'mcap': str(path),
+        **run['predictions'],
     }
     result['kernel_share_of_node_cpu'] = _kernel_share(result, window)
     if own_dir:
@@ -358,6 +378,13 @@ def report(r: dict) -> str:
         f'{r["dropped_time_s"]:.3g} s dropped, ladder level {r["ladder_level"]} ({r["ladder_changes"]} changes); '
         f'{r["missed_ticks"]} missed ticks of {r["ticks"]}',
     ]
+    if r.get('predictions_sent'):
+        lines.append(
+            f'  predictions          {r["predictions_sent"]} candidates of {r["prediction_path_s"]:g} s sent at '
+            f'once: {r["predictions_answered"]} answered within the window ({r["predictions_with_points"]} with '
+            f'points), first after {r["prediction_first_answer_s"]:.2f} s, last after '
+            f'{r["prediction_last_answer_s"]:.2f} s; {r["prediction_workers"]} worker(s), each '
+            f'{r["prediction_real_time_factor"]:.2f}x real time (median)')
     listener = r.get('listener') or {}
     if listener:
         lines.append('  listening client     ' + ', '.join(
@@ -367,10 +394,11 @@ def report(r: dict) -> str:
 
 def run(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | None = None,
         out: str | None = None, threads: int | None = None, executor: str | None = None,
-        load: int = 0) -> dict:
+        load: int = 0, predictions: int = 0, prediction_s: float = 10.0) -> dict:
     """Measure and print; with ``out``, keep the MCAP log there and write node_bench.json."""
     result = measure(duration_s=duration_s, rate_hz=rate_hz, scene_file=scene_file, log_dir=out,
-                     threads=threads, executor=executor, load=load)
+                     threads=threads, executor=executor, load=load, predictions=predictions,
+                     prediction_s=prediction_s)
     print(report(result))
     if out:
         (Path(out) / 'node_bench.json').write_text(json.dumps(result, indent=2))

@@ -15,7 +15,9 @@ checks its health itself. The driver owns:
   ``'reset'`` (tissue to rest, needle to its initial pose), ``'hold'`` (frozen until
   :meth:`reset`; the last finite wrench stays) or ``'raise'`` (offline commands: the error
   reaches the caller);
-- the last finite wrench and the deformed positions, in arrays allocated once.
+- the last finite wrench and the deformed positions, in arrays allocated once; with several
+  needles (``scene.needles``) one wrench per needle (``forces``, ``torques``; ``force`` and
+  ``torque`` are the first needle's), ``others`` giving the other needles' poses.
 
 A pose schedule (times, positions, orientations) is followed by :meth:`follow`, which samples the
 wrench at each waypoint: the form the insertion, replay and prediction commands use.
@@ -75,8 +77,9 @@ class SimulationDriver:
         self.refusals = 0
         self.simulated_s = 0.0     # time advanced since start; resets do not rewind it
         self.dropped_s = 0.0       # time asked for and dropped by drop_lag
-        self.force = np.zeros(3)   # the last finite wrench
-        self.torque = np.zeros(3)
+        self.forces = np.zeros((len(scene.needles), 3))   # the last finite wrench of each needle
+        self.torques = np.zeros((len(scene.needles), 3))
+        self.force, self.torque = self.forces[0], self.torques[0]   # the first needle's (views)
         self._deformed = np.empty_like(scene.rest_positions)
 
     # -- the clock ---------------------------------------------------------------------------
@@ -115,10 +118,11 @@ class SimulationDriver:
     # -- advancing ---------------------------------------------------------------------------
 
     def advance(self, duration: float, position=None, orientation=None, *, deadline=None,
-                max_steps=None) -> AdvanceOutcome:
+                max_steps=None, others=None) -> AdvanceOutcome:
         """Advance ``duration`` [s] with the needle moving linearly to the pose (None: held where
-        it is); ``deadline``/``max_steps`` as in ``Scene.advance``. Applies the policy; with
-        ``on_divergence='raise'`` a divergence raises SimulationDiverged."""
+        it is); ``deadline``/``max_steps``/``others`` (the other needles' poses) as in
+        ``Scene.advance``. A refused pose holds every needle for the advance. Applies the policy;
+        with ``on_divergence='raise'`` a divergence raises SimulationDiverged."""
         outcome = AdvanceOutcome()
         if self.held:
             return outcome
@@ -127,14 +131,14 @@ class SimulationDriver:
             position, orientation = scene.needle_pose
         try:
             try:
-                outcome.substeps = scene.advance(duration, position, orientation, deadline, max_steps)
+                outcome.substeps = scene.advance(duration, position, orientation, deadline, max_steps, others)
             except NeedleInputError as exc:
                 self.refusals += 1
                 outcome.refused = exc
                 hold_position, hold_orientation = scene.needle_pose
                 outcome.substeps = scene.advance(duration, hold_position, hold_orientation,
                                                  deadline, max_steps)
-            self._take_state()
+            self.take_state()
             self.simulated_s += duration
         except SimulationDiverged as exc:
             outcome.diverged = exc
@@ -173,22 +177,25 @@ class SimulationDriver:
                 progress(i, self)
         return Samples(when, force, torque, depth, phase, substeps)
 
-    def _take_state(self) -> None:
-        """The wrench and the displacement after an advance, or SimulationDiverged."""
+    def take_state(self) -> None:
+        """Take the wrench of the scene's state as it is (after an advance, or of a scene copied
+        mid-run), or raise SimulationDiverged for a non-finite wrench or a displacement that does
+        not fit a float32. Changes nothing in the scene."""
         scene = self.scene
-        force, torque = scene.reaction_wrench(self.wrench_frame)
-        if not (np.isfinite(force).all() and np.isfinite(torque).all()):
-            raise SimulationDiverged(
-                f'non-finite reaction wrench {np.asarray(force).tolist()} {np.asarray(torque).tolist()}',
-                scene.simulation.step_count, float(scene.time), float(scene.dt), float('nan'))
+        wrenches = [scene.reaction_wrench(self.wrench_frame, k) for k in range(len(scene.needles))]
+        for force, torque in wrenches:
+            if not (np.isfinite(force).all() and np.isfinite(torque).all()):
+                raise SimulationDiverged(
+                    f'non-finite reaction wrench {np.asarray(force).tolist()} {np.asarray(torque).tolist()}',
+                    scene.simulation.step_count, float(scene.time), float(scene.dt), float('nan'))
         displacement = scene.displacement           # the largest |u| without an |u| array (NaN stays NaN)
         largest = max(float(displacement.max(initial=0.0)), -float(displacement.min(initial=0.0)))
         if not largest < _FLOAT32_MAX:
             raise SimulationDiverged(f'displacement {largest:.3g} m does not fit a float32',
                                      scene.simulation.step_count, float(scene.time),
                                      float(scene.dt), float('nan'))
-        self.force[:] = force
-        self.torque[:] = torque
+        for k, (force, torque) in enumerate(wrenches):
+            self.forces[k], self.torques[k] = force, torque
 
     def _diverged(self, exc: SimulationDiverged) -> None:
         self.divergences += 1
@@ -204,10 +211,11 @@ class SimulationDriver:
         rest state's (zeros if that is not finite: never a NaN out of a reset)."""
         self.scene.reset()
         self.held = False
-        force, torque = self.scene.reaction_wrench(self.wrench_frame)
-        finite = np.all(np.isfinite(force)) and np.all(np.isfinite(torque))
-        self.force[:] = force if finite else 0.0
-        self.torque[:] = torque if finite else 0.0
+        for k in range(len(self.scene.needles)):
+            force, torque = self.scene.reaction_wrench(self.wrench_frame, k)
+            finite = np.all(np.isfinite(force)) and np.all(np.isfinite(torque))
+            self.forces[k] = force if finite else 0.0
+            self.torques[k] = torque if finite else 0.0
 
     # -- state -------------------------------------------------------------------------------
 
@@ -232,6 +240,13 @@ class SimulationDriver:
     @property
     def needle_pose(self):
         return self.scene.needle_pose
+
+    def predict(self, path):
+        """What a candidate path (engine.prediction.CandidatePath, from engine.prediction.check_path)
+        would do from the state now: engine.prediction.predict on a copy, in this driver's wrench
+        frame; the driver and its scene are left as they are."""
+        from tissue_sim_ros.engine.prediction import predict
+        return predict(self.scene, path, wrench_frame=self.wrench_frame)
 
     def real_time_factor(self, wall_s: float) -> float:
         return self.simulated_s / wall_s if wall_s > 0 else math.inf

@@ -8,6 +8,13 @@ unit in its name. ``config/liver_sample.yaml`` is the default scene.
 The scene is the engine's whole-step API: ``advance(duration, position, orientation)`` moves the
 needle base linearly (orientation by slerp) from its current pose to the given one over
 ``duration`` seconds, stepping the tissue with the fixed time step ``dt``.
+
+Several needles (scene key ``needles``): each is a NeedleTissue of its own (contact, punctures,
+shaft points, friction) on the same tissue, in ``needles`` (``needle`` is the first, the one
+``advance``'s position and orientation move; ``others`` gives the rest their poses). Each step
+moves every needle, steps the tissue once, then applies each needle's constraints in turn (a
+Gauss-Seidel sweep over the needles), so one needle's push moves the tissue under the others.
+The needles do not touch each other (no needle-needle contact).
 """
 import math
 import time
@@ -205,13 +212,16 @@ class Scene:
                                          mass_scaling=sol['mass_scaling'], integrator=sol['integrator'],
                                          newton_tolerance=sol['newton_tolerance'])
             _check_time_step(self.simulation, sol)
-            n = s['needle']
-            geometry = NeedleGeometry(n['diameter_m'], n['length_m'], n['shaft_point_spacing_m'],
-                                      n['max_jump_m'], _tip_shape(n['tip']))
-            self.needle = NeedleTissue(self.simulation, element_region,
-                                       [_region_interaction(r) for r in s['regions']], geometry,
-                                       _start_position(self.mesh, n), n['initial_orientation_xyzw'],
-                                       selectors=self.selectors)
+            interactions = [_region_interaction(r) for r in s['regions']]
+            self.needle_names, self.needles = [], []
+            for name, n in needle_sections(s):
+                geometry = NeedleGeometry(n['diameter_m'], n['length_m'], n['shaft_point_spacing_m'],
+                                          n['max_jump_m'], _tip_shape(n['tip']))
+                self.needle_names.append(name)
+                self.needles.append(NeedleTissue(self.simulation, element_region, interactions, geometry,
+                                                 _start_position(self.mesh, n), n['initial_orientation_xyzw'],
+                                                 selectors=self.selectors))
+            self.needle = self.needles[0]
             self.targets = Targets(self.mesh.rest_positions, self.mesh.tetrahedra, s['targets'])
         except SceneError:
             raise
@@ -256,7 +266,7 @@ class Scene:
     def time(self):
         return self.simulation.time
 
-    def advance(self, duration, position, orientation, deadline=None, max_steps=None):
+    def advance(self, duration, position, orientation, deadline=None, max_steps=None, others=None):
         """Move the needle to the given base pose over ``duration`` [s]; returns the substeps run.
 
         Runs the whole steps that end by the running target time (the sum of all durations since
@@ -265,15 +275,25 @@ class Scene:
         starts that would, by the last step's wall time, end past it; the steps left are run by
         the next call (duration 0 runs just those), so a real-time caller keeps its slots.
         ``max_steps`` stops the same way after that many steps (a replay of a run that a deadline
-        stopped).
+        stopped). ``others``: with several needles, a (position, orientation) or None (held) for
+        each of ``needles[1:]``, moved the same way.
         Raises NeedleInputError (before any state changes) for a bad pose, SimulationDiverged if
         the tissue diverges.
         """
         if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration >= 0):
             raise SceneError(f'duration = {duration!r}: expected a finite time >= 0 s')
-        needle, sim = self.needle, self.simulation
-        position, orientation = needle.check_pose(position, orientation)
-        start_p, start_q = needle.position.copy(), needle.orientation.copy()
+        sim = self.simulation
+        targets = [(position, orientation)] + list(others if others is not None else [None] * (len(self.needles) - 1))
+        if len(targets) != len(self.needles):
+            raise SceneError(f'others: {len(targets) - 1} poses for {len(self.needles) - 1} other needle(s)')
+        moves = []
+        for k, (needle, target) in enumerate(zip(self.needles, targets)):
+            if target is None:
+                target = needle.position.copy(), needle.orientation.copy()
+            field_name = 'pose' if k == 0 else f'needles[{self.needle_names[k]}].pose'
+            p, q = needle.check_pose(target[0], target[1], field_name)
+            start_p, start_q = needle.position.copy(), needle.orientation.copy()
+            moves.append((needle, start_p, p, start_q, q, not np.array_equal(start_q, q)))
         # whole steps toward a running target time, so the remainders of successive calls add up
         # instead of being dropped (20 ms calls with a 1.7 ms step would otherwise run 20.6 ms).
         # No step ends past the target: a step that did would hold the needle at the target for
@@ -283,7 +303,6 @@ class Scene:
         # call goes on from there at the same speed.
         start_t, end_t = sim.time, self._target_time + duration
         self._target_time = end_t
-        turning = not np.array_equal(start_q, orientation)     # else a translation: no slerp
         steps = 0
         step_wall = 0.0
         while sim.time + sim.dt <= end_t + 1e-9 * sim.dt:
@@ -294,15 +313,18 @@ class Scene:
                 if now + step_wall > deadline:
                     return steps
             s = min(1.0, (sim.time + sim.dt - start_t) / (end_t - start_t))
-            needle.set_pose(start_p + s * (position - start_p), slerp(start_q, orientation, s) if turning else None)
+            for needle, start_p, p, start_q, q, turning in moves:
+                needle.set_pose(start_p + s * (p - start_p), slerp(start_q, q, s) if turning else None)
             sim.step(1)
-            needle.after_step(sim.dt)
+            for needle in self.needles:
+                needle.after_step(sim.dt)
             steps += 1
             if deadline is not None:
                 step_wall = time.perf_counter() - now
         if duration == 0 and steps == 0:
-            needle.set_pose(position, orientation)
-            needle.set_pose(position, orientation)   # no step: no velocity from a pose change
+            for needle, _, p, _, q, _ in moves:
+                needle.set_pose(p, q)
+                needle.set_pose(p, q)   # no step: no velocity from a pose change
         return steps
 
     def drop_behind(self, max_behind_s):
@@ -325,12 +347,14 @@ class Scene:
         """Rest state, needle at its initial pose, time 0."""
         self.simulation.reset()
         self.simulation.external_forces[:] = 0.0
-        self.needle.reset()
+        for needle in self.needles:
+            needle.reset()
         self._target_time = 0.0
 
     # -- state ----------------------------------------------------------------------------------
-    def reaction_wrench(self, frame='world'):
-        return self.needle.reaction_wrench(frame)
+    def reaction_wrench(self, frame='world', needle=0):
+        """(force, torque) the tissue exerts on needle ``needle`` (its index) [N, N m]."""
+        return self.needles[needle].reaction_wrench(frame)
 
     @property
     def phase(self):
@@ -351,7 +375,7 @@ class Scene:
     @property
     def start_gap_m(self):
         """Tip to tissue surface along the axis at the needle's initial pose [m] (rest mesh)."""
-        position, orientation = self.needle._initial_pose
+        position, orientation = self.needle.initial_pose
         axis = needle_axis(orientation)
         return surface_gap(self.mesh, position + self.needle.geometry.length_m * axis, axis)
 
@@ -378,6 +402,17 @@ class Scene:
     @property
     def puncture_events(self):
         return self.needle.puncture_events
+
+
+def needle_sections(spec):
+    """[(name, needle section)] of a scene's keys: the ``needle`` section alone, named 'needle',
+    or one per ``needles`` entry, its keys over the needle section's (checked, errors named
+    ``needles[i].key``)."""
+    if not spec['needles']:
+        return [('needle', spec['needle'])]
+    return [(entry['name'], apply_schema(f'needles[{i}]', merge(spec['needle'], {k: v for k, v in entry.items()
+                                                                             if k != 'name'}), SCHEMA['needle']))
+            for i, entry in enumerate(spec['needles'])]
 
 
 def _auto_model_section(spec):

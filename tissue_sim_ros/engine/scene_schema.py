@@ -119,6 +119,10 @@ SCHEMA = {
         'position_m': (None, 'vec3', 'its position at rest [m], inside the mesh; required'),
     }, check_targets), 'named points carried by the tissue (a tumour, a fiducial): embedded in the mesh at '
                        'rest, they move with its deformation; [] for none'),
+    'needles': ([], 'needles', 'several needles or probes in the same tissue: a list of mappings, each '
+                               "with a unique 'name' and any needle.* keys that differ from the needle "
+                               'section (which gives the rest): initial_position_m at least. [] (default): '
+                               "the needle section is the one needle, named 'needle'"),
     'boundary': {
         'fixed': (['bottom', 'walls'], 'faces', 'bounding-box faces held fixed: bottom, top, walls, '
                                                 'x_min, x_max, y_min, y_max'),
@@ -199,6 +203,18 @@ def _check_value(name, value, kind):
         if kind == 'vec3+' and min(v) <= 0:
             fail('3 numbers > 0')
         return v
+    if kind == 'needles':
+        if not isinstance(value, (list, tuple)):
+            fail("a list of mappings, each with a 'name'")
+        names = []
+        for i, entry in enumerate(value):
+            if not isinstance(entry, dict) or not isinstance(entry.get('name'), str) or not entry['name'].strip():
+                raise SceneError(f'{name}[{i}] = {entry!r}: expected a mapping with a non-empty name')
+            if entry['name'] in names or not entry['name'].replace('_', 'a').isalnum():
+                raise SceneError(f"{name}[{i}].name = {entry['name']!r}: expected a unique name of letters, "
+                                 'digits and _ (it names the topics needle/<name>/pose and /wrench)')
+            names.append(entry['name'])
+        return [dict(entry) for entry in value]
     if kind == 'faces':
         if not isinstance(value, (list, tuple)) or any(f not in _FACES for f in value):
             fail('a list of ' + ', '.join(_FACES))

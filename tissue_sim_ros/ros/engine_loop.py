@@ -165,6 +165,15 @@ class EngineLoop:
             taken.append(self._receipts.popleft()[0])
         return taken
 
+    def post(self, job) -> None:
+        """Run ``job()`` on the engine thread between advances without waiting for it (at once
+        when the thread does not run). ``job`` must not raise: it would stop the engine."""
+        if not self._thread.is_alive():
+            job()
+            return
+        self._requests.append(job)
+        self._wake.set()
+
     def call(self, job, timeout_s: float = 5.0):
         """Run ``job()`` on the engine thread between advances and return its result (at once
         when the thread does not run)."""

@@ -7,6 +7,10 @@
 
 Node ``tissue_sim``; its topics, their types and QoS: :mod:`tissue_sim_ros.ros.topics`.
 
+Predictions: a candidate path on ``plan/candidate`` is simulated from a copy of the current state
+by worker processes, off the live loop, and answered on ``plan/prediction``
+(:mod:`~tissue_sim_ros.ros.node_predictions`).
+
 Services: ``~/reset`` (std_srvs/srv/Trigger) puts the tissue at rest and the needle at its
 initial pose; ``~/pause`` (std_srvs/srv/SetBool) freezes (true) or resumes (false) the
 simulation; while paused the node keeps publishing the frozen state.
@@ -39,11 +43,15 @@ import time
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, PoseStamped, WrenchStamped
+from nav_msgs.msg import Path
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.parameter import Parameter
 from rclpy.node import Node
-from rclpy.serialization import serialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
 from std_srvs.srv import SetBool, Trigger
+from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import Marker
 
 from tissue_sim_ros.engine.degradation_ladder import DegradationLadder
@@ -52,6 +60,7 @@ from tissue_sim_ros.engine.ladder_probe import cached_probe_errors
 from tissue_sim_ros.ros import conversions as cv
 from tissue_sim_ros.ros.engine_loop import EngineLoop
 from tissue_sim_ros.ros.node_diagnostics import NodeStats, diagnostics_statuses
+from tissue_sim_ros.ros.node_predictions import PredictionService
 from tissue_sim_ros.ros.node_targets import targets_msg, targets_status
 from tissue_sim_ros.ros.node_recording import (every_kth_tick, node_log_topics, open_node_log,
                                                record_service_call, record_trace)
@@ -60,8 +69,8 @@ from tissue_sim_ros.ros.parameters import (NODE_NAME, PARAMETERS, ConfigError, N
                                            help_text as _help_text, load_scene, make_config)
 from tissue_sim_ros.ros.pose_input import PoseInput
 from tissue_sim_ros.ros.pose_cdr import decode_pose
-from tissue_sim_ros.ros.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODES_QOS, SURFACE_QOS,
-                                       WRENCH_QOS, pose_qos)
+from tissue_sim_ros.ros.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODES_QOS, PLAN_QOS,
+                                       SURFACE_QOS, WRENCH_QOS, pose_qos)
 from tissue_sim_ros.units import NS_PER_S
 
 __all__ = ['NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'TissueSimNode', 'main']
@@ -81,7 +90,7 @@ class TissueSimNode(Node):
 
     def __init__(self, *, scene=None, node_name: str = NODE_NAME, slow_down=None, **node_kwargs):
         super().__init__(node_name, **node_kwargs)
-        self._recorder, self._closed, self.engine = None, False, None
+        self._recorder, self._closed, self.engine, self.predictions = None, False, None, None
         try:
             self._set_up(scene, slow_down)
         except BaseException:
@@ -121,6 +130,12 @@ class TissueSimNode(Node):
         self._target_positions = np.zeros((len(self.scene.targets), 3))
         self._target_figures = self.scene.targets.relative_to_needle(self.scene.targets.rest, self.scene.needle.tip,
                                                                      self.scene.needle.axis)
+        self.declare_parameter('targets.names', self.scene.targets.names or Parameter.Type.STRING_ARRAY,
+                               ParameterDescriptor(description="the scene's targets, in the order of "
+                                                   'tissue/targets (from the scene file)', read_only=True))
+        self.prediction_pub = self.candidate_sub = None
+        if cfg.prediction_workers >= 0:
+            self._start_predictions(cfg)
         self.pose_qos = pose_qos(cfg.input_reliability)
         self.pose_sub = self.create_subscription(PoseStamped, 'needle/pose', self._on_pose,
                                                  self.pose_qos, raw=True)
@@ -147,6 +162,39 @@ class TissueSimNode(Node):
             f'{100 * cfg.budget_fraction:.0f} % of a tick); wrench in {cfg.wrench_frame_id!r}, '
             f'mesh in {cfg.frame_id!r}' + (f'; recording to {self._recorder.path}' if self._recorder
                                            else '; not recording'))
+
+    def _start_predictions(self, cfg) -> None:
+        ladder = self.engine.ladder
+        if cfg.prediction_max_error > 0 and ladder is None:
+            ladder = DegradationLadder(self.scene)      # its rungs' settings, never switched
+            self._measure_ladder(ladder)
+
+        def rung():
+            errors = None if ladder is None else ladder.predicted_errors
+            if cfg.prediction_max_error <= 0 or errors is None or None in errors:
+                return None, None
+            level = max(k for k, error in enumerate(errors) if error <= cfg.prediction_max_error)
+            chosen = ladder.rungs[level]
+            return chosen.threshold, ladder.base_mass_scaling * chosen.mass_factor
+
+        self.prediction_pub = self.create_publisher(JointTrajectory, 'plan/prediction', PLAN_QOS)
+        geometry = self.scene.needle.geometry
+        self.predictions = PredictionService(
+            self.engine, frame_id=cfg.frame_id, wrench_frame=cfg.wrench_frame,
+            wrench_frame_id=cfg.wrench_frame_id, target_names=self.scene.targets.names,
+            max_jump_m=min(cfg.input_limits.max_jump_m, geometry.max_jump_m), length_m=geometry.length_m,
+            max_duration_s=cfg.prediction_max_duration_s, workers=cfg.prediction_workers,
+            threads=cfg.prediction_threads, publish=lambda msg: self._publish(self.prediction_pub, msg),
+            log_once=self._log_once, decode=lambda data: deserialize_message(data, Path), rung=rung,
+            prestart=cfg.prediction_prestart)
+        self.candidate_sub = self.create_subscription(Path, 'plan/candidate', self._on_candidate, PLAN_QOS,
+                                                      raw=True)
+
+    def _on_candidate(self, data: bytes) -> None:
+        """A candidate path as received: recorded as is, handed to the predictions' intake."""
+        if self._recorder is not None:
+            self._recorder.write(self.candidate_sub.topic_name, data, self._now_ns())
+        self.predictions.receive(data)
 
     def _measure_ladder(self, ladder) -> None:
         """The ladder's errors (engine.ladder_probe): from the cache, or measured on a copy of the
@@ -295,7 +343,8 @@ class TissueSimNode(Node):
         """The DiagnosticStatus tuples (name, level, message, values) of this moment."""
         return diagnostics_statuses(self.get_name(), now_ns, stats=self._stats, engine=self.engine,
                                     pose_input=self.input, ticks=self.ticks, recorder=self._recorder) + \
-            [targets_status(self.get_name(), self.scene.targets.names, self._target_figures)]
+            [targets_status(self.get_name(), self.scene.targets.names, self._target_figures)] + \
+            ([] if self.predictions is None else [self.predictions.status(self.get_name())])
 
     def publish_diagnostics(self) -> None:
         now_ns = self._now_ns()
@@ -312,6 +361,8 @@ class TissueSimNode(Node):
         for timer in (getattr(self, '_tick_timer', None), getattr(self, '_diagnostics_timer', None)):
             if timer is not None:
                 timer.cancel()
+        if self.predictions is not None:
+            self.predictions.close()
         if self.engine is not None:
             self.engine.stop()
         if self._recorder is not None:

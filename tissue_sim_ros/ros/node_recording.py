@@ -14,7 +14,7 @@ import datetime as _dt
 
 from tissue_sim_ros.ros.engine_trace import COLUMNS, HEADER_SIZE, TRACE_TYPE, encode
 from tissue_sim_ros.ros.parameters import parameters_yaml
-from tissue_sim_ros.ros.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODE_TOPIC_TYPES, NODES_QOS,
+from tissue_sim_ros.ros.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODE_TOPIC_TYPES, NODES_QOS, PLAN_QOS,
                                       SERVICE_EVENT_QOS, SURFACE_QOS, WRENCH_QOS)
 
 __all__ = ['node_log_topics', 'open_node_log', 'every_kth_tick', 'record_service_call',
@@ -35,7 +35,9 @@ def node_log_topics(node, qos_to_dict) -> list:
                 'tissue/marker': (node.marker_pub, MARKER_QOS),
                 'tissue/targets': (node.targets_pub if len(node.scene.targets) else None, NODES_QOS),
                 '/diagnostics': (node.diagnostics_pub, DIAGNOSTICS_QOS),
-                'needle/pose': (node.pose_sub, node.pose_qos)}
+                'needle/pose': (node.pose_sub, node.pose_qos),
+                'plan/candidate': (node.candidate_sub, PLAN_QOS),
+                'plan/prediction': (node.prediction_pub, PLAN_QOS)}
     topics = [(entity.topic_name, NODE_TOPIC_TYPES[name], qos_to_dict(profile))
               for name, (entity, profile) in entities.items() if entity is not None]
     topics.append((node.trace_topic, TRACE_TYPE, qos_to_dict(WRENCH_QOS)))

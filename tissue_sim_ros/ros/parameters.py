@@ -92,6 +92,17 @@ PARAMETERS = (
            'of a log) is recorded, from every k-th tick, k = round(publish_rate_hz / rate); it is '
            'still published every tick. 0 = not recorded', 0.0, 1000.0),
     _Param('recording.prefix', 'tissue_sim', 'log file name prefix (<prefix>_<UTC start>.mcap)'),
+    _Param('prediction.workers', 0, 'worker processes answering plan/candidate (at a lower '
+           'priority than the live engine); 0 = auto: the cores less one, at least 1; -1 = '
+           'predictions off (no subscription)', -1, 256),
+    _Param('prediction.threads', 0, 'numba threads of each prediction worker; 0 = auto: the '
+           'cores shared among the workers', 0, 256),
+    _Param('prediction.prestart', True, 'start the workers with the node (their first answer at '
+           'full speed); false: at the first request'),
+    _Param('prediction.max_error', 0.0, 'predictions run on the cheapest degradation-ladder rung '
+           "whose measured axial-force error (NRMSE against the scene as configured) is at most "
+           'this; 0 = on the live scene as it is (a prediction then equals the live run)', 0.0, 1.0),
+    _Param('prediction.max_duration_s', 60.0, 'longest candidate path accepted [s]', 0.01, 3600.0),
     _Param('on_divergence', 'reset', 'when the simulation diverges: reset it to rest, or hold the '
            'last good wrench until ~/reset', choices=('reset', 'hold')),
 )
@@ -124,6 +135,11 @@ class NodeConfig:
     recording_nodes_rate_hz: float
     recording_prefix: str
     on_divergence: str
+    prediction_workers: int
+    prediction_threads: int
+    prediction_prestart: bool
+    prediction_max_error: float
+    prediction_max_duration_s: float
     values: dict  # every parameter by name, as read
 
     @property
@@ -205,7 +221,10 @@ def make_config(values: dict, scene_frame_id: str | None = None) -> NodeConfig:
         recording_chunk_interval_s=v['recording.chunk_interval_s'],
         recording_compression=v['recording.compression'],
         recording_nodes_rate_hz=v['recording.nodes_rate_hz'], recording_prefix=v['recording.prefix'],
-        on_divergence=v['on_divergence'], values=dict(values))
+        on_divergence=v['on_divergence'], prediction_workers=v['prediction.workers'],
+        prediction_threads=v['prediction.threads'], prediction_prestart=v['prediction.prestart'],
+        prediction_max_error=v['prediction.max_error'],
+        prediction_max_duration_s=v['prediction.max_duration_s'], values=dict(values))
 
 
 def parameters_yaml(values: dict, node_name: str = NODE_NAME) -> str:

@@ -19,6 +19,12 @@ Topics (relative names; remap with ``--ros-args -r``), all reliable:
                                                       TRIANGLE_LIST, decimated for RViz
 ``tissue/targets``   geometry_msgs/msg/PoseArray      out, every tick: the scene's targets where
                                                       the tissue carried them (scene order)
+``plan/candidate``   nav_msgs/msg/Path                in: a candidate path of the needle base
+                                                      (stamped poses in ``frame_id``, the first
+                                                      where the needle is now)
+``plan/prediction``  trajectory_msgs/msg/JointTrajectory out: the answer to each candidate, in
+                                                      order, its stamp the request's
+                                                      (:mod:`~tissue_sim_ros.ros.node_predictions`)
 ``/diagnostics``     diagnostic_msgs/DiagnosticArray  out, ``diagnostics_rate_hz``
 ==================== ================================ ===================================
 
@@ -27,7 +33,7 @@ The surface is transient local so that a late subscriber gets the mesh it needs 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 __all__ = ['qos', 'WRENCH_QOS', 'NODES_QOS', 'SURFACE_QOS', 'MARKER_QOS', 'DIAGNOSTICS_QOS',
-           'SERVICE_EVENT_QOS', 'pose_qos', 'NODE_TOPIC_TYPES']
+           'SERVICE_EVENT_QOS', 'PLAN_QOS', 'pose_qos', 'NODE_TOPIC_TYPES']
 
 
 def qos(depth: int, transient_local: bool = False,
@@ -43,6 +49,8 @@ SURFACE_QOS = qos(1, transient_local=True)
 MARKER_QOS = qos(1)
 DIAGNOSTICS_QOS = qos(10)
 SERVICE_EVENT_QOS = qos(10)
+#: plan/candidate and plan/prediction: a burst of requests and their answers all kept
+PLAN_QOS = qos(100)
 
 
 def pose_qos(reliability: str) -> QoSProfile:
@@ -61,4 +69,6 @@ NODE_TOPIC_TYPES = {
     'tissue/targets': 'geometry_msgs/msg/PoseArray',
     '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
     'needle/pose': 'geometry_msgs/msg/PoseStamped',
+    'plan/candidate': 'nav_msgs/msg/Path',
+    'plan/prediction': 'trajectory_msgs/msg/JointTrajectory',
 }

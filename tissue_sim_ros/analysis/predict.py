@@ -1,0 +1,151 @@
+"""``tissue-sim predict``: what a candidate needle path would do, without ROS (issue 18 item 1).
+
+The same prediction the node answers on ``plan/candidate`` (engine.prediction), from the scene at
+rest: the path is a CSV of the needle base's poses, one per row, with the header
+``t, x, y, z, qx, qy, qz, qw`` (seconds, metres, a quaternion x, y, z, w; ``t_s``, ``x_m``... and
+any other columns are accepted and ignored), its first pose the scene's initial needle pose
+(``config/candidate_path.csv`` is a 10 s example on the default scene). Writes into ``--out``:
+``prediction.csv`` (one row per pose: time from start, the prediction's columns, the phase),
+``prediction.png`` (force, tip depth and target displacements against time), ``prediction.md``
+and ``prediction.json`` (figures and the speed: wall time and real-time factor).
+"""
+from __future__ import annotations
+
+import csv
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from tissue_sim_ros.io.trial import DataError
+
+__all__ = ['PATH_COLUMNS', 'read_path_csv', 'write_prediction', 'main']
+
+#: The path CSV's columns; each may also carry its unit (``t_s``, ``x_m``).
+PATH_COLUMNS = ('t', 'x', 'y', 'z', 'qx', 'qy', 'qz', 'qw')
+_UNIT_SUFFIX = {'t': '_s', 'x': '_m', 'y': '_m', 'z': '_m'}
+
+
+def read_path_csv(path):
+    """(stamps (k,) [s], positions (k, 3) [m], quaternions (k, 4)) of a path CSV; a missing
+    column or a value that is not a number raises DataError naming the file, line and column."""
+    path = Path(path)
+    with open(path, newline='') as f:
+        numbered = [(n, line) for n, line in enumerate(f, start=1)
+                    if line.strip() and not line.lstrip().startswith('#')]
+    if not numbered:
+        raise DataError(path, f'empty; expected a header {", ".join(PATH_COLUMNS)} and one row per pose')
+    rows = list(csv.reader(line for _, line in numbered))
+    header = [name.strip().lower() for name in rows[0]]
+    index = {}
+    for name in PATH_COLUMNS:
+        for alias in (name, name + _UNIT_SUFFIX.get(name, '')):
+            if alias in header:
+                index[name] = header.index(alias)
+                break
+        else:
+            raise DataError(path, f'no column {name!r} in the header {rows[0]}; expected '
+                                  f'{", ".join(PATH_COLUMNS)}')
+    values = np.empty((len(rows) - 1, len(PATH_COLUMNS)))
+    for k, row in enumerate(rows[1:]):
+        for j, name in enumerate(PATH_COLUMNS):
+            try:
+                values[k, j] = float(row[index[name]])
+            except (IndexError, ValueError):
+                cell = row[index[name]] if index[name] < len(row) else '(missing)'
+                raise DataError(path, f'{cell!r}: expected a number', column=name,
+                                row=numbered[k + 1][0]) from None
+    return values[:, 0], values[:, 1:4], values[:, 4:8]
+
+
+def write_prediction(prediction, out: Path, *, title: str) -> None:
+    """prediction.csv and prediction.png of a Prediction."""
+    with open(out / 'prediction.csv', 'w', newline='') as f:
+        writer = csv.writer(f)
+        writer.writerow(['time_from_start_s', *prediction.columns, 'phase'])
+        for k, t in enumerate(prediction.time_from_start_s):
+            writer.writerow([f'{t:.6f}', *(f'{v:.7g}' for v in prediction.values[k]), prediction.phase[k]])
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    t = prediction.time_from_start_s
+    targets = [c for c in prediction.columns if c.startswith('target/')]
+    fig, axes = plt.subplots(2 + bool(targets), 1, figsize=(7, 6 + 2 * bool(targets)), sharex=True)
+    for j, axis in enumerate('xyz'):
+        axes[0].plot(t, prediction.column(f'force_{axis}_n'), label=f'force {axis}')
+    axes[0].set_ylabel('force on the needle [N]')
+    axes[0].legend(fontsize=8)
+    axes[0].set_title(title)
+    axes[1].plot(t, prediction.column('tip_depth_m') * 1e3, color='k')
+    axes[1].set_ylabel('tip depth [mm]')
+    for name in targets:
+        axes[2].plot(t, prediction.column(name) * 1e3, label=name.split('/')[1])
+    if targets:
+        axes[2].set_ylabel('target displacement [mm]')
+        axes[2].legend(fontsize=8)
+    axes[-1].set_xlabel('time from the first pose [s]')
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out / 'prediction.png', dpi=120)
+    plt.close(fig)
+
+
+def _figures(prediction) -> dict:
+    force = prediction.values[:, 0:3]
+    figures = {
+        'points': len(prediction.time_from_start_s),
+        'simulated_s': prediction.simulated_s,
+        'wall_s': prediction.wall_s,
+        'real_time_factor': prediction.real_time_factor,
+        'substeps': prediction.substeps,
+        'peak_force_n': float(np.linalg.norm(force, axis=1).max()),
+        'final_tip_depth_m': float(prediction.column('tip_depth_m')[-1]),
+        'final_phase': prediction.phase[-1],
+        'target_peak_displacement_m': {c.split('/')[1]: float(prediction.column(c).max())
+                                       for c in prediction.columns if c.startswith('target/')},
+    }
+    return figures
+
+
+def main(scene_file, path_file, out, *, sets=(), stream=None):
+    """The command: read the path, predict from the scene at rest, write the four outputs, print
+    the figures (the speed among them). Returns the Prediction."""
+    from tissue_sim_ros.engine.driver import SimulationDriver
+    from tissue_sim_ros.engine.prediction import check_path
+    from tissue_sim_ros.engine.scene import Scene
+    stream = sys.stdout if stream is None else stream
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    stamps, positions, orientations = read_path_csv(path_file)
+    scene = Scene.from_file(scene_file, sets=sets)
+    needle = scene.needle
+    path = check_path(stamps, positions, orientations, max_jump_m=needle.geometry.max_jump_m,
+                      start_pose=scene.needle_pose, length_m=needle.geometry.length_m,
+                      max_duration_s=float('inf'), field_name=str(path_file))
+    print(f'scene {scene_file or "(default liver sample)"}: {scene.mesh.n_elements} tetrahedra, '
+          f'dt = {scene.dt * 1e3:.3f} ms; path {path_file}: {len(path)} poses over {path.duration_s:g} s',
+          file=stream)
+    prediction = SimulationDriver(scene).predict(path)
+    figures = _figures(prediction)
+    write_prediction(prediction, out, title=f'prediction of {Path(path_file).name}')
+    summary = {'scene': str(scene_file) if scene_file else None, 'path': str(path_file), 'sets': list(sets),
+               'tetrahedra': int(scene.mesh.n_elements), 'columns': prediction.columns, **figures}
+    (out / 'prediction.json').write_text(json.dumps(summary, indent=2))
+    lines = [f'# Prediction of {Path(path_file).name}', '',
+             f'Scene: {scene_file or "the default liver sample"} ({scene.mesh.n_elements} tetrahedra)'
+             + (f', with {", ".join(sets)}' if sets else '') + '.', '',
+             '| figure | value |', '|---|---|',
+             f'| poses | {figures["points"]} over {figures["simulated_s"]:g} s |',
+             f'| peak force | {figures["peak_force_n"]:.4g} N |',
+             f'| final tip depth | {figures["final_tip_depth_m"] * 1e3:.3g} mm ({figures["final_phase"]}) |',
+             *(f'| target {name}: largest displacement | {value * 1e3:.3g} mm |'
+               for name, value in figures['target_peak_displacement_m'].items()),
+             f'| answered in | {figures["wall_s"]:.3g} s wall, {figures["real_time_factor"]:.3g}x real time |',
+             '', 'Files: prediction.csv (one row per pose), prediction.png, prediction.json.', '']
+    (out / 'prediction.md').write_text('\n'.join(lines))
+    for line in lines[6:-2]:
+        print('  ' + line.strip('|').replace(' | ', ': ').strip(), file=stream)
+    print(f'wrote {out / "prediction.csv"}, .png, .md and .json', file=stream)
+    return prediction
