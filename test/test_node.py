@@ -595,8 +595,8 @@ def _diverge_on_call(scene, n_call, *, nan=False):
             raise SimulationDiverged('injected', calls['n'], scene.time, scene.dt, scene.dt * 1.2)
         return steps
 
-    def wrench(frame='world'):
-        f, t = real_wrench(frame)
+    def wrench(frame='world', needle=0):
+        f, t = real_wrench(frame, needle)
         if nan and calls['n'] >= n_call:
             f = f * np.nan
         return f, t

@@ -145,6 +145,10 @@ def _node_scene(run: NodeRun, scene_file=None, sets=()):
         if run.scene_spec is None:
             raise ReplayError(f'{run.path}: the log holds no scene (metadata "scene"); give --scene')
         scene = Scene(apply_overrides(run.scene_spec, sets), base_dir=run.scene_base_dir)
+    if len(scene.needles) > 1:
+        raise ReplayError(f'{run.path}: the scene has {len(scene.needles)} needles ({", ".join(scene.needle_names)}); '
+                          "the engine trace holds the first needle's poses only, so a run with several "
+                          'needles cannot be replayed (the log itself reads as any other)')
     threads = run.threads or int(run.parameters.get('engine.threads') or 0) or \
         (1 if scene.mesh.n_elements < AUTO_THREADS_ELEMENTS else None)
     if threads:

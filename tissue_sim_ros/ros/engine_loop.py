@@ -15,6 +15,11 @@ Services reach the engine as requests run on its thread between advances (:meth:
 engine's state is only ever touched by one thread. Every advance, reset, ladder change and drop
 is written to the trace (:mod:`~tissue_sim_ros.ros.engine_trace`) the node records for replay.
 
+Several needles: ``other_inputs`` are the other needles' PoseInputs (their poses come through
+:meth:`submit` with the needle's index); each advance moves every needle to its interpolated
+pose (a needle with nothing buffered is held), toward the newest stamp of any of them. The trace
+holds the first needle's poses.
+
 With ``use_sim_time`` the node is lock-step instead: :meth:`tick` waits until the engine has
 simulated up to the tick (no wall-clock budget), so each wrench shows the state at its stamp.
 """
@@ -40,10 +45,11 @@ MAX_POSES_PER_CYCLE = 64
 class Snapshot:
     """The engine state a tick publishes (one of three buffers; see :class:`EngineLoop`)."""
 
-    def __init__(self, n_nodes: int):
+    def __init__(self, n_nodes: int, n_needles: int = 1):
         self.index = 0                       # advances done when it was taken
-        self.force = np.zeros(3)
-        self.torque = np.zeros(3)
+        self.forces = np.zeros((n_needles, 3))   # each needle's wrench; force, torque: the first's
+        self.torques = np.zeros((n_needles, 3))
+        self.force, self.torque = self.forces[0], self.torques[0]
         self.displacement = np.zeros((n_nodes, 3))
         self.time_s = 0.0
         self.phase = 'approach'
@@ -59,8 +65,8 @@ class _TripleBuffer:
     """The engine writes ``back``, :meth:`publish` makes it the newest; :meth:`latest` gives the
     publisher the newest, which the engine does not touch until the publisher asks again."""
 
-    def __init__(self, n_nodes: int):
-        self.slots = [Snapshot(n_nodes) for _ in range(3)]
+    def __init__(self, n_nodes: int, n_needles: int = 1):
+        self.slots = [Snapshot(n_nodes, n_needles) for _ in range(3)]
         self._back, self._ready, self._front = 0, 1, 2
         self._fresh = False
         self._lock = threading.Lock()
@@ -93,8 +99,9 @@ class EngineLoop:
 
     def __init__(self, driver, pose_input, *, period_s: float, now_ns, decode, log_once, log,
                  budget_fraction: float = 0.8, max_lag_s: float = 0.25, ladder=None,
-                 threads: int = 1, sim_time: bool = False, slow_down=None):
+                 threads: int = 1, sim_time: bool = False, slow_down=None, other_inputs=()):
         self.driver, self.input = driver, pose_input
+        self.other_inputs = list(other_inputs)
         self.pacing = EnginePacing(period_s, budget_fraction, max_lag_s, sim_time)
         self.ladder = ladder
         self.control = LadderControl(0 if ladder is None else ladder.bottom,
@@ -102,7 +109,8 @@ class EngineLoop:
         self.threads, self.sim_time, self.slow_down = int(threads), bool(sim_time), slow_down
         self._now_ns, self._decode, self._log_once, self._log = now_ns, decode, log_once, log
         self.receiver = PoseReceiver(limit=MAX_POSES_PER_CYCLE)
-        self._snapshots = _TripleBuffer(driver.scene.rest_positions.shape[0])
+        self.other_receivers = [PoseReceiver(limit=MAX_POSES_PER_CYCLE) for _ in self.other_inputs]
+        self._snapshots = _TripleBuffer(driver.scene.rest_positions.shape[0], 1 + len(self.other_inputs))
         self._trace: list = []
         self._receipts: deque = deque()          # (receipt ns, advance index) of accepted poses
         self._requests: deque = deque()
@@ -132,9 +140,10 @@ class EngineLoop:
         with self._cond:
             self._cond.notify_all()
 
-    def submit(self, receipt_ns: int, data: bytes) -> None:
-        """A received pose (bytes as received), for the engine's next cycle."""
-        self.receiver.add(receipt_ns, data)
+    def submit(self, receipt_ns: int, data: bytes, needle: int = 0) -> None:
+        """A received pose (bytes as received) of needle ``needle`` (its index), for the engine's
+        next cycle."""
+        (self.receiver if needle == 0 else self.other_receivers[needle - 1]).add(receipt_ns, data)
         self._wake.set()
 
     def tick(self, wait: bool = False, timeout_s: float = 10.0) -> None:
@@ -200,7 +209,7 @@ class EngineLoop:
         """Tissue at rest, needle at its initial pose (on the engine thread, traced)."""
         def job():
             self.driver.reset()
-            self.input.reset(self.driver.needle_pose)
+            self._reset_inputs()
             self.advances += 1                   # a new state (the trace's index)
             self._record(event_row(RESET, self.advances))
             self._publish_state()
@@ -237,11 +246,14 @@ class EngineLoop:
             return
         for receipt in self.receiver.decode_into(self.input, self._decode, self._log_once):
             self._receipts.append((receipt, self.advances + 1))
+        for receiver, other in zip(self.other_receivers, self.other_inputs):
+            receiver.decode_into(other, self._decode, self._log_once)
         if self.paused or self.driver.held:
             self.pacing.hold(now_ns)
         else:
-            newest = self.input.newest()
-            to_ns = self.pacing.target_ns(now_ns, None if newest is None else newest[0])
+            stamps = [newest[0] for newest in (i.newest() for i in [self.input] + self.other_inputs)
+                      if newest is not None]
+            to_ns = self.pacing.target_ns(now_ns, max(stamps) if stamps else None)
             advance_s = self.pacing.advance_s(to_ns)
             if advance_s > 0.0 or self.driver.behind:
                 self._advance(advance_s)
@@ -254,9 +266,10 @@ class EngineLoop:
     def _advance(self, advance_s: float) -> None:
         driver, pacing = self.driver, self.pacing
         target = self.input.pose_at(pacing.engine_clock_ns) or (None, None)
+        others = [other.pose_at(pacing.engine_clock_ns) for other in self.other_inputs] or None
         wall0, cpu0 = time.perf_counter(), time.thread_time()
         outcome = driver.advance(advance_s, target[0], target[1],
-                                 deadline=pacing.deadline(wall0))
+                                 deadline=pacing.deadline(wall0), others=others)
         if self.slow_down is not None:
             time.sleep(self.slow_down(outcome.substeps))
         simulated = outcome.substeps * driver.dt
@@ -285,7 +298,12 @@ class EngineLoop:
                 f'{self.driver.divergences})')
         self._log('error', f'simulation diverged: {exc}; on_divergence = {then}')
         if not self.driver.held:
-            self.input.reset(self.driver.needle_pose)
+            self._reset_inputs()
+
+    def _reset_inputs(self) -> None:
+        """Each needle's input forgets its poses; jumps are measured from where the needle is."""
+        for needle, pose_input in zip(self.driver.scene.needles, [self.input] + self.other_inputs):
+            pose_input.reset((needle.position.copy(), needle.orientation.copy()))
 
     def _step_ladder(self) -> None:
         control, pacing = self.control, self.pacing
@@ -319,8 +337,8 @@ class EngineLoop:
         driver, scene = self.driver, self.driver.scene
         snap = self._snapshots.back
         snap.index = self.advances
-        snap.force[:] = driver.force
-        snap.torque[:] = driver.torque
+        snap.forces[:] = driver.forces
+        snap.torques[:] = driver.torques
         np.copyto(snap.displacement, scene.displacement)
         snap.time_s = float(scene.time)
         snap.phase = str(scene.phase)

@@ -76,6 +76,14 @@ from tissue_sim_ros.units import NS_PER_S
 __all__ = ['NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'TissueSimNode', 'main']
 
 
+def needle_topics(names) -> list[tuple[str, str]]:
+    """(pose topic, wrench topic) per needle: needle/pose and needle/wrench for a scene with one
+    needle, needle/<name>/pose and needle/<name>/wrench for each of several."""
+    if len(names) == 1:
+        return [('needle/pose', 'needle/wrench')]
+    return [(f'needle/{name}/pose', f'needle/{name}/wrench') for name in names]
+
+
 def help_text() -> str:
     return _help_text(__doc__.split('\n\n')[0].strip())
 
@@ -108,6 +116,8 @@ class TissueSimNode(Node):
         threads = cfg.threads_for(self.scene.mesh.n_elements)
         self.scene.model.set_threads(threads)
         self.input = PoseInput(cfg.input_limits, reference_pose=self.scene.needle_pose)
+        self.other_inputs = [PoseInput(cfg.input_limits, reference_pose=(n.position.copy(), n.orientation.copy()))
+                             for n in self.scene.needles[1:]]
         self._sim_time = bool(self.get_parameter('use_sim_time').value)
         self._logged_kinds: set[str] = set()
         self.engine = EngineLoop(
@@ -115,12 +125,16 @@ class TissueSimNode(Node):
             decode=decode_pose, log_once=self._log_once, log=self._log,
             budget_fraction=cfg.budget_fraction, max_lag_s=cfg.max_lag_s,
             ladder=DegradationLadder(self.scene) if cfg.ladder else None, threads=threads,
-            sim_time=self._sim_time, slow_down=slow_down)
+            sim_time=self._sim_time, slow_down=slow_down, other_inputs=self.other_inputs)
         self._stats = NodeStats(cfg.publish_rate_hz)
         self.ticks, self._service_calls = 0, 0
         self._topology_version, self._marker = None, None
         self._positions = np.empty_like(self.scene.rest_positions)
-        self.wrench_pub = self.create_publisher(WrenchStamped, 'needle/wrench', WRENCH_QOS)
+        self.needle_topics = needle_topics(self.scene.needle_names)
+        self.wrench_pubs = [self.create_publisher(WrenchStamped, wrench, WRENCH_QOS) for _, wrench in self.needle_topics]
+        self.wrench_pub = self.wrench_pubs[0]
+        self._wrench_frames = [cfg.wrench_frame_id if len(self.wrench_pubs) == 1 or cfg.wrench_frame == 'world'
+                               else f'{cfg.wrench_frame_id}_{name}' for name in self.scene.needle_names]
         self.nodes_pub = self.create_publisher(PointCloud2, 'tissue/nodes', NODES_QOS)
         self.surface_pub = self.create_publisher(Mesh, 'tissue/surface', SURFACE_QOS)
         self.marker_pub = (self.create_publisher(Marker, 'tissue/marker', MARKER_QOS)
@@ -137,8 +151,14 @@ class TissueSimNode(Node):
         if cfg.prediction_workers >= 0:
             self._start_predictions(cfg)
         self.pose_qos = pose_qos(cfg.input_reliability)
-        self.pose_sub = self.create_subscription(PoseStamped, 'needle/pose', self._on_pose,
-                                                 self.pose_qos, raw=True)
+        self.pose_subs = [self.create_subscription(PoseStamped, pose, lambda data, k=k: self._on_pose(data, k),
+                                                   self.pose_qos, raw=True)
+                          for k, (pose, _) in enumerate(self.needle_topics)]
+        self.pose_sub = self.pose_subs[0]
+        self.declare_parameter('needles.names', self.scene.needle_names,
+                               ParameterDescriptor(description='the needles, from the scene file: each has '
+                                                   'needle/<name>/pose and /wrench when there are several',
+                                                   read_only=True))
         self.reset_srv = self.create_service(Trigger, '~/reset', self._on_reset)
         self.pause_srv = self.create_service(SetBool, '~/pause', self._on_pause)
         self.trace_topic = self.resolve_topic_name('~/engine_trace')
@@ -258,13 +278,13 @@ class TissueSimNode(Node):
             self._logged_kinds.add(kind)
             self._log(level, f'{text} (logged once for {kind}; counted in diagnostics)')
 
-    def _on_pose(self, data: bytes) -> None:
-        """A pose as received: recorded as is, handed to the engine."""
+    def _on_pose(self, data: bytes, needle: int = 0) -> None:
+        """A pose as received (of needle index ``needle``): recorded as is, handed to the engine."""
         wall0 = time.perf_counter()
         receipt_ns = self._now_ns()
         if self._recorder is not None:
-            self._recorder.write(self.pose_sub.topic_name, data, receipt_ns)
-        self.engine.submit(receipt_ns, data)
+            self._recorder.write(self.pose_subs[needle].topic_name, data, receipt_ns)
+        self.engine.submit(receipt_ns, data, needle)
         self._stats.input_s += time.perf_counter() - wall0
 
     def tick(self) -> None:
@@ -275,8 +295,8 @@ class TissueSimNode(Node):
         self._stats.tick_started(wall0)
         self.engine.tick(wait=self._sim_time)
         snap = self.engine.latest()
-        self._publish(self.wrench_pub, cv.wrench_msg(snap.force, snap.torque,
-                                                     self.config.wrench_frame_id, now_ns))
+        for k, publisher in enumerate(self.wrench_pubs):
+            self._publish(publisher, cv.wrench_msg(snap.forces[k], snap.torques[k], self._wrench_frames[k], now_ns))
         publish_ns = self._now_ns()
         if not snap.held:
             np.add(self.scene.rest_positions, snap.displacement, out=self._positions)
@@ -342,7 +362,9 @@ class TissueSimNode(Node):
     def diagnostics_statuses(self, now_ns: int) -> list:
         """The DiagnosticStatus tuples (name, level, message, values) of this moment."""
         return diagnostics_statuses(self.get_name(), now_ns, stats=self._stats, engine=self.engine,
-                                    pose_input=self.input, ticks=self.ticks, recorder=self._recorder) + \
+                                    pose_input=self.input, ticks=self.ticks, recorder=self._recorder,
+                                    needle_names=self.scene.needle_names,
+                                    other_inputs=zip(self.scene.needle_names[1:], self.other_inputs)) + \
             [targets_status(self.get_name(), self.scene.targets.names, self._target_figures)] + \
             ([] if self.predictions is None else [self.predictions.status(self.get_name())])
 

@@ -81,10 +81,14 @@ class NodeStats:
 
 
 def diagnostics_statuses(name: str, now_ns: int, *, stats: NodeStats, engine, pose_input,
-                         ticks: int, recorder=None) -> list:
-    """The DiagnosticStatus tuples (name, level, message, values) of this moment."""
+                         ticks: int, recorder=None, needle_names=('needle',), other_inputs=()) -> list:
+    """The DiagnosticStatus tuples (name, level, message, values) of this moment. With several
+    needles (``needle_names``; ``other_inputs``: (name, PoseInput) of all but the first) each
+    needle's input has a status ``input <name>`` (the others' bad poses counted since start)."""
+    first = f' {needle_names[0]}' if len(needle_names) > 1 else ''
     return [_engine_status(name, now_ns, stats, engine, ticks),
-            _input_status(name, now_ns, stats, pose_input)] + \
+            _input_status(name, now_ns, stats, pose_input, first)] + \
+        [_input_status(name, now_ns, stats, other, f' {needle}', 0) for needle, other in other_inputs] + \
         ([] if recorder is None else [_recording_status(name, recorder)])
 
 
@@ -154,10 +158,10 @@ def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
     return f'{name}: engine', level, state, values
 
 
-def _input_status(name, now_ns, stats, pose_input) -> tuple:
+def _input_status(name, now_ns, stats, pose_input, needle='', bad0=None) -> tuple:
     age = pose_input.age_s(now_ns)
     stale = pose_input.stale(now_ns)
-    bad_new = pose_input.bad_total - stats.window['bad0']
+    bad_new = pose_input.bad_total - (stats.window['bad0'] if bad0 is None else bad0)
     wall = max(time.perf_counter() - stats.window['wall0'], 1e-9)
     values = {'poses_received': pose_input.received, 'poses_accepted': pose_input.accepted,
               'last_pose_age_s': 'none yet' if age is None else age, 'stale': stale,
@@ -173,7 +177,7 @@ def _input_status(name, now_ns, stats, pose_input) -> tuple:
         level, message = 'OK', 'no pose yet: the needle holds its initial pose'
     else:
         level, message = 'OK', 'receiving'
-    return f'{name}: input', level, message, values
+    return f'{name}: input{needle}', level, message, values
 
 
 def _recording_status(name, recorder) -> tuple:

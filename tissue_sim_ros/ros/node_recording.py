@@ -28,18 +28,21 @@ def every_kth_tick(publish_rate_hz: float, rate_hz: float) -> int:
 def node_log_topics(node, qos_to_dict) -> list:
     """(resolved topic, ROS type, QoS dict) of every channel of the node's log: its publishers
     (tissue/targets only for a scene with targets: nothing is published on it otherwise), its
-    pose subscription and its two services' event topics."""
-    entities = {'needle/wrench': (node.wrench_pub, WRENCH_QOS),
-                'tissue/nodes': (node.nodes_pub, NODES_QOS),
+    pose subscriptions (one per needle) and its two services' event topics."""
+    needles = {}
+    for (pose, wrench), pose_sub, wrench_pub in zip(node.needle_topics, node.pose_subs, node.wrench_pubs):
+        needles[wrench] = (wrench_pub, WRENCH_QOS, NODE_TOPIC_TYPES['needle/wrench'])
+        needles[pose] = (pose_sub, node.pose_qos, NODE_TOPIC_TYPES['needle/pose'])
+    entities = {'tissue/nodes': (node.nodes_pub, NODES_QOS),
                 'tissue/surface': (node.surface_pub, SURFACE_QOS),
                 'tissue/marker': (node.marker_pub, MARKER_QOS),
                 'tissue/targets': (node.targets_pub if len(node.scene.targets) else None, NODES_QOS),
                 '/diagnostics': (node.diagnostics_pub, DIAGNOSTICS_QOS),
-                'needle/pose': (node.pose_sub, node.pose_qos),
                 'plan/candidate': (node.candidate_sub, PLAN_QOS),
                 'plan/prediction': (node.prediction_pub, PLAN_QOS)}
-    topics = [(entity.topic_name, NODE_TOPIC_TYPES[name], qos_to_dict(profile))
-              for name, (entity, profile) in entities.items() if entity is not None]
+    entities = {name: (entity, profile, NODE_TOPIC_TYPES[name]) for name, (entity, profile) in entities.items()}
+    topics = [(entity.topic_name, type_name, qos_to_dict(profile))
+              for entity, profile, type_name in [*needles.values(), *entities.values()] if entity is not None]
     topics.append((node.trace_topic, TRACE_TYPE, qos_to_dict(WRENCH_QOS)))
     return topics + [(node._event_topic(srv), type_name, qos_to_dict(SERVICE_EVENT_QOS))
                      for srv, type_name in ((node.reset_srv, 'std_srvs/srv/Trigger_Event'),

@@ -28,6 +28,10 @@ Topics (relative names; remap with ``--ros-args -r``), all reliable:
 ``/diagnostics``     diagnostic_msgs/DiagnosticArray  out, ``diagnostics_rate_hz``
 ==================== ================================ ===================================
 
+A scene with several needles (scene key ``needles``) has ``needle/<name>/pose`` and
+``needle/<name>/wrench`` per needle instead of ``needle/pose`` and ``needle/wrench``
+(``tissue_sim_ros.ros.node.needle_topics``).
+
 The surface is transient local so that a late subscriber gets the mesh it needs to read the cloud.
 """
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
