@@ -138,3 +138,31 @@ def test_the_readme_planner_gets_its_answer(harness, monkeypatch, capfd):
     # the path ends 16 mm below the start, whose tip is 9 mm above the surface: 7 mm deep
     assert printed['tip_depth_m'] == pytest.approx(0.007, abs=2e-5)
     assert abs(printed['force_z_n']) > 0.05
+
+
+def test_max_error_runs_predictions_on_the_cheapest_rung_within_it(harness):
+    from tissue_sim_ros.engine.degradation_ladder import DegradationLadder
+    h = harness(**{'prediction.workers': 1, 'prediction.threads': 1, 'prediction.max_error': 1.0})
+    ladder = h.node.engine.ladder
+    deadline = time.monotonic() + 60
+    while ladder.predicted_errors is None or None in ladder.predicted_errors:
+        assert time.monotonic() < deadline, "the ladder's errors were not measured"
+        time.sleep(0.05)
+    bottom = ladder.rungs[-1]
+    status = h.diagnostics_now()['tissue_sim: predictions'][2]
+    assert status['settings'] == (f'non-linearity threshold {bottom.threshold:g}, mass scaling '
+                                  f'{ladder.base_mass_scaling * bottom.mass_factor:g}')
+    publisher, answers = _listen(h)
+    start = h.scene.needle_pose[0]
+    publisher.publish(_candidate(start, 2.6, 300.0))
+    _wait(answers, 1)
+    # the engine's prediction from rest on the bottom rung's settings (the tolerance as above)
+    scene = make_scene()
+    DegradationLadder(scene).set_level(len(ladder.rungs) - 1)
+    stamps = np.arange(53) * STEP_S
+    positions = start - np.outer(SPEED * stamps, [0.0, 0.0, 1.0])
+    expected = predict(scene, check_path(stamps, positions, np.tile(DOWN, (53, 1)), max_jump_m=0.005),
+                       wrench_frame=h.node.config.wrench_frame)
+    values = np.array([list(p.positions) for p in answers[0].points])
+    scale = np.abs(expected.values[:, :3]).max()
+    np.testing.assert_allclose(values[:, :3], expected.values[:, :3], rtol=0, atol=0.03 * scale)

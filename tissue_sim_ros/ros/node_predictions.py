@@ -54,13 +54,14 @@ __doc__ = __doc__.format(niceness=WORKER_NICENESS)
 
 
 def auto_workers(workers: int, threads: int) -> tuple[int, int]:
-    """(worker processes, numba threads each) for the parameters (0 = auto): as many workers as
-    cores less the live engine's one (at least 1), and those cores shared among them. (A worker
-    with a thread on the engine's core runs its parallel loops at the pace of the thread the
-    engine preempts: 1.3x real time instead of 4x on 2 cores, measured.)"""
-    cores = len(os.sched_getaffinity(0))
-    workers = workers or max(1, cores - 1)
-    return workers, threads or max(1, (cores - 1) // workers)
+    """(worker processes, numba threads each) for the parameters (0 = auto): the cores less the
+    live engine's one, one worker per 4 of them (at least 1: a planner waits for one answer, so
+    threads make it sooner; several workers answer a burst in parallel), shared among them. (A
+    worker with a thread on the engine's core runs its parallel loops at the pace of the thread
+    the engine preempts: 1.3x real time instead of 2.9x on 2 cores, measured.)"""
+    spare = max(1, len(os.sched_getaffinity(0)) - 1)
+    workers = workers or max(1, spare // 4)
+    return workers, threads or max(1, spare // workers)
 
 
 def _snapshot_directory() -> Path:

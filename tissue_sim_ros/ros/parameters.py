@@ -93,10 +93,10 @@ PARAMETERS = (
            'still published every tick. 0 = not recorded', 0.0, 1000.0),
     _Param('recording.prefix', 'tissue_sim', 'log file name prefix (<prefix>_<UTC start>.mcap)'),
     _Param('prediction.workers', 0, 'worker processes answering plan/candidate (at a lower '
-           'priority than the live engine); 0 = auto: the cores less one, at least 1; -1 = '
-           'predictions off (no subscription)', -1, 256),
+           'priority than the live engine); 0 = auto: one per 4 cores beyond the engine\'s, at '
+           'least 1; -1 = predictions off (no subscription)', -1, 256),
     _Param('prediction.threads', 0, 'numba threads of each prediction worker; 0 = auto: the '
-           'cores shared among the workers', 0, 256),
+           "cores beyond the engine's shared among the workers", 0, 256),
     _Param('prediction.prestart', True, 'start the workers with the node (their first answer at '
            'full speed); false: at the first request'),
     _Param('prediction.max_error', 0.0, 'predictions run on the cheapest degradation-ladder rung '
