@@ -85,3 +85,23 @@ def test_a_reset_puts_every_needle_back():
 def test_bad_needle_lists_are_refused_by_name(needles, words):
     with pytest.raises(SceneError, match=words):
         Scene.from_file(None, mesh={'generator': 'box', 'divisions': [4, 4, 3]}, needles=needles)
+
+
+def test_a_prediction_moves_the_first_needle_and_reports_the_others_held():
+    """From a state with the fixation needle in the tissue, a path that takes the biopsy needle
+    in beside it: the fixation's wrench is a column, equal to the live run continued."""
+    from tissue_sim_ros.engine.prediction import check_path
+    scene, _ = _run(TWO, [(10.0, 10.0), (0.0, 3.0)], 3.0)
+    driver = SimulationDriver(scene)
+    start, q = scene.needle_pose
+    times = np.arange(0.0, 3.0 + 1e-9, TICK)
+    positions = start + (SPEED * times)[:, None] * DOWN
+    prediction = driver.predict(check_path(times, positions, np.tile(q, (times.size, 1)), max_jump_m=0.005))
+    assert prediction.columns[-6:] == [f'needle/fixation/{c}' for c in
+                                       ('force_x_n', 'force_y_n', 'force_z_n', 'torque_x_nm', 'torque_y_nm', 'torque_z_nm')]
+    live = [driver.forces[1].copy()]
+    for k in range(1, times.size):
+        driver.advance(TICK, positions[k], q)
+        live.append(driver.forces[1].copy())
+    np.testing.assert_allclose(prediction.values[:, -6:-3], live, rtol=0, atol=1e-9)
+    assert abs(prediction.values[-1, -4] - prediction.values[0, -4]) > 0.05   # felt the push beside it

@@ -81,6 +81,7 @@ class SimulationDriver:
         self.torques = np.zeros((len(scene.needles), 3))
         self.force, self.torque = self.forces[0], self.torques[0]   # the first needle's (views)
         self._deformed = np.empty_like(scene.rest_positions)
+        self._take_finite_wrenches()         # a scene given mid-run: its wrench from the start
 
     # -- the clock ---------------------------------------------------------------------------
 
@@ -211,6 +212,10 @@ class SimulationDriver:
         rest state's (zeros if that is not finite: never a NaN out of a reset)."""
         self.scene.reset()
         self.held = False
+        self._take_finite_wrenches()
+
+    def _take_finite_wrenches(self) -> None:
+        """Each needle's wrench of the state as it is, zeros where it is not finite."""
         for k in range(len(self.scene.needles)):
             force, torque = self.scene.reaction_wrench(self.wrench_frame, k)
             finite = np.all(np.isfinite(force)) and np.all(np.isfinite(torque))

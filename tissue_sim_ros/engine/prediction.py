@@ -9,7 +9,8 @@ every array and every piece of needle state goes with it, so a prediction contin
 the live scene would under the same poses (bit for bit: test_prediction), and the live scene is
 never touched. The snapshot is bytes, so it travels to a worker process as is.
 
-A path (:class:`CandidatePath`) is times from its first pose [s] and base poses; its first pose is
+A path moves the scene's first needle; in a scene with several, the others hold still and their
+wrenches are columns too. A path (:class:`CandidatePath`) is times from its first pose [s] and base poses; its first pose is
 where the needle is now (within the jump limit: a planner's idea of "now" may be a tick old), and
 the needle then moves linearly (slerp for the orientation) from each pose to the next, as the
 live node moves between received poses. :func:`check_path` refuses, naming the pose and value:
@@ -44,10 +45,12 @@ WRENCH_COLUMNS = ('force_x_n', 'force_y_n', 'force_z_n', 'torque_x_nm', 'torque_
 DEFAULT_MAX_DURATION_S = 60.0
 
 
-def prediction_columns(target_names) -> list[str]:
-    """The prediction's columns: :data:`WRENCH_COLUMNS`, then each target's displacement from
-    its rest position [m]."""
-    return list(WRENCH_COLUMNS) + [f'target/{name}/displacement_m' for name in target_names]
+def prediction_columns(target_names, other_needles=()) -> list[str]:
+    """The prediction's columns: :data:`WRENCH_COLUMNS` (of the needle the path moves), each
+    target's displacement from its rest position [m], then, in a scene with several needles,
+    each other needle's wrench (``needle/<name>/force_x_n``...; they hold still)."""
+    return list(WRENCH_COLUMNS) + [f'target/{name}/displacement_m' for name in target_names] + \
+        [f'needle/{name}/{column}' for name in other_needles for column in WRENCH_COLUMNS[:6]]
 
 
 @dataclass
@@ -190,17 +193,18 @@ def predict(scene, path: CandidatePath, *, wrench_frame: str = 'world', copy: bo
     driver = SimulationDriver(scene, wrench_frame=wrench_frame, on_divergence='raise')
     driver.take_state()               # the wrench of the state as it is (no step, no pose set)
     names = scene.targets.names
-    columns = prediction_columns(names)
+    columns = prediction_columns(names, scene.needle_names[1:])
     values = np.empty((len(path), len(columns)))
     phases = []
     rest = scene.targets.rest
-    w = len(WRENCH_COLUMNS)
+    w, t = len(WRENCH_COLUMNS), len(WRENCH_COLUMNS) + len(names)
 
     def sample(k, drv):
         values[k, 0:3], values[k, 3:6] = drv.force, drv.torque
         values[k, 6] = scene.tip_depth
         if names:
-            values[k, w:] = np.linalg.norm(scene.target_positions() - rest, axis=1)
+            values[k, w:t] = np.linalg.norm(scene.target_positions() - rest, axis=1)
+        values[k, t:] = np.hstack([drv.forces[1:], drv.torques[1:]]).ravel()
         phases.append(str(scene.phase))
 
     sample(0, driver)

@@ -202,6 +202,7 @@ class TissueSimNode(Node):
         self.predictions = PredictionService(
             self.engine, frame_id=cfg.frame_id, wrench_frame=cfg.wrench_frame,
             wrench_frame_id=cfg.wrench_frame_id, target_names=self.scene.targets.names,
+            other_needles=self.scene.needle_names[1:],
             max_jump_m=min(cfg.input_limits.max_jump_m, geometry.max_jump_m), length_m=geometry.length_m,
             max_duration_s=cfg.prediction_max_duration_s, workers=cfg.prediction_workers,
             threads=cfg.prediction_threads, publish=lambda msg: self._publish(self.prediction_pub, msg),

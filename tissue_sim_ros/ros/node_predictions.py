@@ -139,11 +139,11 @@ class PredictionService:
     predictions run at (prediction.max_error)."""
 
     def __init__(self, engine, *, frame_id: str, wrench_frame: str, wrench_frame_id: str, target_names,
-                 max_jump_m: float, length_m: float, max_duration_s: float, workers: int, threads: int,
+                 max_jump_m: float, other_needles=(), length_m: float, max_duration_s: float, workers: int, threads: int,
                  publish, log_once, decode=None, rung=lambda: (None, None), prestart: bool = True):
         self.engine, self.frame_id, self.wrench_frame = engine, frame_id, wrench_frame
         self.wrench_frame_id = wrench_frame_id
-        self.columns = prediction_columns(target_names)
+        self.columns = prediction_columns(target_names, other_needles)
         self.max_jump_m, self.length_m, self.max_duration_s = max_jump_m, length_m, max_duration_s
         self.workers, self.threads = auto_workers(workers, threads)
         self._publish, self._log_once, self._rung = publish, log_once, rung
