@@ -488,6 +488,18 @@ def test_console_script_refuses_impossible_values(tmp_path, param, words):
         assert word in r.stderr, r.stderr
 
 
+def _children(pid):
+    tasks = Path(f'/proc/{pid}/task')
+    return sorted({int(c) for task in tasks.iterdir() for c in (task / 'children').read_text().split()})
+
+
+def _cmdline(pid):
+    try:
+        return Path(f'/proc/{pid}/cmdline').read_bytes().decode(errors='replace')
+    except OSError:
+        return ''
+
+
 def test_sigkill_loses_at_most_the_open_chunk(tmp_path, scene_file):
     """After a hard kill the log has no summary, but every chunk closed so far is intact: with
     recording.chunk_interval_s = 0.5 at most about that much is lost (plus the writer queue)."""
@@ -498,11 +510,17 @@ def test_sigkill_loses_at_most_the_open_chunk(tmp_path, scene_file):
     try:
         client.wait_ready(proc)
         time.sleep(3.0)
+        children = _children(proc.pid)        # the prediction workers (prediction.prestart)
+        assert any('spawn_main' in _cmdline(pid) for pid in children), children
         proc.kill()
         proc.wait(timeout=10)
         killed_at = time.monotonic()
         time.sleep(0.3)
         received = client.get('wrench')
+        deadline = time.monotonic() + 5.0     # the workers see their node gone within a second
+        while any(Path(f'/proc/{pid}').exists() and 'spawn_main' in _cmdline(pid) for pid in children):
+            assert time.monotonic() < deadline, f'prediction workers {children} outlived the killed node'
+            time.sleep(0.1)
     finally:
         if proc.poll() is None:
             proc.kill()

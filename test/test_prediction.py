@@ -143,10 +143,10 @@ def test_predict_command_writes_its_four_files(tmp_path):
     with open(out / 'prediction.csv') as f:
         table = list(csv.DictReader(f))
     assert len(table) == stamps.size
-    direct = predict(scene, check_path(stamps, positions, orientations, max_jump_m=0.005))
+    direct = predict(scene, check_path(stamps, positions, orientations, max_jump_m=0.005), wrench_frame='needle')
     np.testing.assert_allclose([float(r['force_z_n']) for r in table], direct.column('force_z_n'), atol=1e-6)
     summary = json.loads((out / 'prediction.json').read_text())
-    assert summary['points'] == stamps.size
+    assert summary['points'] == stamps.size and summary['wrench_frame'] == 'needle'
     assert summary['peak_force_n'] == pytest.approx(np.linalg.norm(prediction.values[:, :3], axis=1).max())
     assert summary['real_time_factor'] > 0 and math.isfinite(summary['real_time_factor'])
     assert (out / 'prediction.png').stat().st_size > 10_000

@@ -230,7 +230,7 @@ def _column(text):
 
 def _predict(args):
     from tissue_sim_ros.analysis.predict import main
-    main(args.scene, args.path, args.out, sets=args.set)
+    main(args.scene, args.path, args.out, sets=args.set, wrench_frame=args.wrench_frame)
 
 
 def _replay(args):
@@ -391,6 +391,8 @@ def build_parser():
                          help='CSV of the needle base poses: t, x, y, z, qx, qy, qz, qw (s, m; the first '
                               "pose the scene's initial one; example: config/candidate_path.csv)")
     _add_scene_sets(predict)
+    predict.add_argument('--wrench-frame', choices=['needle', 'world'], default='needle',
+                         help="the force and torque's frame (default needle, as the node's wrench.frame_id)")
     predict.add_argument('--out', type=_output_dir, default='out/predict',
                          help='output directory for prediction.csv, .png, .md, .json (default: out/predict)')
     predict.set_defaults(run=_predict)

@@ -80,7 +80,7 @@ def run_insertion(scene, speed, travel, *, hold_s=0.0, tick=0.02, retract=True, 
             target_distance[k], target_miss[k], _ = scene.targets_relative_to_needle()
         if progress is not None and drv.time >= next_report[0]:
             elapsed = time.perf_counter() - wall0
-            print(f'  t = {drv.time:6.2f} s  depth {depths[k] * 1e3:6.2f} mm  axial '
+            print(f'  t = {drv.time:6.2f} s  travel {depths[k] * 1e3:6.2f} mm  axial '
                   f'{-float(np.dot(drv.force, axis)):7.3f} N  {drv.scene.phase:<10}  real-time factor '
                   f'{drv.time / elapsed:5.2f}', file=progress, flush=True)
             next_report[0] += 1.0

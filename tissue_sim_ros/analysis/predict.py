@@ -7,7 +7,8 @@ any other columns are accepted and ignored), its first pose the scene's initial 
 (``config/candidate_path.csv`` is a 10 s example on the default scene). Writes into ``--out``:
 ``prediction.csv`` (one row per pose: time from start, the prediction's columns, the phase),
 ``prediction.png`` (force, tip depth and target displacements against time), ``prediction.md``
-and ``prediction.json`` (figures and the speed: wall time and real-time factor).
+and ``prediction.json`` (figures and the speed: wall time and real-time factor). The wrench is in
+the needle frame by default, as the node's (``--wrench-frame world`` for the world frame).
 """
 from __future__ import annotations
 
@@ -59,7 +60,7 @@ def read_path_csv(path):
     return values[:, 0], values[:, 1:4], values[:, 4:8]
 
 
-def write_prediction(prediction, out: Path, *, title: str) -> None:
+def write_prediction(prediction, out: Path, *, title: str, wrench_frame: str = 'needle') -> None:
     """prediction.csv and prediction.png of a Prediction."""
     with open(out / 'prediction.csv', 'w', newline='') as f:
         writer = csv.writer(f)
@@ -74,7 +75,7 @@ def write_prediction(prediction, out: Path, *, title: str) -> None:
     fig, axes = plt.subplots(2 + bool(targets), 1, figsize=(7, 6 + 2 * bool(targets)), sharex=True)
     for j, axis in enumerate('xyz'):
         axes[0].plot(t, prediction.column(f'force_{axis}_n'), label=f'force {axis}')
-    axes[0].set_ylabel('force on the needle [N]')
+    axes[0].set_ylabel(f'force on the needle [N]\n({wrench_frame} frame)')
     axes[0].legend(fontsize=8)
     axes[0].set_title(title)
     axes[1].plot(t, prediction.column('tip_depth_m') * 1e3, color='k')
@@ -109,9 +110,10 @@ def _figures(prediction) -> dict:
     return figures
 
 
-def main(scene_file, path_file, out, *, sets=(), stream=None):
+def main(scene_file, path_file, out, *, sets=(), wrench_frame='needle', stream=None):
     """The command: read the path, predict from the scene at rest, write the four outputs, print
-    the figures (the speed among them). Returns the Prediction."""
+    the figures (the speed among them). ``wrench_frame``: 'needle' (the node's default
+    wrench.frame_id) or 'world'. Returns the Prediction."""
     from tissue_sim_ros.engine.driver import SimulationDriver
     from tissue_sim_ros.engine.prediction import check_path
     from tissue_sim_ros.engine.scene import Scene
@@ -127,15 +129,18 @@ def main(scene_file, path_file, out, *, sets=(), stream=None):
     print(f'scene {scene_file or "(default liver sample)"}: {scene.mesh.n_elements} tetrahedra, '
           f'dt = {scene.dt * 1e3:.3f} ms; path {path_file}: {len(path)} poses over {path.duration_s:g} s',
           file=stream)
-    prediction = SimulationDriver(scene).predict(path)
+    prediction = SimulationDriver(scene, wrench_frame=wrench_frame).predict(path)
     figures = _figures(prediction)
-    write_prediction(prediction, out, title=f'prediction of {Path(path_file).name}')
-    summary = {'scene': str(scene_file) if scene_file else None, 'path': str(path_file), 'sets': list(sets),
+    write_prediction(prediction, out, title=f'prediction of {Path(path_file).name}', wrench_frame=wrench_frame)
+    summary = {'scene': str(scene_file) if scene_file else 'default (config/liver_sample.yaml)',
+               'path': str(path_file), 'sets': list(sets), 'wrench_frame': wrench_frame,
                'tetrahedra': int(scene.mesh.n_elements), 'columns': prediction.columns, **figures}
     (out / 'prediction.json').write_text(json.dumps(summary, indent=2))
     lines = [f'# Prediction of {Path(path_file).name}', '',
              f'Scene: {scene_file or "the default liver sample"} ({scene.mesh.n_elements} tetrahedra)'
-             + (f', with {", ".join(sets)}' if sets else '') + '.', '',
+             + (f', with {", ".join(sets)}' if sets else '') + f'. Force and torque in the {wrench_frame} '
+             'frame (as the node answers with wrench.frame_id = ' + ('needle' if wrench_frame == 'needle'
+                                                                    else 'its frame_id') + ').', '',
              '| figure | value |', '|---|---|',
              f'| poses | {figures["points"]} over {figures["simulated_s"]:g} s |',
              f'| peak force | {figures["peak_force_n"]:.4g} N |',
@@ -145,7 +150,7 @@ def main(scene_file, path_file, out, *, sets=(), stream=None):
              f'| answered in | {figures["wall_s"]:.3g} s wall, {figures["real_time_factor"]:.3g}x real time |',
              '', 'Files: prediction.csv (one row per pose), prediction.png, prediction.json.', '']
     (out / 'prediction.md').write_text('\n'.join(lines))
-    for line in lines[6:-2]:
+    for line in lines[6:-3]:
         print('  ' + line.strip('|').replace(' | ', ': ').strip(), file=stream)
     print(f'wrote {out / "prediction.csv"}, .png, .md and .json', file=stream)
     return prediction

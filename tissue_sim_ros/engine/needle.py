@@ -88,7 +88,8 @@ class NeedleTissue(MembraneContact):
     scene's RegionSelectors (where the layers are; None: each element's region is its own).
     """
 
-    def __init__(self, simulation, element_region, regions, geometry, position, orientation, selectors=None):
+    def __init__(self, simulation, element_region, regions, geometry, position, orientation, selectors=None,
+                 name='needle'):
         self.simulation = simulation
         self.selectors = selectors
         self.mesh = simulation.model.mesh
@@ -149,9 +150,9 @@ class NeedleTissue(MembraneContact):
         #: run the inside step as one compiled call (False: the general path, the same kernels)
         self.compiled_inside = True
         self._mass_generation = 0
-        self._initial_pose = validate_pose(position, orientation, 'needle.initial_pose')
+        self._initial_pose = validate_pose(position, orientation, f'{name}.initial_pose')
         self.reset()
-        self._check_outside(*self._initial_pose, 'needle.initial_pose')
+        self._check_outside(*self._initial_pose, f'{name}.initial_pose')
 
     # -- set-up --------------------------------------------------------------------------------
     def _surface_owner(self):
@@ -241,7 +242,7 @@ class NeedleTissue(MembraneContact):
             element, _ = locate_point(self.rest, disp, self.tetrahedra, point, 1e-9 * size)
             if element >= 0:
                 raise NeedleInputError(field_name, {'position': position.tolist(), 'orientation': orientation.tolist()},
-                                       f'the needle starts inside the tissue (point {point.tolist()} m '
+                                       f'the needle starts inside the tissue (point {np.round(point, 6).tolist()} m '
                                        f'lies in element {element}); start it outside')
 
     # -- pose -----------------------------------------------------------------------------------

@@ -214,13 +214,14 @@ class Scene:
             _check_time_step(self.simulation, sol)
             interactions = [_region_interaction(r) for r in s['regions']]
             self.needle_names, self.needles = [], []
-            for name, n in needle_sections(s):
+            for i, (name, n) in enumerate(needle_sections(s)):
                 geometry = NeedleGeometry(n['diameter_m'], n['length_m'], n['shaft_point_spacing_m'],
                                           n['max_jump_m'], _tip_shape(n['tip']))
                 self.needle_names.append(name)
                 self.needles.append(NeedleTissue(self.simulation, element_region, interactions, geometry,
                                                  _start_position(self.mesh, n), n['initial_orientation_xyzw'],
-                                                 selectors=self.selectors))
+                                                 selectors=self.selectors,
+                                                 name=f'needles[{i}]' if s['needles'] else 'needle'))
             self.needle = self.needles[0]
             self.targets = Targets(self.mesh.rest_positions, self.mesh.tetrahedra, s['targets'])
         except SceneError:

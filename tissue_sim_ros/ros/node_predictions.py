@@ -105,12 +105,19 @@ def prediction_msg(stamp, frame_id: str, columns, prediction=None) -> JointTraje
     return msg
 
 
-def _start_worker(niceness: int) -> None:
-    """A worker's start: lower priority, the engine's modules loaded."""
+def _start_worker(niceness: int, parent_pid: int) -> None:
+    """A worker's start: lower priority, a watch on the node (a worker whose node is gone, even
+    by SIGKILL, exits within a second instead of living on), the engine's modules loaded."""
     try:
         os.nice(niceness)
     except OSError:
         pass
+
+    def watch_parent():
+        while os.getppid() == parent_pid:
+            time.sleep(1.0)
+        os._exit(0)
+    threading.Thread(target=watch_parent, name='tissue_sim-prediction-parent-watch', daemon=True).start()
     from tissue_sim_ros.engine.warm_up import warm_up
     warm_up()
 
@@ -291,7 +298,7 @@ class PredictionService:
         with self._pool_lock:
             if self._pool is None:
                 self._pool = ProcessPoolExecutor(self.workers, multiprocessing.get_context('spawn'),
-                                                 initializer=_start_worker, initargs=(WORKER_NICENESS,))
+                                                 initializer=_start_worker, initargs=(WORKER_NICENESS, os.getpid()))
             return self._pool
 
     def _warm(self) -> None:
