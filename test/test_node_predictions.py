@@ -156,13 +156,17 @@ def test_max_error_runs_predictions_on_the_cheapest_rung_within_it(harness):
     start = h.scene.needle_pose[0]
     publisher.publish(_candidate(start, 2.6, 300.0))
     _wait(answers, 1)
-    # the engine's prediction from rest on the bottom rung's settings (the tolerance as above)
-    scene = make_scene()
-    DegradationLadder(scene).set_level(len(ladder.rungs) - 1)
+    # the engine's predictions from rest on the bottom rung's settings and as configured: the answer
+    # is nearer the first (not pointwise: the node's clock may shift the puncture by a step, which
+    # leaves the answer 0.1 from the bottom rung's, against 0.3 from the configured one's)
+    values = np.array([list(p.positions) for p in answers[0].points])[:, :3]
     stamps = np.arange(53) * STEP_S
     positions = start - np.outer(SPEED * stamps, [0.0, 0.0, 1.0])
-    expected = predict(scene, check_path(stamps, positions, np.tile(DOWN, (53, 1)), max_jump_m=0.005),
-                       wrench_frame=h.node.config.wrench_frame)
-    values = np.array([list(p.positions) for p in answers[0].points])
-    scale = np.abs(expected.values[:, :3]).max()
-    np.testing.assert_allclose(values[:, :3], expected.values[:, :3], rtol=0, atol=0.03 * scale)
+    distance = []
+    for level in (len(ladder.rungs) - 1, 0):
+        scene = make_scene()
+        DegradationLadder(scene).set_level(level)
+        expected = predict(scene, check_path(stamps, positions, np.tile(DOWN, (53, 1)), max_jump_m=0.005),
+                           wrench_frame=h.node.config.wrench_frame).values[:, :3]
+        distance.append(np.sqrt(np.mean((values - expected) ** 2)) / np.abs(expected).max())
+    assert distance[0] < 0.6 * distance[1], distance

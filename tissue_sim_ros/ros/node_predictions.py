@@ -169,8 +169,11 @@ class PredictionService:
         self._decode = decode
         self._received: queue.SimpleQueue = queue.SimpleQueue()
         threading.Thread(target=self._intake, name='tissue_sim-prediction-intake', daemon=True).start()
-        if prestart:
-            threading.Thread(target=self._warm, name='tissue_sim-prediction-start', daemon=True).start()
+        if prestart:       # the state at start, copied before the engine thread runs (no race)
+            start = self._directory / 'start.snapshot'
+            write_snapshot(engine.driver.scene, start)
+            threading.Thread(target=self._warm, args=(start, engine.driver.needle_pose),
+                             name='tissue_sim-prediction-start', daemon=True).start()
 
     # -- the executor's thread ---------------------------------------------------------------------
 
@@ -301,13 +304,12 @@ class PredictionService:
                                                  initializer=_start_worker, initargs=(WORKER_NICENESS, os.getpid()))
             return self._pool
 
-    def _warm(self) -> None:
+    def _warm(self, snapshot, pose) -> None:
         """Start the workers and load the scene's kernels in each (a two-pose path from the
-        state at start), so the first request is answered at full speed."""
+        state at start, ``snapshot``, the needle at ``pose``), so the first request is answered
+        at full speed."""
         try:
-            snapshot = self._directory / 'start.snapshot'
-            write_snapshot(self.engine.driver.scene, snapshot)
-            position, orientation = self.engine.driver.needle_pose
+            position, orientation = pose
             path = check_path([0.0, 0.01], [position, position], [orientation, orientation],
                               max_jump_m=self.max_jump_m)
             pool = self._ensure_pool()
