@@ -24,6 +24,7 @@ cheapest degradation-ladder rung whose measured error (engine.ladder_probe) is w
 """
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import queue
@@ -108,10 +109,8 @@ def prediction_msg(stamp, frame_id: str, columns, prediction=None) -> JointTraje
 def _start_worker(niceness: int, parent_pid: int) -> None:
     """A worker's start: lower priority, a watch on the node (a worker whose node is gone, even
     by SIGKILL, exits within a second instead of living on), the engine's modules loaded."""
-    try:
+    with contextlib.suppress(OSError):        # not allowed here: the worker runs at the node's priority
         os.nice(niceness)
-    except OSError:
-        pass
 
     def watch_parent():
         while os.getppid() == parent_pid:

@@ -1,0 +1,55 @@
+"""tissue-sim's commands that run or drive the node as a process: drive and node-bench (the
+parsers and their handlers; the argument types are cli's)."""
+import sys
+
+
+def _drive(args):
+    from tissue_sim_ros.cli import _depth_below_surface
+    from tissue_sim_ros.ros.drive import run_drive
+    depth = _depth_below_surface(args, args.start_height_mm, None, args.scene_file)
+    code = run_drive(args.speed_mm_s, depth, start_height_mm=args.start_height_mm,
+                     rate_hz=args.rate_hz, hold_s=args.hold_s, scene_file=args.scene_file)
+    if code:
+        sys.exit(code)
+
+
+def _node_bench(args):
+    from tissue_sim_ros.analysis import node_bench
+    node_bench.run(duration_s=args.duration_s, rate_hz=args.rate_hz, scene_file=args.scene_file,
+                   out=args.out, threads=args.threads, executor=args.executor, load=args.load,
+                   predictions=args.predictions, prediction_s=args.prediction_s)
+
+
+def add_node_commands(commands):
+    """Add ``drive`` and ``node-bench`` to the subparsers ``commands``."""
+    from tissue_sim_ros.cli import (_NON_NEGATIVE, _POSITIVE, _add_travel_or_depth, _input_file, _number,
+                                    _output_dir)
+    drive = commands.add_parser('drive', help='publish a scripted needle insertion and retraction on needle/pose')
+    drive.add_argument('--speed-mm-s', type=_POSITIVE, required=True, help='needle speed [mm/s]')
+    _add_travel_or_depth(drive, default_help='one of the two is required')
+    drive.add_argument('--start-height-mm', type=_NON_NEGATIVE, default=None,
+                       help="tip height above the surface at the start [mm] (default: the scene's)")
+    drive.add_argument('--rate-hz', type=_POSITIVE, default=100.0, help='pose rate [Hz] (default 100)')
+    drive.add_argument('--hold-s', type=_NON_NEGATIVE, default=0.5, help='pause at full depth [s] (default 0.5)')
+    drive.add_argument('--scene-file', type=_input_file, default=None, help="scene the node runs (default: the packaged one)")
+    drive.set_defaults(run=_drive)
+    node_bench = commands.add_parser('node-bench', help='run the node as a process and print its timing figures')
+    node_bench.add_argument('--duration-s', type=_number(1, inclusive=True), default=20.0,
+                            help='measured run length [s], at least 1 (default 20)')
+    node_bench.add_argument('--rate-hz', type=_POSITIVE, default=100.0, help='pose rate [Hz] (default 100)')
+    node_bench.add_argument('--scene-file', type=_input_file, default=None, help='scene (default: the packaged one)')
+    node_bench.add_argument('--threads', type=_number(0, inclusive=True, whole=True), default=None,
+                            help="the node's engine.threads (default: its parameter file's; 0 = auto)")
+    node_bench.add_argument('--executor', choices=['events', 'single_threaded'], default=None,
+                            help="the node's executor (default: its parameter file's)")
+    node_bench.add_argument('--out', type=_output_dir, default=None,
+                            help='keep the MCAP log and a JSON of the figures here')
+    node_bench.add_argument('--load', type=_number(0, inclusive=True, whole=True), default=0, metavar='N',
+                            help='run N busy processes and one listening ROS client (wrench, cloud) '
+                                 'beside the node (default 0: none)')
+    node_bench.add_argument('--predictions', type=_number(0, inclusive=True, whole=True), default=0, metavar='N',
+                            help='send N candidate paths on plan/candidate at once, 1 s into the window, '
+                                 'and report how fast they are answered (default 0: none)')
+    node_bench.add_argument('--prediction-s', type=_POSITIVE, default=10.0,
+                            help='length of each candidate path [s] (default 10)')
+    node_bench.set_defaults(run=_node_bench)
