@@ -33,7 +33,7 @@ def _scene():
 def _down(scene, start_s, seconds, t0=0.0):
     """A straight path down the needle axis at SPEED, a pose per tick, from the pose the needle
     reaches after ``start_s`` of the same motion."""
-    p0, q = scene.needle.initial_pose
+    p0, q = scene.initial_needle_pose
     axis = scene.needle.axis
     t = np.arange(0.0, seconds + 1e-9, TICK)
     positions = p0 + ((start_s + t) * SPEED)[:, None] * axis

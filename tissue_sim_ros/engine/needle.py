@@ -163,11 +163,6 @@ class NeedleTissue(MembraneContact):
         self.surface_owner = face_elements(self.tetrahedra, triangles, self.mesh.n_nodes)
         self._neighbours = element_neighbours(self.tetrahedra, self.mesh.n_nodes)
 
-    @property
-    def initial_pose(self):
-        """(position, orientation) the needle starts from and a reset returns it to (copies)."""
-        return self._initial_pose[0].copy(), self._initial_pose[1].copy()
-
     def reset(self):
         """Needle back at its initial pose, out of the tissue, no forces."""
         self.position, self.orientation = (a.copy() for a in self._initial_pose)

@@ -376,9 +376,14 @@ class Scene:
     @property
     def start_gap_m(self):
         """Tip to tissue surface along the axis at the needle's initial pose [m] (rest mesh)."""
-        position, orientation = self.needle.initial_pose
+        position, orientation = self.initial_needle_pose
         axis = needle_axis(orientation)
         return surface_gap(self.mesh, position + self.needle.geometry.length_m * axis, axis)
+
+    @property
+    def initial_needle_pose(self):
+        """(position, orientation) the first needle starts from and a reset returns it to (copies)."""
+        return tuple(a.copy() for a in self.needle._initial_pose)
 
     @property
     def needle_pose(self):
