@@ -181,7 +181,10 @@ class TissueSimNode(Node):
             f'({self.scene.mesh.n_elements} tetrahedra, {threads} engine thread(s), budget '
             f'{100 * cfg.budget_fraction:.0f} % of a tick); wrench in {cfg.wrench_frame_id!r}, '
             f'mesh in {cfg.frame_id!r}' + (f'; recording to {self._recorder.path}' if self._recorder
-                                           else '; not recording'))
+                                           else '; not recording') +
+            ('; predictions off' if self.predictions is None else
+             f'; predictions on plan/candidate: {self.predictions.workers} worker(s) x '
+             f'{self.predictions.threads} thread(s)'))
 
     def _start_predictions(self, cfg) -> None:
         ladder = self.engine.ladder
@@ -386,6 +389,8 @@ class TissueSimNode(Node):
                 timer.cancel()
         if self.predictions is not None:
             self.predictions.close()
+            self.get_logger().info(f'predictions: {self.predictions.answered} answered, '
+                                   f'{self.predictions.refused} with no points')
         if self.engine is not None:
             self.engine.stop()
         if self._recorder is not None:
