@@ -12,12 +12,12 @@ import pytest
 
 rclpy = pytest.importorskip('rclpy')
 
-from geometry_msgs.msg import PoseStamped  # noqa: E402
 from nav_msgs.msg import Path  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory  # noqa: E402
 
 from test_node import DOMAIN_ID, DOWN, harness, make_scene  # noqa: E402,F401 - the fixture
 from tissue_sim_ros.engine.prediction import check_path, predict  # noqa: E402
+from tissue_sim_ros.ros.node_predictions import path_msg  # noqa: E402
 from tissue_sim_ros.ros.topics import PLAN_QOS  # noqa: E402
 
 SPEED = 0.004
@@ -32,18 +32,12 @@ def _private_ros(monkeypatch):
 
 def _candidate(start, seconds, stamp_s, *, nan_at=None, frame_id='world'):
     """A path straight down from ``start`` at SPEED, a pose every STEP_S, stamped from stamp_s."""
-    msg = Path()
-    msg.header.frame_id = frame_id
-    msg.header.stamp.sec = int(stamp_s)
-    for i in range(int(round(seconds / STEP_S)) + 1):
-        pose = PoseStamped()
-        t = stamp_s + i * STEP_S
-        pose.header.stamp.sec, pose.header.stamp.nanosec = int(t), int(round((t - int(t)) * 1e9))
-        pose.pose.position.x, pose.pose.position.y = float(start[0]), float(start[1])
-        pose.pose.position.z = float('nan') if i == nan_at else float(start[2] - SPEED * i * STEP_S)
-        pose.pose.orientation.x, pose.pose.orientation.w = float(DOWN[0]), float(DOWN[3])
-        msg.poses.append(pose)
-    return msg
+    t = np.arange(int(round(seconds / STEP_S)) + 1) * STEP_S
+    positions = np.asarray(start, dtype=float) - np.outer(SPEED * t, [0.0, 0.0, 1.0])
+    if nan_at is not None:
+        positions[nan_at, 2] = np.nan
+    return path_msg(int(stamp_s * 1e9) + np.round(t * 1e9).astype(np.int64), positions,
+                    np.tile(DOWN, (t.size, 1)), frame_id)
 
 
 def _listen(h):

@@ -13,6 +13,13 @@ import threading
 import time
 
 import numpy as np
+from nav_msgs.msg import Path
+from trajectory_msgs.msg import JointTrajectory
+
+from tissue_sim_ros.engine.pose import needle_axis
+from tissue_sim_ros.ros.conversions import stamp_to_ns
+from tissue_sim_ros.ros.node_predictions import path_msg
+from tissue_sim_ros.ros.topics import PLAN_QOS
 
 __all__ = ['POSE_EVERY_S', 'PredictionBurst']
 
@@ -24,10 +31,6 @@ class PredictionBurst:
     :meth:`start`; ``current_pose()`` -> (position (3,), orientation (4,), frame_id)."""
 
     def __init__(self, client, count: int, *, path_s: float = 10.0, speed_m_s: float = 0.001):
-        from nav_msgs.msg import Path
-        from trajectory_msgs.msg import JointTrajectory
-
-        from tissue_sim_ros.ros.topics import PLAN_QOS
         self.count, self.path_s, self.speed_m_s = int(count), float(path_s), float(speed_m_s)
         self.sent_at: dict[int, float] = {}          # request stamp (ns) -> send time
         self.answers: dict[int, tuple[float, int]] = {}  # request stamp -> (receive time, points)
@@ -37,7 +40,6 @@ class PredictionBurst:
         self._thread = None
 
     def _on_answer(self, msg) -> None:
-        from tissue_sim_ros.ros.conversions import stamp_to_ns
         with self._lock:
             self.answers[stamp_to_ns(msg.header.stamp)] = (time.monotonic(), len(msg.points))
 
@@ -46,7 +48,6 @@ class PredictionBurst:
             time.sleep(delay_s)
             position, orientation, frame_id = current_pose()
             for msg in self.requests(position, orientation, frame_id, time.time_ns()):
-                from tissue_sim_ros.ros.conversions import stamp_to_ns
                 self.sent_at[stamp_to_ns(msg.header.stamp)] = time.monotonic()
                 self.publisher.publish(msg)
         self._thread = threading.Thread(target=send, name='prediction-burst', daemon=True)
@@ -54,26 +55,12 @@ class PredictionBurst:
 
     def requests(self, position, orientation, frame_id: str, now_ns: int) -> list:
         """The burst's Path messages, stamped 1 ms apart from ``now_ns``."""
-        from geometry_msgs.msg import PoseStamped
-        from nav_msgs.msg import Path
-
-        from tissue_sim_ros.engine.pose import needle_axis
-        from tissue_sim_ros.ros.conversions import header, ns_to_stamp
         axis = needle_axis(np.asarray(orientation, dtype=float))
         offsets = np.arange(0.0, self.path_s + 1e-9, POSE_EVERY_S)
-        messages = []
-        for r in range(self.count):
-            stamp_ns = now_ns + r * 1_000_000
-            msg = Path(header=header(frame_id, stamp_ns))
-            for t in offsets:
-                pose = PoseStamped(header=header(frame_id, ns_to_stamp(stamp_ns + int(round(t * 1e9)))))
-                p = np.asarray(position, dtype=float) + self.speed_m_s * t * axis
-                pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = (float(c) for c in p)
-                q = pose.pose.orientation
-                q.x, q.y, q.z, q.w = (float(c) for c in orientation)
-                msg.poses.append(pose)
-            messages.append(msg)
-        return messages
+        positions = np.asarray(position, dtype=float) + np.outer(self.speed_m_s * offsets, axis)
+        orientations = np.tile(np.asarray(orientation, dtype=float), (offsets.size, 1))
+        return [path_msg(now_ns + r * 1_000_000 + np.round(offsets * 1e9).astype(np.int64), positions,
+                         orientations, frame_id) for r in range(self.count)]
 
     def wait(self, timeout_s: float) -> None:
         """Until every request is answered, or ``timeout_s``."""

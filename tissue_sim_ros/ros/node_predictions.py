@@ -38,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 from builtin_interfaces.msg import Duration
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path as PathMsg
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from tissue_sim_ros.engine.pose import NeedleInputError, pose_jump
@@ -47,7 +49,7 @@ from tissue_sim_ros.engine.solver import SimulationDiverged
 from tissue_sim_ros.ros.conversions import header, stamp_to_ns
 from tissue_sim_ros.units import NS_PER_S
 
-__all__ = ['WORKER_NICENESS', 'PredictionService', 'path_arrays', 'prediction_msg', 'auto_workers']
+__all__ = ['WORKER_NICENESS', 'PredictionService', 'path_arrays', 'path_msg', 'prediction_msg', 'auto_workers']
 
 #: How much lower the workers' scheduling priority is than the node's (os.nice).
 WORKER_NICENESS = 10
@@ -89,14 +91,26 @@ def path_arrays(msg, frame_id: str):
     return stamps, positions, orientations
 
 
+def path_msg(stamps_ns, positions, orientations, frame_id: str) -> PathMsg:
+    """A nav_msgs/Path of base poses (the inverse of :func:`path_arrays`), stamped with
+    ``stamps_ns`` [ns], the path's header with the first: what a planner sends."""
+    msg = PathMsg(header=header(frame_id, int(stamps_ns[0])))
+    for stamp_ns, p, q in zip(stamps_ns, positions, orientations):
+        pose = PoseStamped(header=header(frame_id, int(stamp_ns)))
+        pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = (float(c) for c in p)
+        o = pose.pose.orientation
+        o.x, o.y, o.z, o.w = (float(c) for c in q)
+        msg.poses.append(pose)
+    return msg
+
+
 def prediction_msg(stamp, frame_id: str, columns, prediction=None) -> JointTrajectory:
     """The answer: the request's stamp, the columns as joint names, a point per pose (none when
-    ``prediction`` is None: refused). Refuses a non-finite value (never publish NaN)."""
+    ``prediction`` is None: refused). The caller has refused a non-finite prediction
+    (:meth:`PredictionService._answer`: never publish NaN)."""
     msg = JointTrajectory(header=header(frame_id, stamp), joint_names=list(columns))
     if prediction is None:
         return msg
-    if not np.isfinite(prediction.values).all():
-        raise ValueError('the prediction has non-finite values; refusing to publish NaN or inf')
     points = []
     for t, row in zip(prediction.time_from_start_s, prediction.values):
         sec, nanosec = divmod(int(round(float(t) * NS_PER_S)), NS_PER_S)
