@@ -14,3 +14,13 @@ def user_cache_dir(name: str) -> str | None:
     if not os.path.isabs(base):
         base = os.path.join(os.path.expanduser('~'), '.cache')
     return os.path.join(base, 'tissue_sim_ros', name) if os.path.isabs(base) else None
+
+
+def scene_cache_entry(name: str, text: str):
+    """(directory, key) of the cache entry for a scene: the directory for ``name`` (a temporary
+    one without a home; not created here) and the first 20 hex digits of the sha256 of the
+    scene's complete text (``scene_yaml``, mesh files absolute: the key is where it points)."""
+    import hashlib
+    import tempfile
+    where = user_cache_dir(name) or os.path.join(tempfile.gettempdir(), f'tissue_sim_ros_{name}')
+    return where, hashlib.sha256(text.encode()).hexdigest()[:20]

@@ -189,7 +189,7 @@ def _insertion_job(job: dict) -> dict:
     row.update(failure='', wall_s=result.wall_time, sim_time_s=sim_time, steps=int(result.steps),
                cost_s_per_sim_s=result.wall_time / sim_time,
                tet_steps_per_s=scene.mesh.n_elements * result.steps / result.wall_time,
-               axial_force=result.axial_force.tolist(),
+               axial_force=result.axial_force.tolist(), inertia_error_estimate=result.inertia_error,
                puncture_depth_m=(result.puncture_events[0]['tip_depth_m'] if result.puncture_events else None))
     return row
 
@@ -291,7 +291,8 @@ def run_chart(scene_file=None, sets=(), *, quick=False, speed=0.005, travel=0.01
 
 _CSV_COLUMNS = ('task', 'model', 'mesh', 'tetrahedra', 'integrator', 'time_step_s', 'mass_scaling', 'damping_per_s',
                 'cost_s_per_sim_s',
-                'tet_steps_per_s', 'core_share_at_50hz', 'error', 'peak_force_error', 'puncture_depth_error_mm', 'pareto', 'reference',
+                'tet_steps_per_s', 'core_share_at_50hz', 'error', 'inertia_error_estimate', 'peak_force_error',
+                'puncture_depth_error_mm', 'pareto', 'reference',
                 'failure', 'overrides')
 
 

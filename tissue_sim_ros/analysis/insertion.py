@@ -36,6 +36,8 @@ class InsertionResult:
     target_tip_distance: np.ndarray = None  # (k, n_targets) m, needle tip to target
     target_lateral_miss: np.ndarray = None  # (k, n_targets) m, target to the needle's line
     target_positions_at_rest: np.ndarray = None  # (n_targets, 3) m
+    inertia_error: float = None     # the mass scaling's estimated force NRMSE (engine.inertia_estimate)
+    inertia_rms_n: float = 0.0      # the same in N
 
     @property
     def real_time_factor(self):
@@ -91,7 +93,8 @@ def run_insertion(scene, speed, travel, *, hold_s=0.0, tick=0.02, retract=True, 
                            -(samples.force @ axis), samples.phase, np.array(retracting),
                            list(scene.puncture_events), time.perf_counter() - wall0,
                            samples.substeps, scene.dt, tuple(scene.targets.names), target_positions,
-                           target_distance, target_miss, scene.targets.rest.copy())
+                           target_distance, target_miss, scene.targets.rest.copy(),
+                           driver.inertia.error, driver.inertia.rms_n)
 
 
 def target_columns(names) -> list[str]:
@@ -134,6 +137,8 @@ def main(scene_file, speed_mm_s, out, *, travel_mm=None, depth_mm=None, hold_s=0
     stream = sys.stdout if stream is None else stream
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    # the speed of the run is the one a `solver.mass_scaling: auto` is chosen for
+    sets = [f'solver.design_speed_m_s={speed_mm_s * 1e-3!r}'] + list(sets)
     scene = Scene.from_file(scene_file, sets=sets, **(overrides or {}))
     if (travel_mm is None) == (depth_mm is None):
         raise ValueError('give one of travel_mm (tip travel) and depth_mm (depth below the surface)')
@@ -169,5 +174,7 @@ def main(scene_file, speed_mm_s, out, *, travel_mm=None, depth_mm=None, hold_s=0
     print(f'peak axial force {result.axial_force.max():.3f} N; simulated {result.time[-1]:.2f} s in '
           f'{result.wall_time:.2f} s wall: real-time factor {result.real_time_factor:.2f} '
           f'({result.steps} steps)', file=stream)
+    from tissue_sim_ros.engine.inertia_estimate import inertia_line
+    print(inertia_line(scene.simulation.mass_scaling, result.inertia_error, result.inertia_rms_n), file=stream)
     print(f'wrote {out / "insertion.csv"} and {out / "insertion.png"}', file=stream)
     return result

@@ -115,20 +115,16 @@ def auto_spec(spec: dict, base_dir='.', *, quiet=False) -> dict:
     choices, from the per-user cache (``recommendations/<hash of the keys>.yaml``), else found now
     by the quick chart (minutes, said on stderr) and cached. The recommendation is for this
     machine: its costs decided it."""
-    import hashlib
-    import tempfile
-
     import yaml
 
     from tissue_sim_ros.engine.scene import scene_yaml
-    from tissue_sim_ros.user_cache import user_cache_dir
+    from tissue_sim_ros.user_cache import scene_cache_entry
     tolerance = spec['model']['auto_tolerance']
     base = json.loads(json.dumps(spec))
     base['model']['auto'] = False
-    text = scene_yaml(base, base_dir)          # mesh files made absolute: the key is where it points
-    key = hashlib.sha256(text.encode()).hexdigest()[:20]
-    where = user_cache_dir('recommendations')
-    cache = Path(where) if where else Path(tempfile.gettempdir()) / 'tissue_sim_ros_recommendations'
+    text = scene_yaml(base, base_dir)
+    where, key = scene_cache_entry('recommendations', text)
+    cache = Path(where)
     cached = cache / f'{key}.yaml'
     if cached.exists():
         return yaml.safe_load(cached.read_text())

@@ -17,7 +17,10 @@ checks its health itself. The driver owns:
   reaches the caller);
 - the last finite wrench and the deformed positions, in arrays allocated once; with several
   needles (``scene.needles``) one wrench per needle (``forces``, ``torques``; ``force`` and
-  ``torque`` are the first needle's), ``others`` giving the other needles' poses.
+  ``torque`` are the first needle's), ``others`` giving the other needles' poses;
+- the estimate of the force error the mass scaling adds (``inertia``, an
+  :class:`~tissue_sim_ros.engine.inertia_estimate.InertiaEstimate` on the first needle's axis,
+  updated after every advance, restarted by a reset), which every run reports.
 
 A pose schedule (times, positions, orientations) is followed by :meth:`follow`, which samples the
 wrench at each waypoint: the form the insertion, replay and prediction commands use.
@@ -29,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tissue_sim_ros.engine.inertia_estimate import InertiaEstimate
 from tissue_sim_ros.engine.needle import NeedleInputError
 from tissue_sim_ros.engine.solver import SimulationDiverged
 
@@ -81,7 +85,9 @@ class SimulationDriver:
         self.torques = np.zeros((len(scene.needles), 3))
         self.force, self.torque = self.forces[0], self.torques[0]   # the first needle's (views)
         self._deformed = np.empty_like(scene.rest_positions)
+        self.inertia = InertiaEstimate()
         self._take_finite_wrenches()         # a scene given mid-run: its wrench from the start
+        self._update_inertia(0.0)
 
     # -- the clock ---------------------------------------------------------------------------
 
@@ -130,6 +136,7 @@ class SimulationDriver:
         scene = self.scene
         if position is None or orientation is None:
             position, orientation = scene.needle_pose
+        start = scene.time
         try:
             try:
                 outcome.substeps = scene.advance(duration, position, orientation, deadline, max_steps, others)
@@ -141,6 +148,7 @@ class SimulationDriver:
                                                  deadline, max_steps)
             self.take_state()
             self.simulated_s += duration
+            self._update_inertia(scene.time - start)
         except SimulationDiverged as exc:
             outcome.diverged = exc
             self._diverged(exc)
@@ -213,6 +221,14 @@ class SimulationDriver:
         self.scene.reset()
         self.held = False
         self._take_finite_wrenches()
+        self.inertia.reset()
+        self._update_inertia(0.0)
+
+    def _update_inertia(self, elapsed: float) -> None:
+        needle = self.scene.needle
+        axis = needle.axis
+        self.inertia.update(self.scene.simulation, elapsed, axis,
+                            -float(np.dot(needle.wrench_force, axis)))
 
     def _take_finite_wrenches(self) -> None:
         """Each needle's wrench of the state as it is, zeros where it is not finite."""

@@ -183,6 +183,12 @@ class Scene:
             from tissue_sim_ros.analysis.recommend import auto_spec
             self.recommended_from = self.spec
             self.spec = apply_schema('', auto_spec(self.spec, base_dir), SCHEMA)
+        self.mass_scaling_rule = None
+        if self.spec['solver']['mass_scaling'] == 'auto':
+            # the rule probes the scene's insertion (analysis.mass_scaling_rule); cached
+            from tissue_sim_ros.analysis.mass_scaling_rule import auto_mass_scaling
+            chosen, self.mass_scaling_rule = auto_mass_scaling(self.spec, base_dir)
+            self.spec['solver']['mass_scaling'] = chosen
         self.text = text
         self.base_dir = Path(base_dir)
         self.mesh_frame_id = mesh_frame_id
@@ -204,8 +210,6 @@ class Scene:
                                          inversion_safeguard=m['inversion_safeguard'],
                                          relaxation=m['relaxation'], precision=m['precision'])
             sol = s['solver']
-            if sol['mass_scaling'] < 1:
-                raise SceneError(f"solver.mass_scaling = {sol['mass_scaling']!r}: expected >= 1")
             self.simulation = Simulation(self.model, damping=sol['damping_per_s'],
                                          fixed=_fixed_nodes(self.mesh, s['boundary']['fixed']),
                                          dt=sol['time_step_s'], time_step_safety=sol['time_step_safety'],

@@ -35,7 +35,8 @@ def check_targets(entries, name):
 
 # -- the schema: key -> (default, kind, meaning) -----------------------------------------------
 # kinds: 'float+' (> 0), 'float0' (>= 0), 'float', 'int+', 'bool', 'vec3', 'vec3+', 'quat',
-# 'str', a tuple of allowed strings, 'floats' (list of numbers), a MappingList, or a nested dict.
+# 'str', 'scaling' (a number >= 1 or 'auto'), a tuple of allowed strings, 'floats' (list of
+# numbers), a MappingList, or a nested dict.
 SCHEMA = {
     'mesh': {
         'generator': ('graded_box', ('box', 'graded_box', 'file'), 'how the tetrahedral mesh is made'),
@@ -137,7 +138,15 @@ SCHEMA = {
         'time_step_s': (None, 'float+', 'time step [s]; null: time_step_safety x the explicit critical step'),
         'time_step_safety': (0.8, 'float+', 'fraction of the critical step used when time_step_s is null'),
         'damping_per_s': (50.0, 'float0', 'mass-proportional damping rate [1/s]'),
-        'mass_scaling': (1.0, 'float+', 'factor on node masses for quasi-static runs (>= 1)'),
+        'mass_scaling': (1.0, 'scaling', 'factor on node masses for quasi-static runs (>= 1; every run '
+                                         'prints its estimated inertia error); auto: the largest whose '
+                                         'estimated inertia error on the scene\'s insertion at '
+                                         'design_speed_m_s is within inertia_error_bound (probed once, '
+                                         'cached; analysis.mass_scaling_rule)'),
+        'inertia_error_bound': (0.02, 'float+', 'mass_scaling auto: the estimated force NRMSE allowed (it '
+                                                'under-reads puncture shifts: README)'),
+        'design_speed_m_s': (0.005, 'float+', 'mass_scaling auto: the needle speed it is chosen for [m/s] '
+                                              '(tissue-sim insert sets its own)'),
     },
     'needle': {
         'diameter_m': (0.0024, 'float+', 'needle diameter [m]'),
@@ -186,6 +195,12 @@ def _check_value(name, value, kind):
         if not isinstance(value, bool):
             fail('true or false')
         return value
+    if kind == 'scaling':
+        if value == 'auto':
+            return value
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 1:
+            fail("a factor >= 1 or 'auto'")
+        kind = 'float+'
     if kind in ('float', 'float+', 'float0'):
         v = number(value)
         if kind == 'float+' and not v > 0:

@@ -393,6 +393,10 @@ class TissueSimNode(Node):
                                    f'{self.predictions.refused} with no points')
         if self.engine is not None:
             self.engine.stop()
+            from tissue_sim_ros.engine.inertia_estimate import inertia_line
+            inertia = self.engine.driver.inertia
+            self.get_logger().info(inertia_line(self.engine.driver.scene.simulation.mass_scaling,
+                                                inertia.error, inertia.rms_n))
         if self._recorder is not None:
             path = self._recorder.path
             self._recorder.close()
