@@ -15,13 +15,15 @@ The estimate is that force, smoothed (exponential average, time constant SMOOTHI
 over the run relative to the range of the axial force: the force NRMSE that ``compare`` and
 ``chart`` measure. One pass over the nodes per advance (a_i over the advance), no allocation.
 
-Why weighted and smoothed, measured against runs at lower mass scaling: the plain momentum
-balance (all of b on the needle) over-estimated 4x on a small sample whose walls carry most of
-it (0.014 against a measured 0.0037 at s = 100, 10 mm/s; weighted 0.0141); the ringing after a
-puncture is in the unscaled tissue too (faster, same energy) and unsmoothed dominated the
-estimate at small s (0.010 at s = 25 on the default scene at 3 mm/s, measured 0.0035; smoothed
-0.0047). Figures and commands: README. It is a first-order estimate, not a bound: where the
-scaled run leaves the unscaled one's path (s x speed large, a puncture moved) it under-reads.
+Why weighted and smoothed, measured against runs without mass scaling on a small sample (3 mm
+at 10 mm/s, test_inertia_estimate.py): the plain momentum balance (all of b on the needle) read
+0.054 at s = 100 against a measured 0.0145, because the walls carry most of it (weighted:
+0.0141); unsmoothed, the ringing, which the unscaled tissue has too, raised it to 0.0053 and
+0.0198 at s = 25 and 100 (measured 0.0027 and 0.0145; smoothed 0.0037 and 0.0141). It is a
+first-order estimate, not a bound: on the default insertion it reads about half the error
+measured away from the punctures (0.0016 against 0.0030 at s = 25, 0.014 against 0.020 at 400),
+and where the scaled run leaves the unscaled one's path (s x speed large, a puncture moved in
+time) it sees nothing of that. Figures and commands: README.
 """
 from __future__ import annotations
 
@@ -62,7 +64,7 @@ class InertiaEstimate:
 
     ``update`` after each advance with the simulated time it covered and the needle's axis and
     axial force; ``error`` is the rms added force over the range of the axial force (None
-    before two updates or while the force has no range); ``rms_n`` and ``peak_n`` in newtons.
+    before two updates or while the force has no range); ``rms_n`` in newtons.
     With mass scaling 1 everything stays 0. A change of the mass scaling (the node's ladder)
     restarts the acceleration, not the statistics.
     """
@@ -76,7 +78,6 @@ class InertiaEstimate:
         self._smoothed = 0.0
         self._sum_squares = 0.0
         self._duration = 0.0
-        self.peak_n = 0.0
         self._low = math.inf
         self._high = -math.inf
 
@@ -100,7 +101,6 @@ class InertiaEstimate:
         self._smoothed += (added - self._smoothed) * -math.expm1(-elapsed / SMOOTHING_S)
         self._sum_squares += self._smoothed * self._smoothed * elapsed     # time-weighted
         self._duration += elapsed
-        self.peak_n = max(self.peak_n, abs(self._smoothed))
 
     @property
     def rms_n(self) -> float:
