@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from test_needle import small_scene
-from tissue_sim_ros.analysis.mass_scaling_rule import MAX_PROBES, choose_mass_scaling
+from tissue_sim_ros.analysis.mass_scaling_rule import MAX_PROBES, MAX_SCALING, choose_mass_scaling
 from tissue_sim_ros.engine.driver import SimulationDriver
 from tissue_sim_ros.engine.inertia_estimate import InertiaEstimate, weighted_body_force
 
@@ -102,27 +102,47 @@ def test_the_rule_finds_the_largest_scaling_within_the_bound(exponent):
 
 
 def test_the_rule_steps_down_from_a_failing_or_too_large_start():
-    chosen, probes = choose_mass_scaling(lambda s: math.inf if s > 4 else 0.001 * (s - 1), 0.02)
-    assert probes[0]['estimate'] == math.inf and chosen == 1.0
+    chosen, probes = choose_mass_scaling(lambda s: math.inf if s > 4 else 0.001 * (s - 1), 0.02, lowest=4.0)
+    assert probes[0]['error'] == math.inf and chosen == 4.0
     chosen, probes = choose_mass_scaling(lambda s: 0.01 * (s - 1), 0.02)     # crossing at 3
     assert probes[0]['mass_scaling'] == 16.0 and 2.5 <= chosen <= 3.0
+    chosen, probes = choose_mass_scaling(lambda s: 0.0, 0.02)                # no error at all: the cap
+    assert chosen == MAX_SCALING and len(probes) == 2
 
 
 def test_auto_scene_takes_the_rule_and_caches_it(tmp_path, monkeypatch):
-    """`solver.mass_scaling: auto` on the small sample: the mass scaling of the last probe within
-    the bound, its time step the critical step's fraction at it; a second load takes the cache
-    (no probe runs)."""
+    """`solver.mass_scaling: auto` on the small sample: the mass scaling of the largest probe within
+    the bound, whose error measured afresh against the reference scaling is the recorded one; its
+    time step the critical step's fraction at it; a second load takes the cache (no probe runs)."""
+    from tissue_sim_ros.analysis.chart import force_nrmse, make_job, simulate_job
+    from tissue_sim_ros.analysis.mass_scaling_rule import REFERENCE_SCALING
     monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path))
     solver = {'mass_scaling': 'auto', 'design_speed_m_s': 0.01}
     region = {'membrane': {'criterion': 'force', 'rupture_force_n': 0.3}}
     scene = small_scene(solver=solver, region=region)
     record = scene.mass_scaling_rule
-    within = [p for p in record['probes'] if p['estimate'] <= record['inertia_error_bound']]
-    assert scene.simulation.mass_scaling == max(p['mass_scaling'] for p in within) > 1.0
-    assert any(p['estimate'] > 0.5 * record['inertia_error_bound'] for p in within)
+    within = [p for p in record['probes'] if p['error'] <= record['inertia_error_bound']]
+    chosen = scene.simulation.mass_scaling
+    assert chosen == max(p['mass_scaling'] for p in within) > REFERENCE_SCALING
+    assert any(p['error'] > record['inertia_error_bound'] for p in record['probes'])   # it found the edge
     assert scene.dt == pytest.approx(0.8 * scene.simulation.critical_time_step(), rel=1e-9)
+
+    scene_file = next(tmp_path.rglob('*-scene.yaml'))
+    rows = [simulate_job(make_job(dict(model='scene', mesh='scene', integrator='explicit', reference=False,
+                                       overrides=[f'solver.mass_scaling={s!r}']), scene_file, (), speed=0.01))
+            for s in (REFERENCE_SCALING, chosen)]
+    measured = force_nrmse(rows[1]['axial_force'], rows[0]['axial_force'])
+    assert measured == pytest.approx(next(p['error'] for p in within if p['mass_scaling'] == chosen), rel=1e-9)
+    assert measured <= record['inertia_error_bound']
 
     import tissue_sim_ros.analysis.chart as chart
     monkeypatch.setattr(chart, 'simulate_job', lambda job: pytest.fail('probed again'))
     again = small_scene(solver=solver, region=region)
-    assert again.simulation.mass_scaling == scene.simulation.mass_scaling
+    assert again.simulation.mass_scaling == chosen
+
+
+def test_the_rule_bisects_to_an_error_that_jumps():
+    """A puncture moved by the scaling makes the error jump: 0.01 below s = 60, 0.06 above. The
+    probes end within 10 % below the jump."""
+    chosen, probes = choose_mass_scaling(lambda s: 0.01 if s < 60 else 0.06, 0.02, lowest=4.0)
+    assert chosen < 60 and chosen >= 0.9 * 60 / 1.1, probes

@@ -20,10 +20,12 @@ at 10 mm/s, test_inertia_estimate.py): the plain momentum balance (all of b on t
 0.054 at s = 100 against a measured 0.0145, because the walls carry most of it (weighted:
 0.0141); unsmoothed, the ringing, which the unscaled tissue has too, raised it to 0.0053 and
 0.0198 at s = 25 and 100 (measured 0.0027 and 0.0145; smoothed 0.0037 and 0.0141). It is a
-first-order estimate, not a bound: on the default insertion it reads about half the error
-measured away from the punctures (0.0016 against 0.0030 at s = 25, 0.014 against 0.020 at 400),
-and where the scaled run leaves the unscaled one's path (s x speed large, a puncture moved in
-time) it sees nothing of that. Figures and commands: README.
+first-order estimate that reads low where it matters: on the default insertion it reads about half
+the error measured away from the punctures (0.0016 against 0.0030 at s = 25, 0.014 against 0.020
+at 400), and where the scaled run leaves the unscaled one's path (s x speed large, a puncture
+moved in time) it sees nothing of that: on the chart's 12 mm insertion it reads a quarter to a
+third of the measured error. ``solver.mass_scaling: auto`` measures instead
+(:mod:`tissue_sim_ros.analysis.mass_scaling_rule`). Figures and commands: README.
 """
 from __future__ import annotations
 
@@ -120,4 +122,4 @@ def inertia_line(mass_scaling, error, rms_n) -> str:
         return 'mass scaling 1: no inertia error added'
     text = 'not estimated (no force range)' if error is None else f'{error:.3f} of the axial force range'
     return (f'mass scaling {mass_scaling:g}: estimated inertia error {text} (rms {rms_n * 1e3:.1f} mN '
-            f'added by the scaled inertia and damping, first order: README)')
+            f'added by the scaled inertia and damping; first order, it reads low: README)')

@@ -140,11 +140,10 @@ SCHEMA = {
         'damping_per_s': (50.0, 'float0', 'mass-proportional damping rate [1/s]'),
         'mass_scaling': (1.0, 'scaling', 'factor on node masses for quasi-static runs (>= 1; every run '
                                          'prints its estimated inertia error); auto: the largest whose '
-                                         'estimated inertia error on the scene\'s insertion at '
-                                         'design_speed_m_s is within inertia_error_bound (probed once, '
+                                         "force NRMSE on the scene's insertion at design_speed_m_s, "
+                                         'against 4x, is within inertia_error_bound (probed once, '
                                          'cached; analysis.mass_scaling_rule)'),
-        'inertia_error_bound': (0.02, 'float+', 'mass_scaling auto: the estimated force NRMSE allowed (it '
-                                                'under-reads puncture shifts: README)'),
+        'inertia_error_bound': (0.02, 'float+', 'mass_scaling auto: the force NRMSE the mass scaling may add'),
         'design_speed_m_s': (0.005, 'float+', 'mass_scaling auto: the needle speed it is chosen for [m/s] '
                                               '(tissue-sim insert sets its own)'),
     },
