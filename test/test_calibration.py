@@ -261,3 +261,41 @@ def test_space_mapping_with_chord_steps_converges_when_the_coarse_gains_differ()
     per_iteration = CHORD_EVALUATIONS + 1 + len(keys)
     assert per_iteration < 12
     assert len(coarse.evaluations) - first <= per_iteration * (len(logged) - 1)
+
+
+
+def test_the_fine_finish_reaches_the_fine_optimum_where_space_mapping_stops_short():
+    """A coarse scene that responds to the keys along other directions (its Jacobian not the
+    fine one's times a matrix, as a coarser mesh's): output space mapping stops at its own fixed
+    point J_c^T r_f(u) = 0, away from the fine optimum (numpy's least squares); the fine finish
+    (the fine Jacobian at that point, then Gauss-Newton steps) lands on it, and hands back the fine
+    Jacobian for the standard errors."""
+    from tissue_sim_ros.analysis.calibration_mapping import fine_finish, space_mapping
+    rng = np.random.default_rng(2)
+    A = rng.normal(size=(40, 3))
+    b = A @ np.array([0.4, 0.55, 0.5]) + 0.3 * rng.normal(size=40)
+    A_coarse = A @ (np.eye(3) + 0.2 * rng.normal(size=(3, 3))) + 0.4 * rng.normal(size=(40, 3))
+    keys = [parse_fit(f'a{i}=0:1') for i in range(3)]
+    fine = _LinearObjective(A, b, keys)
+    coarse = _LinearObjective(A_coarse, b - A_coarse @ np.array([0.1, -0.1, 0.15]), keys)
+    optimum = np.linalg.lstsq(A, b, rcond=None)[0]
+    start = np.linalg.lstsq(A_coarse, coarse.b, rcond=None)[0]
+    mapped, _ = space_mapping(fine, coarse, start, iterations=12, evaluations_per_iteration=12,
+                              log=lambda text: None)
+    assert np.max(np.abs(mapped - optimum)) > 0.02
+    runs = len(fine.evaluations)
+    u, J = fine_finish(fine, mapped, steps=3, log=lambda text: None)
+    assert np.max(np.abs(u - optimum)) < 1e-8   # one exact Gauss-Newton step (lsq_linear)
+    np.testing.assert_allclose(J, A, atol=1e-9)
+    assert len(fine.evaluations) - runs <= len(keys) + 3
+
+
+def test_coarse_to_fine_finishes_on_the_scene_as_asked_and_says_whose_jacobian_the_errors_use(cheap_study, tmp_path):
+    """Searched on a coarser mesh, the calibration still lands on the data's values (synthetic,
+    known) once the fine finish has run on the scene as asked; the report names that Jacobian."""
+    report = cheap_run(cheap_study, tmp_path / 'coarse', workers=2, coarse_sets=['mesh.divisions=[4,4,3]'])
+    for key in ('regions[0].young_modulus_pa', 'regions[0].cutting_force_n'):
+        print(key, report['parameters'][key]['value'], TRUE[key])
+        assert report['parameters'][key]['value'] == pytest.approx(TRUE[key], rel=0.10)
+    assert report['jacobian'] == "the scene as asked, before the fine finish's steps"
+    assert 'before the fine finish' in (tmp_path / 'coarse' / 'report.md').read_text()

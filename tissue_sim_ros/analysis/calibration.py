@@ -15,7 +15,9 @@
    (:mod:`~tissue_sim_ros.analysis.calibration_objective`); with ``coarse_sets`` (``--coarse-set``)
    the staged start and the refinement run on a cheaper scene (a coarser mesh, a simpler model),
    then output space mapping (:mod:`~tissue_sim_ros.analysis.calibration_mapping`) carries the
-   optimum to the scene as asked, one fine evaluation per iteration: coarse to fine.
+   optimum to the scene as asked, one fine evaluation per iteration (``fine_evaluations``), and
+   ``fine_steps`` Gauss-Newton steps from the fine scene's own Jacobian finish there (that
+   Jacobian, one parallel batch, also gives the standard errors): coarse to fine.
 4. The result compared with every trial, fitted and held out (``--validate-spec``), by
    ``tissue-sim compare``'s machinery, beside the data's noise floor per speed and the baseline
    "reuse the nearest other speed's measured mean curve"; standard errors and correlations.
@@ -76,13 +78,13 @@ def _start(keys, spec, log) -> np.ndarray:
 
 def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=None, tick_s=0.01,
               phase_weights=None, inertia_bound=INERTIA_BOUND, staged=True, global_search=False,
-              generations=5, stage_evaluations=6, joint_evaluations=20, max_evaluations=150, fine_evaluations=4,
-              mapping_evaluations=13, out=None, workers=None, scheduler=None, quiet=False, log=None) -> dict:
+              generations=5, stage_evaluations=6, joint_evaluations=20, max_evaluations=150, fine_evaluations=1,
+              fine_steps=3, mapping_evaluations=13, out=None, workers=None, scheduler=None, quiet=False, log=None) -> dict:
     """Fit ``keys`` (FittedKey) of ``scene`` to ``trials``; everything the report needs."""
     from tqdm import tqdm
 
     from tissue_sim_ros.analysis.calibration_objective import Objective
-    from tissue_sim_ros.analysis.calibration_mapping import space_mapping
+    from tissue_sim_ros.analysis.calibration_mapping import fine_finish, space_mapping
     from tissue_sim_ros.analysis.calibration_search import search, uncertainty
     from tissue_sim_ros.analysis.trial_simulation import ResultStore
     log = log or (lambda text: print(text, file=sys.stderr))
@@ -126,7 +128,7 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
         u = search(objective, u0, staged=staged, global_search=global_search, generations=generations,
                    stage_evaluations=stage_evaluations, joint_evaluations=joint_evaluations,
                    max_evaluations=max_evaluations, joint=coarse_scene is None or not staged, log=log)
-        at_optimum = objective
+        at_optimum, J = objective, None
         if coarse_scene is not None:
             log('fine stage: space mapping onto the scene as asked')
             coarse = objective
@@ -135,8 +137,14 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
             start = objective.evaluate_many([u0, u])[0]
             u, at_optimum = space_mapping(objective, coarse, u, iterations=fine_evaluations,
                                           evaluations_per_iteration=mapping_evaluations, log=log)
+            if fine_steps:
+                u, J = fine_finish(objective, u, steps=fine_steps, log=log)
+                at_optimum = objective
         best = objective.evaluate(u)
-        spread = uncertainty(at_optimum, u)
+        spread = uncertainty(at_optimum, u, J)
+        spread['jacobian'] = ('the scene as asked, at the optimum' if coarse_scene is None else
+                              'the scene as asked, before the fine finish\'s steps' if J is not None else
+                              'the coarse scene, corrected to the scene as asked at the optimum')
     evaluations = [e for o in used_objectives for e in o.evaluations]
     failed = [e for e in evaluations if e.failures]
     simulations = sum(o.simulations_run for o in used_objectives)
@@ -172,7 +180,7 @@ def parse_phase_weights(texts) -> dict:
 
 def main(*, data_spec, fits, validate_spec=None, scene_file=None, sets=(), coarse_sets=(), align='contact',
          gap_mm=None, max_depth_mm=None, tick_ms=10.0, phase_weights=(), inertia_bound=INERTIA_BOUND, global_search=False,
-         max_evaluations=150, fine_evaluations=4, workers=None, scheduler=None, out='out/calibrate',
+         max_evaluations=150, fine_evaluations=1, fine_steps=3, workers=None, scheduler=None, out='out/calibrate',
          stream=None) -> dict:
     """The ``tissue-sim calibrate`` command."""
     from tissue_sim_ros.analysis.calibration_parameters import parse_fit
@@ -201,7 +209,7 @@ def main(*, data_spec, fits, validate_spec=None, scene_file=None, sets=(), coars
     fit = calibrate(trials, scene, keys, coarse_scene=coarse, align=align,
                     gap_m=None if gap_mm is None else gap_mm * 1e-3, tick_s=tick_ms * 1e-3,
                     phase_weights=weights, inertia_bound=inertia_bound, global_search=global_search,
-                    max_evaluations=max_evaluations, fine_evaluations=fine_evaluations, out=out,
+                    max_evaluations=max_evaluations, fine_evaluations=fine_evaluations, fine_steps=fine_steps, out=out,
                     workers=workers, scheduler=scheduler,
                     log=lambda text: print(text, file=stream))
     final = Scene(calibrated_spec(fit), base_dir=scene.base_dir)

@@ -106,7 +106,7 @@ def _calibrated_yaml(path, spec, report, *, scene_file, sets, data_spec, base_di
              f'data: {data_spec}; starting scene: {scene_file or "the packaged default"}'
              + (f' with {" ".join("--set " + s for s in sets)}' if sets else ''),
              f"fit NRMSE {report['fit']['nrmse_mean']:.4f} (start {report['fit']['nrmse_mean_start']:.4f})",
-             'fitted values (standard error from the Jacobian at the optimum; a lower bound):']
+             f"fitted values (standard error from the Jacobian of {report['jacobian']}; a lower bound):"]
     lines += [f"  {key} = {p['value']:.6g} +- {p['stderr']:.2g}" for key, p in report['parameters'].items()]
     path.write_text(scene_yaml(spec, base_dir, lines))
 
@@ -157,6 +157,8 @@ def _markdown(report) -> str:
              '| key | start | calibrated | standard error | bounds |', '|---|---|---|---|---|']
     lines += [f"| `{k}` | {p['start']:.6g} | {p['value']:.6g} | {p['stderr']:.2g} | {p['low']:g} to {p['high']:g}"
               f"{' (log)' if p['log'] else ''} |" for k, p in report['parameters'].items()]
+    lines += ['', f"Standard errors from the Jacobian of {report['jacobian']} (a lower bound: neighbouring "
+                  'force samples are correlated).']
     lines += ['', '| role | speed | trials | NRMSE start | NRMSE calibrated | noise floor | nearest other speed\'s data |',
               '|---|---|---|---|---|---|---|']
     lines += [f"| {r['role']} | {_speed_label(r['speed_m_s'])} | {r['trials']} | {f(r['nrmse_start'])} | "
@@ -195,6 +197,7 @@ def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_fi
               'scene': str(scene_file or 'the packaged default'), 'sets': list(sets), 'align': align,
               'parameters': parameters,
               'correlation': {'keys': [k.key for k in keys], 'matrix': np.round(spread['correlation'], 4).tolist()},
+              'jacobian': spread.get('jacobian', 'the scene as asked, at the optimum'),
               'fit': {'nrmse_mean': _mean(studies['fit'][1]['comparisons']),
                       'nrmse_mean_start': _mean(studies['fit'][0]['comparisons']),
                       'speeds': [r for r in rows if r['role'] == 'fit']},

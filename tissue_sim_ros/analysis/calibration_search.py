@@ -147,10 +147,12 @@ def _stages(objective, u, staged, global_search, generations, seed, stage_evalua
     return _least_squares(objective, u, list(range(len(u))), None, joint_evaluations, fixed_jacobian)
 
 
-def uncertainty(objective, u) -> dict:
+def uncertainty(objective, u, J=None) -> dict:
     """Standard errors (in each key's unit), the correlation matrix and the pairs above
-    ``CORRELATION_WARNING``, at ``u`` (see the module docstring)."""
-    J = jacobian(objective, u, list(range(len(u))))
+    ``CORRELATION_WARNING``, at ``u`` (see the module docstring); ``J``: a Jacobian already taken
+    (None: taken here)."""
+    if J is None:
+        J = jacobian(objective, u, list(range(len(u))))
     r = objective.evaluate(u).residuals
     m, n = J.shape
     dof = max(m - n, 1)
