@@ -74,10 +74,8 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
         put_rigid_points(tip, rotation, tip_offsets, n_tip, applied_points, n_applied)
         put_rows(tip_forces, n_tip, applied_point_forces, n_applied)
         n_applied += n_tip
-    work = 0.0
-    for i in range(applied_forces.shape[0]):
-        for r in range(3):
-            work += applied_forces[i, r] * velocity[i, r]
+    # BLAS: a plain loop's sum is one dependency chain, 7 us of this call on the default mesh
+    work = np.vdot(applied_forces.reshape(-1), velocity.reshape(-1))
     wrench_about(applied_points, applied_point_forces, n_applied, position, wrench_force, wrench_torque)
     apex = -2
     if apex_start >= 0:
