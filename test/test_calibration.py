@@ -174,12 +174,17 @@ def test_a_fitted_value_reaches_the_scene_as_the_same_number(value):
 
 
 class _LinearObjective:
-    """r(u) = A u - b (+ c): a model whose residuals are linear in the parameters, with the
-    objective interface the search and the space mapping use."""
+    """r(u) = A u - b (+ C u^2, elementwise square, with ``C``): a model whose residuals are
+    linear (or quadratic) in the parameters, with the objective interface the search and the
+    space mapping use."""
 
-    def __init__(self, A, b, keys):
-        self.A, self.b, self.keys = A, b, keys
+    def __init__(self, A, b, keys, C=None):
+        self.A, self.b, self.keys, self.C = A, b, keys, C
         self._cache, self.best, self.budget = {}, None, None
+
+    def residuals(self, u):
+        u = np.asarray(u)
+        return self.A @ u - self.b + (0.0 if self.C is None else self.C @ (u * u))
 
     @staticmethod
     def _key(u):
@@ -195,7 +200,7 @@ class _LinearObjective:
         for u in us:
             k = self._key(u)
             if k not in self._cache:
-                self._cache[k] = Evaluation(k, {}, self.A @ np.asarray(u) - self.b, [], [])
+                self._cache[k] = Evaluation(k, {}, self.residuals(u), [], [])
                 if self.best is None or self._cache[k].objective < self.best.objective:
                     self.best = self._cache[k]
             out.append(self._cache[k])
@@ -299,3 +304,36 @@ def test_coarse_to_fine_finishes_on_the_scene_as_asked_and_says_whose_jacobian_t
         assert report['parameters'][key]['value'] == pytest.approx(TRUE[key], rel=0.10)
     assert report['jacobian'] == "the scene as asked, before the fine finish's steps"
     assert 'before the fine finish' in (tmp_path / 'coarse' / 'report.md').read_text()
+
+
+def test_broyden_update_meets_the_secant_condition_and_leaves_other_directions_alone():
+    from tissue_sim_ros.analysis.calibration_mapping import broyden_update
+    rng = np.random.default_rng(4)
+    B, step, change = rng.normal(size=(30, 4)), rng.normal(size=4), rng.normal(size=30)
+    updated = broyden_update(B, step, change)
+    np.testing.assert_allclose(updated @ step, change, atol=1e-12)
+    across = np.linalg.svd(step[None, :])[2][1:]          # a basis orthogonal to the step
+    np.testing.assert_allclose(updated @ across.T, B @ across.T, atol=1e-12)
+
+
+def test_the_fine_finish_lands_on_scipys_optimum_of_a_curved_problem_with_a_bound_active():
+    """Residuals quadratic in the keys, the optimum on a bound: from a start 0.12-0.15 off, the
+    finish (finite-difference Jacobian, Broyden-updated Gauss-Newton in a box) ends within
+    what its forward differences and its move tolerance allow of scipy's bounded least squares
+    (exact Jacobian, tight tolerances), on the bound exactly, in at most 5 fine runs."""
+    from scipy.optimize import least_squares
+    from tissue_sim_ros.analysis.calibration_mapping import fine_finish
+    rng = np.random.default_rng(1)
+    A, C = rng.normal(size=(40, 3)), rng.normal(size=(40, 3))
+    x = np.array([0.4, 1.08, 0.5])                        # beyond the upper bound on the second key
+    b = A @ x + C @ (x * x) + 0.05 * rng.normal(size=40)
+    fine = _LinearObjective(A, b, [parse_fit(f'a{i}=0:1') for i in range(3)], C=C)
+    truth = least_squares(fine.residuals, np.clip(x, 0, 1), jac=lambda u: A + 2 * C * u, bounds=(0, 1),
+                          xtol=1e-14, ftol=1e-14, gtol=1e-14).x
+    assert truth[1] == pytest.approx(1.0, abs=1e-12)
+    start = np.clip(x + np.array([0.15, -0.15, 0.12]), 0, 1)
+    u, J = fine_finish(fine, start, steps=5, log=lambda text: None)
+    assert np.max(np.abs(u - truth)) < 3e-3 < 0.1 < np.max(np.abs(start - truth))
+    assert u[1] == 1.0 and np.all((u >= 0) & (u <= 1))
+    assert len(fine.evaluations) <= 1 + 3 + 5
+    np.testing.assert_allclose(J, A + 2 * C * start, atol=0.1)   # the forward differences' own error

@@ -356,9 +356,9 @@ def build_parser():
                                 'evaluation there each (default 1)')
     calibrate.add_argument('--fine-steps', type=_number(0, inclusive=True, whole=True), default=3,
                            help="with --coarse-set: then Gauss-Newton steps on the scene as asked from its "
-                                'own Jacobian (one evaluation per key, which also gives the standard errors), '
-                                "updated by Broyden's rule, one evaluation each (default 3; 0: none, standard "
-                                "errors from the coarse scene's Jacobian)")
+                                'own Jacobian where they start (one evaluation per key, which also gives the '
+                                "standard errors), updated by Broyden's rule, one evaluation each (default 3; 0: "
+                                "none, standard errors from the coarse scene's Jacobian)")
     _add_pool_and_out(calibrate, 'out/calibrate')
     calibrate.set_defaults(run=_calibrate)
     replay = commands.add_parser('replay', help='run a recorded node log through the engine again: '
