@@ -5,7 +5,7 @@ package's directory, which may be read-only on a ROS install. Standard library o
 before numba is first imported."""
 import os
 
-__all__ = ['user_cache_dir']
+__all__ = ['user_cache_dir', 'scene_cache_entry', 'write_whole']
 
 
 def user_cache_dir(name: str) -> str | None:
@@ -24,3 +24,11 @@ def scene_cache_entry(name: str, text: str):
     import tempfile
     where = user_cache_dir(name) or os.path.join(tempfile.gettempdir(), f'tissue_sim_ros_{name}')
     return where, hashlib.sha256(text.encode()).hexdigest()[:20]
+
+
+def write_whole(path, text: str) -> None:
+    """Write ``text`` to ``path`` (a pathlib.Path) whole or not at all: a cache entry another run
+    may read while this one is interrupted is never half written."""
+    partial = path.with_suffix('.partial')
+    partial.write_text(text)
+    partial.replace(path)

@@ -197,7 +197,7 @@ def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_fi
               'scene': str(scene_file or 'the packaged default'), 'sets': list(sets), 'align': align,
               'parameters': parameters,
               'correlation': {'keys': [k.key for k in keys], 'matrix': np.round(spread['correlation'], 4).tolist()},
-              'jacobian': spread.get('jacobian', 'the scene as asked, at the optimum'),
+              'jacobian': spread['jacobian'],
               'fit': {'nrmse_mean': _mean(studies['fit'][1]['comparisons']),
                       'nrmse_mean_start': _mean(studies['fit'][0]['comparisons']),
                       'speeds': [r for r in rows if r['role'] == 'fit']},

@@ -82,7 +82,7 @@ def auto_mass_scaling(spec: dict, base_dir='.', *, quiet=False) -> tuple[float, 
     else found now by probes (said on stderr) and cached."""
     from tissue_sim_ros.analysis.chart import force_nrmse, make_job, simulate_job
     from tissue_sim_ros.engine.scene import scene_yaml
-    from tissue_sim_ros.user_cache import scene_cache_entry
+    from tissue_sim_ros.user_cache import scene_cache_entry, write_whole
     solver = spec['solver']
     bound, speed = float(solver['inertia_error_bound']), float(solver['design_speed_m_s'])
     text = scene_yaml(spec, base_dir)
@@ -128,7 +128,5 @@ def auto_mass_scaling(spec: dict, base_dir='.', *, quiet=False) -> tuple[float, 
     chosen, probes = choose_mass_scaling(error, bound, lowest=REFERENCE_SCALING)
     record = dict(mass_scaling=chosen, inertia_error_bound=bound, design_speed_m_s=speed,
                   reference_mass_scaling=REFERENCE_SCALING, probes=probes)
-    partial = cached.with_suffix('.partial')
-    partial.write_text(json.dumps(record, indent=1))
-    partial.replace(cached)                  # never a half-written cache entry
+    write_whole(cached, json.dumps(record, indent=1))
     return chosen, record

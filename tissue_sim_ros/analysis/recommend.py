@@ -118,7 +118,7 @@ def auto_spec(spec: dict, base_dir='.', *, quiet=False) -> dict:
     import yaml
 
     from tissue_sim_ros.engine.scene import scene_yaml
-    from tissue_sim_ros.user_cache import scene_cache_entry
+    from tissue_sim_ros.user_cache import scene_cache_entry, write_whole
     tolerance = spec['model']['auto_tolerance']
     base = json.loads(json.dumps(spec))
     base['model']['auto'] = False
@@ -136,9 +136,7 @@ def auto_spec(spec: dict, base_dir='.', *, quiet=False) -> dict:
               f'(the quick chart, a few minutes, once; cached in {cache})', file=sys.stderr, flush=True)
     recommend(scene_file, (), tolerance=tolerance, quick=True, out=cache / f'{key}-study', quiet=quiet)
     chosen = yaml.safe_load((cache / f'{key}-study' / 'recommended.yaml').read_text())
-    partial = cached.with_suffix('.partial')
-    partial.write_text(yaml.safe_dump(chosen, sort_keys=False))
-    partial.replace(cached)                    # never a half-written cache entry
+    write_whole(cached, yaml.safe_dump(chosen, sort_keys=False))
     return chosen
 
 
