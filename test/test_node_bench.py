@@ -125,7 +125,8 @@ def test_background_load_spins_listens_and_stops_whatever_happens():
     from sensor_msgs.msg import PointCloud2
     from tissue_sim_ros.ros.node_process import client_context, private_domain_id, private_ros_env
     domain = private_domain_id()
-    reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    # the stand-in keeps all it sends (a starved listener acknowledges late)
+    reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
     with client_context(domain) as context:
         stand_in = rclpy.create_node('tissue_sim', context=context)
         wrench = stand_in.create_publisher(WrenchStamped, 'needle/wrench', reliable)
