@@ -149,7 +149,9 @@ def fine_finish(fine, u, *, steps: int, log=print):
         step = candidate - u
         if np.max(np.abs(step)) < MOVE_TOLERANCE:
             break
+        predicted = float(np.sum((r + B @ step) ** 2))
         trial = fine.evaluate(candidate)
+        log(f'fine finish {runs + 1}: objective {best.objective:.5g} -> {trial.objective:.5g} (predicted {predicted:.5g})')
         runs += 1
         if not trial.failures:   # a failed run's residuals (all misses) say nothing of the slope
             B = broyden_update(B, step, trial.residuals - r)
