@@ -193,7 +193,7 @@ class SimulationDriver:
         scene = self.scene
         wrenches = [scene.reaction_wrench(self.wrench_frame, k) for k in range(len(scene.needles))]
         for force, torque in wrenches:
-            if not (np.isfinite(force).all() and np.isfinite(torque).all()):
+            if not all(map(math.isfinite, force.tolist() + torque.tolist())):
                 raise SimulationDiverged(
                     f'non-finite reaction wrench {np.asarray(force).tolist()} {np.asarray(torque).tolist()}',
                     scene.simulation.step_count, float(scene.time), float(scene.dt), float('nan'))
