@@ -73,6 +73,24 @@ def test_known_parameters_come_back_and_predict_a_held_out_speed_at_the_noise_le
         assert (tmp_path / 'out' / name).stat().st_size > 0
 
 
+def test_at_the_parameters_that_made_the_data_the_objective_is_its_noise(tmp_path):
+    """Data made by the simulator (two repeats at three speeds, jittered sampling, white noise),
+    scored at the parameters that made it: each residual is the noise over its trial's force
+    range plus what the comparison's own steps add (the contact found in noisy data, the motion
+    resampled and smoothed: measured 1.7x the noise alone), and no sample is a miss (the last
+    sample of a jittered repeat scored 1 once, in every run: 1 / residuals, 30x the noise)."""
+    spec = write_study(tmp_path / 'data', [1.0, 2.0, 3.0], MESH + sets(TRUE), travel_m=0.019)
+    trials = load_trials(DataSpec.from_file(spec))
+    keys = [parse_fit(text) for text in FITS]
+    objective = Objective(trials, Scene.from_file(None, sets=MESH + sets(START)), keys, workers=1)
+    evaluation = objective.evaluate([k.unit(TRUE[k.key]) for k in keys])
+    noise = np.mean([(NOISE_N / np.ptp(t.axial_force_n)) ** 2 for t in trials])
+    misses = np.abs(evaluation.residuals) * np.sqrt(evaluation.residuals.size) > 0.5
+    print(f'objective at the truth {evaluation.objective:.3g}, noise alone {noise:.3g}, misses {misses.sum()}')
+    assert not misses.any() and not evaluation.failures
+    assert 0.5 * noise < evaluation.objective < 5.0 * noise
+
+
 CHEAP_MESH = ['mesh.generator=box', 'mesh.divisions=[6,6,5]', 'regions[0].membrane.criterion=none'] + TISSUE
 CHEAP_FITS = ['regions[0].young_modulus_pa=5000:50000:log', 'regions[0].cutting_force_n=0.1:1.5']
 

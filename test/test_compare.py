@@ -97,6 +97,29 @@ def test_the_first_puncture_compares_back_to_its_depth_and_force(tmp_path):
         assert abs(trial['first_puncture_force_error_n']) < 0.05 * event['axial_force_n']
 
 
+def test_every_sample_of_every_repeat_is_reached_by_its_speeds_simulation(tmp_path):
+    """One simulation per speed follows its median repeat; the others are compared with it on the
+    clock of their own contact. With jittered sampling, and one repeat recorded 0.3 s longer (the
+    needle out, the sensor still logging), every sample from contact on has a simulated force:
+    a sample left out is a miss the calibration would score whatever the parameters."""
+    from tissue_sim_ros.io.data_spec import DataSpec, load_trials
+    run, spec = write_study(tmp_path / 'data', SETS + NO_MEMBRANE)
+    longer = tmp_path / 'data' / 'trial_3p0_3.csv'      # not the median repeat the simulation follows
+    rows = np.loadtxt(longer, delimiter=',', skiprows=1)
+    extra = rows[-1] + np.outer(np.arange(1, 31), [1e4, 0.0, 0.0])     # 30 more samples at 100 Hz
+    extra[:, 1] = np.random.default_rng(3).normal(0.0, 1e3 * NOISE_N, 30)
+    with open(longer, 'a') as handle:
+        for us, fz, pz in extra:
+            handle.write(f'{int(us)},{fz:.4f},{pz:.5f}\n')
+    trials = load_trials(DataSpec.from_file(spec))
+    assert len({len(t.axial_force_n) for t in trials}) > 1
+    compared = compare.compare_trials(trials, Scene.from_file(None, sets=SETS + NO_MEMBRANE), workers=1,
+                                      quiet=True)
+    for c in compared['comparisons']:
+        after_contact = c.time_since_contact_s >= 0.0
+        assert np.isfinite(c.simulated_n[after_contact]).all(), (c.file, np.flatnonzero(~np.isfinite(c.simulated_n)))
+
+
 def test_files_with_column_options_read_as_the_description_does(tmp_path):
     run, spec = write_study(tmp_path / 'data', SETS + NO_MEMBRANE)
     by_spec = compare.main(data_spec=spec, sets=SETS + NO_MEMBRANE, out=tmp_path / 'a', workers=1)

@@ -14,8 +14,11 @@ when the force drops would dominate the sum); the puncture stage fits the events
 
 A run that diverges, trips the watchdog, or whose keys the scene refuses, scores 1 at every
 residual (a miss by the whole force range: worse than any run that finishes) and its reason is
-logged; a sample the simulation did not reach scores 1 likewise. Nothing is NaN and nothing
-stops the search.
+logged; a sample the simulation did not reach scores 1 likewise. The samples are chosen among
+those the first finished run reached, and the plan's simulations run past the end of every repeat
+they are compared with (:mod:`~tissue_sim_ros.analysis.measured_motion`), so a miss is a run's,
+not the data's: the last sample of a jittered recording scoring 1 in every run was a constant
+that made the search's relative tests stop early. Nothing is NaN and nothing stops the search.
 
 Every evaluation is appended to ``evaluations.jsonl`` (parameter values, objective, mean NRMSE,
 failures); the simulations are kept in a :class:`~tissue_sim_ros.analysis.trial_simulation.ResultStore`,
@@ -159,11 +162,15 @@ class Objective:
 
     def _choose_points(self, comparison):
         """The samples a trial is scored at: after its contact (the insertion only with the
-        depth alignment), evenly spaced."""
+        depth alignment), evenly spaced; with a first run that finished, those it reached (a
+        repeat that went deeper than the one its speed's simulation follows, with the depth
+        alignment: its deepest samples have no simulated force by design, not by a failure)."""
         phases = comparison.phases
         eligible = phases != 'approach'
         if self.align == 'depth':
             eligible &= np.isin(phases, ('loading', 'inserted'))
+        if not comparison.diverged and np.isfinite(comparison.simulated_n).any():
+            eligible &= np.isfinite(comparison.simulated_n)
         candidates = np.flatnonzero(eligible)
         if candidates.size > self.points_per_trial:
             candidates = candidates[np.linspace(0, candidates.size - 1, self.points_per_trial).round().astype(int)]

@@ -191,7 +191,7 @@ class Plan:
 def plan_simulations(trials, scene, *, gap_m: float | None = None, per_trial: bool = False,
                      tick_s: float = 0.01) -> Plan:
     """The simulation jobs of a study: one per speed (its median repeat's motion) or per trial."""
-    from tissue_sim_ros.analysis.measured_motion import measured_motion, schedule_for_scene
+    from tissue_sim_ros.analysis.measured_motion import END_HOLD_S, measured_motion, schedule_for_scene
     from tissue_sim_ros.analysis.trial_simulation import SimulationJob
     motions = [measured_motion(trial, gap_m=gap_m) for trial in trials]
     groups: dict = {}
@@ -203,7 +203,12 @@ def plan_simulations(trials, scene, *, gap_m: float | None = None, per_trial: bo
     for members in groups.values():
         deepest = [float(np.max(motions[i].travel_m - motions[i].gap_m)) for i in members]
         chosen = members[int(np.argsort(deepest)[len(members) // 2])]
-        schedule = schedule_for_scene(motions[chosen], start, axis, scene.start_gap_m, tick_s)
+        # held long enough to reach the end of every repeat it is compared with, each on the
+        # clock of its own contact (a repeat recorded longer than the median one, jitter)
+        after_contact = [float(motions[i].time_s[-1] - motions[i].time_s[motions[i].contact_index]) for i in members]
+        longer = max(after_contact) - after_contact[members.index(chosen)]
+        schedule = schedule_for_scene(motions[chosen], start, axis, scene.start_gap_m, tick_s,
+                                      hold_s=END_HOLD_S + longer)
         for i in members:
             job_of_trial[i] = len(jobs)
         representative.append(chosen)
