@@ -128,7 +128,7 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
         u = search(objective, u0, staged=staged, global_search=global_search, generations=generations,
                    stage_evaluations=stage_evaluations, joint_evaluations=joint_evaluations,
                    max_evaluations=max_evaluations, joint=coarse_scene is None or not staged, log=log)
-        at_optimum, J = objective, None
+        at_optimum, J, finish = objective, None, []
         if coarse_scene is not None:
             log('fine stage: space mapping onto the scene as asked')
             coarse = objective
@@ -138,7 +138,7 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
             u, at_optimum = space_mapping(objective, coarse, u, iterations=fine_evaluations,
                                           evaluations_per_iteration=mapping_evaluations, log=log)
             if fine_steps:
-                u, J = fine_finish(objective, u, steps=fine_steps, log=log)
+                u, J, finish = fine_finish(objective, u, steps=fine_steps, log=log)
                 at_optimum = objective
         best = objective.evaluate(u)
         spread = uncertainty(at_optimum, u, J)
@@ -153,7 +153,7 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
     inertia['error_at_optimum'] = inertia['error_at_start'] * used / inertia['mass_scaling']
     return {'keys': keys, 'u0': u0, 'u': u, 'start': start, 'best': best, 'uncertainty': spread,
             'inertia': inertia, 'objective': objective, 'evaluations': len(evaluations), 'failed': failed,
-            'simulations': simulations, 'search_wall_s': time.perf_counter() - wall0}
+            'simulations': simulations, 'search_wall_s': time.perf_counter() - wall0, 'finish': finish}
 
 
 def calibrated_spec(fit: dict) -> dict:

@@ -45,7 +45,7 @@ from dataclasses import replace
 
 import numpy as np
 
-__all__ = ['CorrectedObjective', 'broyden_update', 'fine_finish', 'space_mapping']
+__all__ = ['CorrectedObjective', 'broyden_update', 'fine_finish', 'linear_model_warning', 'space_mapping']
 
 #: a point that moved less than this (unit coordinates, every key) ends the iterations
 MOVE_TOLERANCE = 1e-3
@@ -54,6 +54,9 @@ MOVE_TOLERANCE = 1e-3
 MIN_PREDICTED_GAIN = 0.1
 #: the fine finish's largest step in any unit coordinate (halved at a step that does not improve)
 FINISH_RADIUS = 0.25
+#: a finish step whose gain differs from its linear model's prediction by more than this factor
+#: is reported (:func:`linear_model_warning`)
+LINEAR_MODEL_FACTOR = 3.0
 #: coarse evaluations of each refinement after the first (chord steps with the Jacobian taken
 #: where the last iteration landed)
 CHORD_EVALUATIONS = 4
@@ -134,14 +137,16 @@ def broyden_update(B: np.ndarray, step: np.ndarray, change: np.ndarray) -> np.nd
 def fine_finish(fine, u, *, steps: int, log=print):
     """At most ``steps`` Gauss-Newton steps (one fine evaluation each) on the fine scene from ``u``,
     starting with its own Jacobian there and updating it by Broyden's rank-one secant rule after
-    each step (module docstring): returns the best point and the Jacobian taken at ``u`` (the
-    uncertainty's: taken before the steps, not at the point returned)."""
+    each step (module docstring): returns the best point, the Jacobian taken at ``u`` (the
+    uncertainty's: taken before the steps, not at the point returned) and each step's record
+    (``objective_before``, ``predicted`` by the linear model, ``objective`` run): what
+    :func:`linear_model_warning` reads."""
     from scipy.optimize import lsq_linear
     from tissue_sim_ros.analysis.calibration_search import jacobian
     u = np.asarray(u, dtype=float)
     J = jacobian(fine, u, list(range(len(u))))
     B, best = J.copy(), fine.evaluate(u)
-    radius, before, runs = FINISH_RADIUS, best.objective, 0
+    radius, before, record = FINISH_RADIUS, best.objective, []
     for _ in range(steps):
         r = best.residuals
         step = lsq_linear(B, -r, bounds=(np.maximum(-u, -radius), np.minimum(1.0 - u, radius))).x
@@ -151,8 +156,8 @@ def fine_finish(fine, u, *, steps: int, log=print):
             break
         predicted = float(np.sum((r + B @ step) ** 2))
         trial = fine.evaluate(candidate)
-        log(f'fine finish {runs + 1}: objective {best.objective:.5g} -> {trial.objective:.5g} (predicted {predicted:.5g})')
-        runs += 1
+        record.append({'objective_before': best.objective, 'predicted': predicted, 'objective': trial.objective})
+        log(f'fine finish {len(record)}: objective {best.objective:.5g} -> {trial.objective:.5g} (predicted {predicted:.5g})')
         if not trial.failures:   # a failed run's residuals (all misses) say nothing of the slope
             B = broyden_update(B, step, trial.residuals - r)
         if trial.objective < best.objective:
@@ -160,5 +165,22 @@ def fine_finish(fine, u, *, steps: int, log=print):
         else:
             radius = 0.5 * np.max(np.abs(step))
     log(f'fine finish: objective {before:.5g} -> {best.objective:.5g} with the fine Jacobian and '
-        f'{runs} fine run(s)')
-    return u, J
+        f'{len(record)} fine run(s)')
+    return u, J, record
+
+
+def linear_model_warning(record, factor: float = LINEAR_MODEL_FACTOR) -> str | None:
+    """A warning when a finish step's gain (``objective_before`` - ``objective``) differs from the
+    gain its linear model predicted by more than ``factor`` either way: the scene's response is
+    then non-linear on the steps' scale, the finish may have stopped short of the optimum, and
+    standard errors from that Jacobian are not to be trusted. None when every step agreed."""
+    for k, step in enumerate(record, 1):
+        predicted = step['objective_before'] - step['predicted']
+        actual = step['objective_before'] - step['objective']
+        if predicted > 0 and not predicted / factor <= actual <= predicted * factor:
+            return (f'fine finish step {k}: its linear model predicted a gain of {predicted:.3g} and the run '
+                    f'gained {actual:.3g} (objective {step["objective_before"]:.4g} -> {step["objective"]:.4g}): '
+                    'the fit responds non-linearly on the scale of the steps, so the search may have stopped '
+                    'short and the standard errors (from that Jacobian) are not reliable; more --fine-steps, '
+                    'or fewer keys at once, may go further')
+    return None
