@@ -343,7 +343,7 @@ def test_the_fine_finish_lands_on_scipys_optimum_of_a_curved_problem_with_a_boun
     what its forward differences and its move tolerance allow of scipy's bounded least squares
     (exact Jacobian, tight tolerances), on the bound exactly, in at most 5 fine runs."""
     from scipy.optimize import least_squares
-    from tissue_sim_ros.analysis.calibration_mapping import fine_finish
+    from tissue_sim_ros.analysis.calibration_mapping import FINISH_FD_STEP, fine_finish
     rng = np.random.default_rng(1)
     A, C = rng.normal(size=(40, 3)), rng.normal(size=(40, 3))
     x = np.array([0.4, 1.08, 0.5])                        # beyond the upper bound on the second key
@@ -357,7 +357,9 @@ def test_the_fine_finish_lands_on_scipys_optimum_of_a_curved_problem_with_a_boun
     assert np.max(np.abs(u - truth)) < 3e-3 < 0.1 < np.max(np.abs(start - truth))
     assert u[1] == 1.0 and np.all((u >= 0) & (u <= 1))
     assert len(fine.evaluations) <= 1 + 3 + 5
-    np.testing.assert_allclose(J, A + 2 * C * start, atol=0.1)   # the forward differences' own error
+    # the forward difference of a quadratic, exactly: slope at u plus C h (backward at the upper bound)
+    h = np.where(start + FINISH_FD_STEP <= 1.0, FINISH_FD_STEP, -FINISH_FD_STEP)
+    np.testing.assert_allclose(J, A + 2 * C * start + C * h, atol=1e-9)
 
 
 def test_a_finish_step_that_gains_far_more_or_less_than_its_model_predicted_is_reported():

@@ -43,12 +43,13 @@ STAGE_PHASES = {'loading': ('loading',), 'puncture': 'events', 'inserted': ('ins
                 'retraction': ('retraction',), 'hold': ('hold',)}
 
 
-def jacobian(objective, u, free, phases=None) -> np.ndarray:
-    """d residuals / d u over the ``free`` coordinates at ``u`` (forward differences, one batch)."""
+def jacobian(objective, u, free, phases=None, fd_step=FD_STEP) -> np.ndarray:
+    """d residuals / d u over the ``free`` coordinates at ``u`` (forward differences of ``fd_step``
+    unit coordinates, backward at the upper bound; one batch)."""
     u = np.asarray(u, dtype=float)
     points, steps = [], []
     for i in free:
-        step = FD_STEP if u[i] + FD_STEP <= 1.0 else -FD_STEP
+        step = fd_step if u[i] + fd_step <= 1.0 else -fd_step
         moved = u.copy()
         moved[i] += step
         points.append(moved)
