@@ -264,15 +264,6 @@ class NeedleTissue(MembraneContact):
             self.axis[:] = self.rotation[:, 2]
         self._update_tip()
 
-    def translate_to(self, start, move, s):
-        """``set_pose(start + s * move)`` in place, the orientation kept: the scene's step loop,
-        without the two arrays a step that expression made."""
-        self._previous_position[:] = self.position
-        self._previous_axis[:] = self.axis
-        np.multiply(move, s, out=self.position)
-        self.position += start
-        self._update_tip()
-
     # -- stepping ---------------------------------------------------------------------------------
     def after_step(self, dt):
         """Contact, shaft constraints and friction after the tissue's step; puncture; wrench.

@@ -298,7 +298,7 @@ class Scene:
             field_name = 'pose' if k == 0 else f'needles[{self.needle_names[k]}].pose'
             p, q = needle.check_pose(target[0], target[1], field_name)
             start_p, start_q = needle.position.copy(), needle.orientation.copy()
-            moves.append((needle, start_p, p, p - start_p, start_q, q, start_q.tolist() != q.tolist()))
+            moves.append((needle, start_p, p, p - start_p, np.empty(3), start_q, q, start_q.tolist() != q.tolist()))
         # whole steps toward a running target time, so the remainders of successive calls add up
         # instead of being dropped (20 ms calls with a 1.7 ms step would otherwise run 20.6 ms).
         # No step ends past the target: a step that did would hold the needle at the target for
@@ -318,11 +318,10 @@ class Scene:
                 if now + step_wall > deadline:
                     return steps
             s = min(1.0, (sim.time + sim.dt - start_t) / (end_t - start_t))
-            for needle, start_p, _, move, start_q, q, turning in moves:
-                if turning:
-                    needle.set_pose(start_p + s * move, slerp(start_q, q, s))
-                else:
-                    needle.translate_to(start_p, move, s)
+            for needle, start_p, _, move, position, start_q, q, turning in moves:
+                np.multiply(move, s, out=position)     # start + s * move, no array made a step
+                position += start_p
+                needle.set_pose(position, slerp(start_q, q, s) if turning else None)
             sim.step(1)
             for needle in self.needles:
                 needle.after_step(sim.dt)
@@ -330,7 +329,7 @@ class Scene:
             if deadline is not None:
                 step_wall = time.perf_counter() - now
         if duration == 0 and steps == 0:
-            for needle, _, p, _, _, q, _ in moves:
+            for needle, _, p, _, _, _, q, _ in moves:
                 needle.set_pose(p, q)
                 needle.set_pose(p, q)   # no step: no velocity from a pose change
         return steps
