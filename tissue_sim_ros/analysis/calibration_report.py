@@ -97,11 +97,17 @@ def _warnings(fit, rows, spread) -> list[str]:
         out.append(f"mass scaling {inertia['mass_scaling_at_optimum']:g} brings an inertia error of "
                    f"{inertia['error_at_optimum']:.3f} of the force range, above the bound {inertia['bound']}")
     for row in rows:
-        if row['role'] == 'held out' and row['nrmse_calibrated'] is not None and row['nearest_speed_nrmse'] is not None \
-                and row['nrmse_calibrated'] > row['nearest_speed_nrmse']:
+        if row['nrmse_calibrated'] is None or row['nearest_speed_nrmse'] is None \
+                or not row['nrmse_calibrated'] > row['nearest_speed_nrmse']:
+            continue
+        other = (f"the measured {_speed_label(row['nearest_speed_m_s'])} curve ({row['nearest_speed_nrmse']:.3f})")
+        if row['role'] == 'held out':
             out.append(f"held-out {_speed_label(row['speed_m_s'])}: the model (NRMSE {row['nrmse_calibrated']:.3f}) "
-                       f"predicts worse than reusing the measured {_speed_label(row['nearest_speed_m_s'])} "
-                       f"curve ({row['nearest_speed_nrmse']:.3f})")
+                       f"predicts worse than reusing {other}")
+        else:   # a curve it was fitted to: another speed's data is closer than the fit
+            out.append(f"fitted {_speed_label(row['speed_m_s'])}: the calibrated model (NRMSE "
+                       f"{row['nrmse_calibrated']:.3f}) is farther from the data than {other}: the search "
+                       'may have stopped short, or the scene cannot take the data\'s shape')
     return out
 
 
