@@ -189,6 +189,6 @@ def linear_model_warning(record, factor: float = LINEAR_MODEL_FACTOR) -> str | N
             return (f'fine finish step {k}: its linear model predicted a gain of {predicted:.3g} and the run '
                     f'gained {actual:.3g} (objective {step["objective_before"]:.4g} -> {step["objective"]:.4g}): '
                     'the fit responds non-linearly on the scale of the steps, so the search may have stopped '
-                    'short and the standard errors (from that Jacobian) are not reliable; more --fine-steps, '
-                    'or fewer keys at once, may go further')
+                    'short and the standard errors (from that Jacobian) are not reliable; a start nearer the '
+                    'values, or fewer keys at once, may go further (more --fine-steps did not on the benchmark)')
     return None
