@@ -100,7 +100,7 @@ def _warnings(fit, rows, spread) -> list[str]:
         if row['nrmse_calibrated'] is None or row['nearest_speed_nrmse'] is None \
                 or not row['nrmse_calibrated'] > row['nearest_speed_nrmse']:
             continue
-        other = (f"the measured {_speed_label(row['nearest_speed_m_s'])} curve ({row['nearest_speed_nrmse']:.3f})")
+        other = f"the measured {_speed_label(row['nearest_speed_m_s'])} curve ({row['nearest_speed_nrmse']:.3f})"
         if row['role'] == 'held out':
             out.append(f"held-out {_speed_label(row['speed_m_s'])}: the model (NRMSE {row['nrmse_calibrated']:.3f}) "
                        f"predicts worse than reusing {other}")
