@@ -91,6 +91,44 @@ def test_at_the_parameters_that_made_the_data_the_objective_is_its_noise(tmp_pat
     assert 0.5 * noise < evaluation.objective < 5.0 * noise
 
 
+def test_a_late_puncture_costs_a_residual_smooth_in_its_shift_not_a_staircase_of_samples():
+    """A measured curve that rises to 1 N and drops by 0.6 N at 5 mm, and simulated ones that drop
+    0 to 6 scored samples later in steps of a third of one (punctures found by the detector both
+    curves share): the samples between the two peaks count 0, and the shift's one residual is
+    the drop over the force range times the shift counted in samples, so a trial's sum of squares
+    grows as the square of the shift. Scored as plain samples it is a staircase: a whole
+    sample's drop squared each time the later drop passes a scored sample, flat in between."""
+    from types import SimpleNamespace
+
+    from tissue_sim_ros.analysis.calibration_objective import puncture_shift_residuals
+    from tissue_sim_ros.analysis.force_events import detect_punctures
+    travel = np.linspace(0.0, 0.01, 20001)                    # 0.5 um a sample
+    indices = np.arange(0, travel.size, 100)                   # scored every 50 um
+
+    def curve(puncture_m):
+        return np.where(travel <= puncture_m, 200.0 * travel, 0.4 + 50.0 * (travel - puncture_m))
+    measured = curve(0.005)
+    scale = float(np.ptp(measured))
+    sums, plain, shifts_seen = [], [], []
+    for samples in np.arange(0.0, 6.01, 1.0 / 3.0):
+        simulated = curve(0.005 + samples * 50e-6)
+        comparison = SimpleNamespace(travel_since_contact_m=travel, measured_punctures=detect_punctures(travel, measured),
+                                     simulated_punctures=detect_punctures(travel, simulated))
+        error = (simulated - measured)[indices] / scale
+        kept, shifts = puncture_shift_residuals(comparison, indices, error, scale)
+        assert np.max(np.abs(kept)) <= 50.0 * samples * 50e-6 / scale + 1e-12   # only the slopes' offset is left
+        sums.append(float(kept @ kept + shifts @ shifts))
+        plain.append(float(error @ error))
+        shifts_seen.append(shifts[0])
+    samples = np.arange(0.0, 6.01, 1.0 / 3.0)
+    drop = comparison.measured_punctures[0].drop_n / scale      # the detector's, from the smoothed force
+    assert 0.8 * 0.6 < drop * scale <= 0.6
+    np.testing.assert_allclose(shifts_seen, drop * samples, atol=0.02 * drop)
+    np.testing.assert_allclose(sums[1:], (drop * samples[1:]) ** 2, rtol=0.05)
+    assert np.sum(np.diff(plain) < 0.01 * drop ** 2) >= 10           # plain samples: flat steps...
+    assert np.max(np.diff(plain)) > 0.9 * (0.6 / scale) ** 2          # ...and a whole drop at a time
+
+
 CHEAP_MESH = ['mesh.generator=box', 'mesh.divisions=[6,6,5]', 'regions[0].membrane.criterion=none'] + TISSUE
 CHEAP_FITS = ['regions[0].young_modulus_pa=5000:50000:log', 'regions[0].cutting_force_n=0.1:1.5']
 
