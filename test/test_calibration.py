@@ -129,6 +129,42 @@ def test_a_late_puncture_costs_a_residual_smooth_in_its_shift_not_a_staircase_of
     assert np.max(np.diff(plain)) > 0.9 * (0.6 / scale) ** 2          # ...and a whole drop at a time
 
 
+def test_a_stage_runs_its_simulations_only_as_far_as_its_phases_and_scores_them_as_a_whole_run(tmp_path, monkeypatch):
+    """The objective's horizons: an evaluation for the loading (or the puncture, or the steady
+    insertion) stops each simulation after the last sample of those phases (plus its margin);
+    the simulation is deterministic, so those phases' residuals are the whole run's to rounding,
+    for a fraction of its steps. A horizon that falls short of a sample (a margin made negative
+    here) is run again whole, never scored as a miss."""
+    from tissue_sim_ros.analysis import calibration_objective
+    punctured = dict(TRUE, **{'regions[0].membrane.rupture_force_n': 1.0})   # 0.6 drops too little to detect
+    spec = write_study(tmp_path, [3.0], MESH + sets(punctured), repeats=1)
+    trials = load_trials(DataSpec.from_file(spec))
+    scene = Scene.from_file(None, sets=MESH + sets(START))
+    keys = [parse_fit(text) for text in FITS]
+    objective = Objective(trials, scene, keys, workers=1)
+    first = objective.evaluate([0.5, 0.5, 0.5])
+    assert first.phases is None and first.comparisons[0].measured_punctures
+    u = [keys[0].unit(18000.0), keys[1].unit(1.1), keys[2].unit(0.45)]
+    partial = {phases: objective.evaluate(u, phases) for phases in (('loading',), 'events', ('inserted',))}
+    whole = objective.evaluate(u)
+    assert whole.phases is None and objective.best is not None and all(
+        e.phases is None for e in (objective.best, first))          # a partial run is never the best
+    steps = whole.results[0].steps
+    for phases, evaluation in partial.items():
+        share = evaluation.results[0].steps / steps
+        print(f'{phases}: {share:.0%} of the whole run\'s steps')
+        assert evaluation.phases == phases and share < 0.9
+        np.testing.assert_allclose(objective.stage_residuals(evaluation, phases),
+                                   objective.stage_residuals(whole, phases), rtol=0, atol=1e-12)
+    assert partial[('loading',)].results[0].steps < partial[('inserted',)].results[0].steps
+    monkeypatch.setattr(calibration_objective, 'HORIZON_MARGIN_S', -1.0)
+    short = Objective(trials, scene, keys, workers=1)
+    short.evaluate([0.5, 0.5, 0.5])
+    rerun = short.evaluate(u, ('loading',))
+    assert rerun.phases is None and rerun.results[0].steps == steps
+    np.testing.assert_allclose(rerun.residuals, whole.residuals, rtol=0, atol=1e-12)
+
+
 CHEAP_MESH = ['mesh.generator=box', 'mesh.divisions=[6,6,5]', 'regions[0].membrane.criterion=none'] + TISSUE
 CHEAP_FITS = ['regions[0].young_modulus_pa=5000:50000:log', 'regions[0].cutting_force_n=0.1:1.5']
 
@@ -232,10 +268,10 @@ def test_a_fitted_value_reaches_the_scene_as_the_same_number(value):
 class _LinearObjective:
     """r(u) = A u - b (+ C u^2, elementwise square, with ``C``): a model whose residuals are
     linear (or quadratic) in the parameters, with the objective interface the search and the
-    space mapping use."""
+    fine stage use; its first ``loading`` residuals are the loading's (all without it)."""
 
-    def __init__(self, A, b, keys, C=None):
-        self.A, self.b, self.keys, self.C = A, b, keys, C
+    def __init__(self, A, b, keys, C=None, loading=None):
+        self.A, self.b, self.keys, self.C, self.loading = A, b, keys, C, loading
         self._cache, self.best, self.budget = {}, None, None
 
     def residuals(self, u):
@@ -250,7 +286,7 @@ class _LinearObjective:
     def evaluations(self):
         return list(self._cache.values())
 
-    def evaluate_many(self, us):
+    def evaluate_many(self, us, phases=None):
         from tissue_sim_ros.analysis.calibration_objective import Evaluation
         out = []
         for u in us:
@@ -262,96 +298,58 @@ class _LinearObjective:
             out.append(self._cache[k])
         return out
 
-    def evaluate(self, u):
+    def evaluate(self, u, phases=None):
         return self.evaluate_many([u])[0]
 
     def stage_residuals(self, evaluation, phases=None):
+        if phases == ('loading',) and self.loading is not None:
+            return evaluation.residuals[:self.loading]
         return evaluation.residuals
 
 
-def test_space_mapping_lands_on_the_fine_optimum_when_the_scenes_differ_by_a_constant():
-    """Output space mapping (calibration_mapping): a coarse scene whose residuals differ from the
-    fine one's by a constant vector (the same Jacobian) has its optimum elsewhere; one corrected
-    search lands on the fine optimum (the linear least-squares solution, from numpy), with one
-    fine evaluation beyond the start."""
-    from tissue_sim_ros.analysis.calibration_mapping import space_mapping
+def test_the_loading_refit_moves_only_the_loading_keys_onto_their_optimum_on_the_loading():
+    """The re-fit on the scene as asked (calibration_fine.refit_loading): the key that acts on the
+    loading (a modulus) is fitted on the loading's residuals alone, the others (a cutting force,
+    a rupture force) stay where the coarse search left them; with residuals linear in the keys
+    its Gauss-Newton step lands on the loading's own least-squares optimum with the others held
+    (numpy)."""
+    from tissue_sim_ros.analysis.calibration_fine import refit_loading
     rng = np.random.default_rng(3)
     A = rng.normal(size=(40, 3))
-    truth = np.array([0.3, 0.6, 0.45])
-    b = A @ truth + 0.01 * rng.normal(size=40)
-    keys = [parse_fit(f'a{i}=0:1') for i in range(3)]
-    fine = _LinearObjective(A, b, keys)
-    coarse = _LinearObjective(A, b - A @ np.array([0.15, -0.1, 0.2]), keys)   # optimum shifted
-    expected = np.linalg.lstsq(A, b, rcond=None)[0]
-    coarse_optimum = np.linalg.lstsq(A, coarse.b, rcond=None)[0]
-    assert np.max(np.abs(coarse_optimum - expected)) > 0.09
-    u, corrected = space_mapping(fine, coarse, coarse_optimum, iterations=3, evaluations_per_iteration=12,
-                                 log=lambda text: None)
-    assert np.max(np.abs(u - expected)) < 1e-4
-    assert len(fine.evaluations) <= 3
-    assert corrected.evaluate(u).objective == pytest.approx(fine.evaluate(u).objective, rel=1e-12)
+    b = A @ np.array([0.3, 0.6, 0.45]) + 0.01 * rng.normal(size=40)
+    keys = [parse_fit(text) for text in ('regions[0].young_modulus_pa=1000:2000', 'regions[0].cutting_force_n=0:1',
+                                         'regions[0].membrane.rupture_force_n=0:1')]
+    assert [k.phase for k in keys] == ['loading', 'inserted', 'puncture']
+    fine = _LinearObjective(A, b, keys, loading=15)
+    start = np.array([0.7, 0.55, 0.5])
+    held = b[:15] - A[:15, 1:] @ start[1:]
+    expected = np.linalg.lstsq(A[:15, :1], held, rcond=None)[0][0]
+    u = refit_loading(fine, start, log=lambda text: None)
+    assert u[0] == pytest.approx(expected, abs=1e-9) and abs(expected - start[0]) > 0.2
+    np.testing.assert_array_equal(u[1:], start[1:])
+    assert len(fine.evaluations) <= 1 + 1 + 2            # the start, its slope, a step of the radius, the rest
 
 
-def test_space_mapping_with_chord_steps_converges_when_the_coarse_gains_differ():
-    """A coarse scene that responds to the same parameter combinations with other gains (its
-    Jacobian the fine one's times an invertible matrix, and shifted): zeroth-order output space
-    mapping's fixed point, J_c^T r_f(u) = 0, is then the fine optimum (numpy's least squares),
-    but one corrected search does not land on it. The iterations after the first take chord
-    steps with the coarse Jacobian taken where the last one landed: they converge to it, each
-    with a few coarse runs, and the fine objective falls at every iteration."""
-    from tissue_sim_ros.analysis.calibration_mapping import CHORD_EVALUATIONS, space_mapping
-    rng = np.random.default_rng(5)
-    A = rng.normal(size=(40, 3))
-    b = A @ np.array([0.4, 0.55, 0.5]) + 0.05 * rng.normal(size=40)
-    A_coarse = A @ (np.eye(3) + 0.2 * rng.normal(size=(3, 3)))
-    keys = [parse_fit(f'a{i}=0:1') for i in range(3)]
-    fine = _LinearObjective(A, b, keys)
-    coarse = _LinearObjective(A_coarse, b - A_coarse @ np.array([0.1, -0.1, 0.15]), keys)
-    optimum = np.linalg.lstsq(A, b, rcond=None)[0]
-    start = np.linalg.lstsq(A_coarse, coarse.b, rcond=None)[0]
-    logged = []
-    u, _ = space_mapping(fine, coarse, start, iterations=12, evaluations_per_iteration=12, log=logged.append)
-    fine_objectives = [float(line.split('-> ')[1].split()[0]) for line in logged if '->' in line]
-    assert len(fine_objectives) >= 3 and np.all(np.diff(fine_objectives) < 0)
-    # within what the stopping rule leaves (a predicted gain under 10 % ends the iterations)
-    assert np.max(np.abs(u - optimum)) < 0.01 < 0.3 < np.max(np.abs(start - optimum))
-    # after the first search (its budget, start and shift points, the Jacobian where it landed),
-    # each iteration costs its chord steps, a shift point and the Jacobian at the point it
-    # accepts: fewer than the 12 a full refinement would spend
-    first = 12 + 2 + 3
-    per_iteration = CHORD_EVALUATIONS + 1 + len(keys)
-    assert per_iteration < 12
-    assert len(coarse.evaluations) - first <= per_iteration * (len(logged) - 1)
-
-
-
-def test_the_fine_finish_reaches_the_fine_optimum_where_space_mapping_stops_short():
-    """A coarse scene that responds to the keys along other directions (its Jacobian not the
-    fine one's times a matrix, as a coarser mesh's): output space mapping stops at its own fixed
-    point J_c^T r_f(u) = 0, away from the fine optimum (numpy's least squares); the fine finish
-    (the fine Jacobian at that point, then Gauss-Newton steps) lands on it, and hands back the fine
-    Jacobian for the standard errors."""
-    from tissue_sim_ros.analysis.calibration_mapping import fine_finish, linear_model_warning, space_mapping
+def test_the_fine_finish_lands_on_the_fine_optimum_from_a_point_off_it():
+    """Residuals linear in the keys: from a point off the fine optimum (numpy's least squares) the
+    finish (the fine Jacobian there, then Gauss-Newton steps) lands on it in one step, hands back
+    the fine Jacobian for the standard errors, and its linear model predicts the run exactly (no
+    warning)."""
+    from tissue_sim_ros.analysis.calibration_fine import fine_finish, linear_model_warning
     rng = np.random.default_rng(2)
     A = rng.normal(size=(40, 3))
     b = A @ np.array([0.4, 0.55, 0.5]) + 0.3 * rng.normal(size=40)
-    A_coarse = A @ (np.eye(3) + 0.2 * rng.normal(size=(3, 3))) + 0.4 * rng.normal(size=(40, 3))
     keys = [parse_fit(f'a{i}=0:1') for i in range(3)]
     fine = _LinearObjective(A, b, keys)
-    coarse = _LinearObjective(A_coarse, b - A_coarse @ np.array([0.1, -0.1, 0.15]), keys)
     optimum = np.linalg.lstsq(A, b, rcond=None)[0]
-    start = np.linalg.lstsq(A_coarse, coarse.b, rcond=None)[0]
-    mapped, _ = space_mapping(fine, coarse, start, iterations=12, evaluations_per_iteration=12,
-                              log=lambda text: None)
-    assert np.max(np.abs(mapped - optimum)) > 0.02
-    runs = len(fine.evaluations)
-    u, J, record = fine_finish(fine, mapped, steps=3, log=lambda text: None)
-    assert np.max(np.abs(u - optimum)) < 1e-8   # one exact Gauss-Newton step (lsq_linear)
+    start = np.clip(optimum + np.array([0.1, -0.12, 0.08]), 0, 1)
+    u, J, record = fine_finish(fine, start, steps=3, log=lambda text: None)
+    assert np.max(np.abs(u - optimum)) < 1e-8 < 0.05 < np.max(np.abs(start - optimum))   # one exact step
     np.testing.assert_allclose(J, A, atol=1e-9)
-    # linear residuals: the step's linear model predicts the run exactly, and nothing is reported
-    assert record[0]['predicted'] == pytest.approx(record[0]['objective'], rel=1e-9)
+    for step in record:
+        assert step['predicted'] == pytest.approx(step['objective'], rel=1e-9)
     assert linear_model_warning(record) is None
-    assert len(fine.evaluations) - runs <= len(keys) + 3
+    assert len(fine.evaluations) <= 1 + len(keys) + 3
 
 
 def test_coarse_to_fine_finishes_on_the_scene_as_asked_and_says_whose_jacobian_the_errors_use(cheap_study, tmp_path):
@@ -366,7 +364,7 @@ def test_coarse_to_fine_finishes_on_the_scene_as_asked_and_says_whose_jacobian_t
 
 
 def test_broyden_update_meets_the_secant_condition_and_leaves_other_directions_alone():
-    from tissue_sim_ros.analysis.calibration_mapping import broyden_update
+    from tissue_sim_ros.analysis.calibration_fine import broyden_update
     rng = np.random.default_rng(4)
     B, step, change = rng.normal(size=(30, 4)), rng.normal(size=4), rng.normal(size=30)
     updated = broyden_update(B, step, change)
@@ -381,7 +379,7 @@ def test_the_fine_finish_lands_on_scipys_optimum_of_a_curved_problem_with_a_boun
     what its forward differences and its move tolerance allow of scipy's bounded least squares
     (exact Jacobian, tight tolerances), on the bound exactly, in at most 5 fine runs."""
     from scipy.optimize import least_squares
-    from tissue_sim_ros.analysis.calibration_mapping import FINISH_FD_STEP, fine_finish
+    from tissue_sim_ros.analysis.calibration_fine import FINISH_FD_STEP, fine_finish
     rng = np.random.default_rng(1)
     A, C = rng.normal(size=(40, 3)), rng.normal(size=(40, 3))
     x = np.array([0.4, 1.08, 0.5])                        # beyond the upper bound on the second key
@@ -400,10 +398,29 @@ def test_the_fine_finish_lands_on_scipys_optimum_of_a_curved_problem_with_a_boun
     np.testing.assert_allclose(J, A + 2 * C * start + C * h, atol=1e-9)
 
 
+def test_the_steps_end_once_the_fit_is_good_enough_and_the_finish_asks_for_the_noise_floor():
+    """``enough`` ends the steps at the first accepted point it approves (the finish's: the fit's
+    NRMSE within the data's noise floor); a floor the fit never reaches runs every step."""
+    from tissue_sim_ros.analysis.calibration_fine import gauss_newton
+    rng = np.random.default_rng(1)
+    A, C = rng.normal(size=(40, 3)), rng.normal(size=(40, 3))
+    x = np.array([0.4, 0.6, 0.5])
+    b = A @ x + C @ (x * x) + 0.01 * rng.normal(size=40)
+    start = x + np.array([0.15, -0.15, 0.12])
+    full = _LinearObjective(A, b, [parse_fit(f'a{i}=0:1') for i in range(3)], C=C)
+    _, _, every = gauss_newton(full, start, steps=5, log=lambda text: None)
+    threshold = every[0]['objective'] * 1.01               # reached by the first step
+    stopped = _LinearObjective(A, b, full.keys, C=C)
+    _, _, record = gauss_newton(stopped, start, steps=5, enough=lambda e: e.objective < threshold,
+                                log=lambda text: None)
+    assert len(record) == 1 < len(every)
+    assert len(stopped.evaluations) == 1 + 3 + 1
+
+
 def test_a_finish_step_that_gains_far_more_or_less_than_its_model_predicted_is_reported():
     """The benchmark's second finish step: predicted 0.000768 -> 0.000752, ran 0.000580 (12x the
     predicted gain); a step within 3x of its prediction either way is not reported."""
-    from tissue_sim_ros.analysis.calibration_mapping import linear_model_warning
+    from tissue_sim_ros.analysis.calibration_fine import linear_model_warning
     agreeing = {'objective_before': 0.0040, 'predicted': 0.0012, 'objective': 0.00077}   # 1.2x
     surprising = {'objective_before': 0.000768, 'predicted': 0.000752, 'objective': 0.000580}
     disappointing = {'objective_before': 0.0040, 'predicted': 0.0010, 'objective': 0.0039}

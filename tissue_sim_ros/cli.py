@@ -201,7 +201,7 @@ def _calibrate(args):
          max_depth_mm=args.max_depth_mm,
          tick_ms=args.tick_ms, phase_weights=args.phase_weight, inertia_bound=args.inertia_bound,
          global_search=args.global_search, max_evaluations=args.max_evaluations,
-         fine_evaluations=args.fine_evaluations, fine_steps=args.fine_steps, workers=args.jobs,
+         refit_steps=args.refit_steps, fine_steps=args.fine_steps, workers=args.jobs,
          scheduler=args.scheduler, out=args.out)
 
 
@@ -351,14 +351,15 @@ def build_parser():
     calibrate.add_argument('--max-evaluations', type=_number(1, inclusive=True, whole=True), default=150,
                            help='parameter vectors the search may evaluate (each: one simulation per '
                                 'speed; default 150); then the best so far is the result')
-    calibrate.add_argument('--fine-evaluations', type=_number(1, inclusive=True, whole=True), default=1,
-                           help='with --coarse-set: space-mapping iterations on the scene as asked, one '
-                                'evaluation there each (default 1)')
+    calibrate.add_argument('--refit-steps', type=_number(0, inclusive=True, whole=True), default=3,
+                           help='with --coarse-set: Gauss-Newton steps of the loading keys\' re-fit on the '
+                                'scene as asked, on the loading (its simulations stop at the first puncture; '
+                                'default 3; 0: none)')
     calibrate.add_argument('--fine-steps', type=_number(0, inclusive=True, whole=True), default=3,
                            help="with --coarse-set: then Gauss-Newton steps on the scene as asked from its "
                                 'own Jacobian where they start (one evaluation per key, which also gives the '
                                 "standard errors), updated by Broyden's rule, one evaluation each (default 3; 0: "
-                                "none, standard errors from the coarse scene's Jacobian)")
+                                "none, standard errors from that scene's Jacobian at the re-fitted point)")
     _add_pool_and_out(calibrate, 'out/calibrate')
     calibrate.set_defaults(run=_calibrate)
     replay = commands.add_parser('replay', help='run a recorded node log through the engine again: '

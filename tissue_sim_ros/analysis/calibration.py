@@ -13,11 +13,11 @@
    shrinks instead (slower, never less accurate). e at the optimum is reported.
 3. The search (:mod:`~tissue_sim_ros.analysis.calibration_search`) on the objective
    (:mod:`~tissue_sim_ros.analysis.calibration_objective`); with ``coarse_sets`` (``--coarse-set``)
-   the staged start and the refinement run on a cheaper scene (a coarser mesh, a simpler model),
-   then output space mapping (:mod:`~tissue_sim_ros.analysis.calibration_mapping`) carries the
-   optimum to the scene as asked, one fine evaluation per iteration (``fine_evaluations``), and
-   ``fine_steps`` Gauss-Newton steps from the fine scene's own Jacobian finish there (that
-   Jacobian, one parallel batch, also gives the standard errors): coarse to fine.
+   the staged start runs on a cheaper scene (a coarser mesh, a simpler model), then on the scene
+   as asked (:mod:`~tissue_sim_ros.analysis.calibration_fine`) the loading's keys are fitted
+   again on the loading (``refit_steps`` Gauss-Newton steps, the simulations stopped at the
+   first puncture) and ``fine_steps`` Gauss-Newton steps from that scene's own Jacobian
+   finish there (that Jacobian, one parallel batch, also gives the standard errors): coarse to fine.
 4. The result compared with every trial, fitted and held out (``--validate-spec``), by
    ``tissue-sim compare``'s machinery, beside the data's noise floor per speed and the baseline
    "reuse the nearest other speed's measured mean curve"; standard errors and correlations.
@@ -30,6 +30,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from tissue_sim_ros.analysis.calibration_fine import REFIT_STEPS
 
 __all__ = ['INERTIA_BOUND', 'measure_inertia_error', 'calibrate', 'calibrated_spec', 'parse_phase_weights', 'main']
 
@@ -64,6 +66,15 @@ def measure_inertia_error(objective, u0) -> dict:
             'checked_at': m0 / INERTIA_CHECK_FACTOR}
 
 
+def noise_floor(objective, evaluation) -> float:
+    """The fitted trials' noise floor: the mean over speeds of their repeats' NRMSE against each
+    other (compare's), NaN without repeats."""
+    from tissue_sim_ros.analysis.compare import speed_groups
+    floors = [g['noise_floor_nrmse'] for g in speed_groups(objective.trials, objective.plan.motions,
+                                                            evaluation.comparisons)]
+    return float(np.nanmean(floors)) if np.isfinite(floors).any() else float('nan')
+
+
 def _start(keys, spec, log) -> np.ndarray:
     from tissue_sim_ros.analysis.calibration_parameters import read_key
     u = []
@@ -78,13 +89,14 @@ def _start(keys, spec, log) -> np.ndarray:
 
 def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=None, tick_s=0.01,
               phase_weights=None, inertia_bound=INERTIA_BOUND, staged=True, global_search=False,
-              generations=5, stage_evaluations=6, joint_evaluations=20, max_evaluations=150, fine_evaluations=1,
-              fine_steps=3, mapping_evaluations=13, out=None, workers=None, scheduler=None, quiet=False, log=None) -> dict:
+              generations=5, stage_evaluations=6, joint_evaluations=20, max_evaluations=150,
+              refit_steps=REFIT_STEPS, fine_steps=3, out=None, workers=None, scheduler=None, quiet=False,
+              log=None) -> dict:
     """Fit ``keys`` (FittedKey) of ``scene`` to ``trials``; everything the report needs."""
     from tqdm import tqdm
 
     from tissue_sim_ros.analysis.calibration_objective import Objective
-    from tissue_sim_ros.analysis.calibration_mapping import fine_finish, space_mapping
+    from tissue_sim_ros.analysis.calibration_fine import fine_finish, refit_loading
     from tissue_sim_ros.analysis.calibration_search import search, uncertainty
     from tissue_sim_ros.analysis.trial_simulation import ResultStore
     log = log or (lambda text: print(text, file=sys.stderr))
@@ -124,35 +136,35 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
         objective = objective_for(search_scene, inertia)
         used_objectives = [progress(objective)]
         start = objective.evaluate(u0)
-        # with a coarse scene the joint refinement is the space mapping's, on the corrected scene
+        # with a coarse scene the joint refinement is the fine finish's, on the scene as asked
         u = search(objective, u0, staged=staged, global_search=global_search, generations=generations,
                    stage_evaluations=stage_evaluations, joint_evaluations=joint_evaluations,
                    max_evaluations=max_evaluations, joint=coarse_scene is None or not staged, log=log)
         at_optimum, J, finish = objective, None, []
         if coarse_scene is not None:
-            log('fine stage: space mapping onto the scene as asked')
-            coarse = objective
+            log('fine stage: on the scene as asked')
             objective = objective_for(scene, inertia)
             used_objectives.append(progress(objective))
-            start = objective.evaluate_many([u0, u])[0]
-            u, at_optimum = space_mapping(objective, coarse, u, iterations=fine_evaluations,
-                                          evaluations_per_iteration=mapping_evaluations, log=log)
+            start = objective.evaluate(u0)         # the report's starting scene
+            u = refit_loading(objective, u, steps=refit_steps, log=log)
+            at_optimum = objective
             if fine_steps:
-                u, J, finish = fine_finish(objective, u, steps=fine_steps, log=log)
-                at_optimum = objective
+                u, J, finish = fine_finish(objective, u, steps=fine_steps, noise_floor=noise_floor(objective, start),
+                                           log=log)
         best = objective.evaluate(u)
         spread = uncertainty(at_optimum, u, J)
-        spread['jacobian'] = ('the scene as asked, at the optimum' if coarse_scene is None else
-                              'the scene as asked, before the fine finish\'s steps' if J is not None else
-                              'the coarse scene, corrected to the scene as asked at the optimum')
+        spread['jacobian'] = ('the scene as asked, before the fine finish\'s steps' if J is not None else
+                              'the scene as asked, at the optimum')
     evaluations = [e for o in used_objectives for e in o.evaluations]
     failed = [e for e in evaluations if e.failures]
+    partial = sum(e.phases is not None for e in evaluations)
     simulations = sum(o.simulations_run for o in used_objectives)
     used = max((r.mass_scaling for r in best.results if np.isfinite(r.mass_scaling)), default=inertia['mass_scaling'])
     inertia['mass_scaling_at_optimum'] = used
     inertia['error_at_optimum'] = inertia['error_at_start'] * used / inertia['mass_scaling']
     return {'keys': keys, 'u0': u0, 'u': u, 'start': start, 'best': best, 'uncertainty': spread,
-            'inertia': inertia, 'objective': objective, 'evaluations': len(evaluations), 'failed': failed,
+            'inertia': inertia, 'objective': objective, 'evaluations': len(evaluations), 'partial_evaluations': partial,
+            'failed': failed,
             'simulations': simulations, 'search_wall_s': time.perf_counter() - wall0, 'finish': finish}
 
 
@@ -180,7 +192,7 @@ def parse_phase_weights(texts) -> dict:
 
 def main(*, data_spec, fits, validate_spec=None, scene_file=None, sets=(), coarse_sets=(), align='contact',
          gap_mm=None, max_depth_mm=None, tick_ms=10.0, phase_weights=(), inertia_bound=INERTIA_BOUND, global_search=False,
-         max_evaluations=150, fine_evaluations=1, fine_steps=3, workers=None, scheduler=None, out='out/calibrate',
+         max_evaluations=150, refit_steps=REFIT_STEPS, fine_steps=3, workers=None, scheduler=None, out='out/calibrate',
          stream=None) -> dict:
     """The ``tissue-sim calibrate`` command."""
     from tissue_sim_ros.analysis.calibration_parameters import parse_fit
@@ -209,7 +221,7 @@ def main(*, data_spec, fits, validate_spec=None, scene_file=None, sets=(), coars
     fit = calibrate(trials, scene, keys, coarse_scene=coarse, align=align,
                     gap_m=None if gap_mm is None else gap_mm * 1e-3, tick_s=tick_ms * 1e-3,
                     phase_weights=weights, inertia_bound=inertia_bound, global_search=global_search,
-                    max_evaluations=max_evaluations, fine_evaluations=fine_evaluations, fine_steps=fine_steps, out=out,
+                    max_evaluations=max_evaluations, refit_steps=refit_steps, fine_steps=fine_steps, out=out,
                     workers=workers, scheduler=scheduler,
                     log=lambda text: print(text, file=stream))
     final = Scene(calibrated_spec(fit), base_dir=scene.base_dir)

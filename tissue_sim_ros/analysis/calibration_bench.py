@@ -7,9 +7,9 @@ The data: the default scene (13872 tetrahedra) with a retraction plateau added, 
 each with 5 mN of noise (:mod:`~tissue_sim_ros.analysis.synthetic_study`). The calibration
 starts 30-40 % off on six keys (stiffness, the exponential law's amplitude, the capsule's
 rupture force, the cutting force, the insertion friction per length, the retraction plateau),
-searches on a coarse version of the scene (3 mm cells near the needle, 3630 tetrahedra),
-carries the result to the default one by output space mapping and finishes there with the default
-scene's own Jacobian (:mod:`~tissue_sim_ros.analysis.calibration_mapping`). Printed: wall time, evaluations
+runs the staged start on a coarse version of the scene (3 mm cells near the needle, 3630
+tetrahedra), then on the default one re-fits the loading's keys and finishes with that scene's own
+Jacobian (:mod:`~tissue_sim_ros.analysis.calibration_fine`). Printed: wall time, evaluations
 and simulations per minute, each key against its truth, the fit NRMSE against the noise floor.
 """
 from __future__ import annotations

@@ -31,6 +31,17 @@ they are compared with (:mod:`~tissue_sim_ros.analysis.measured_motion`), so a m
 not the data's: the last sample of a jittered recording scoring 1 in every run was a constant
 that made the search's relative tests stop early. Nothing is NaN and nothing stops the search.
 
+A stage of the search that fits only the first phases of the curve (the loading before the first
+puncture, the puncture itself, the steady insertion) needs the simulations only that far: an
+evaluation for ``phases`` runs each speed's simulation to a **horizon**, the latest sample of
+those phases over the speed's trials (each on its own contact's clock; for the puncture, the
+travel to ``EVENT_REACH`` times the first puncture's depth plus the detector's window, so that a
+simulated puncture somewhat deeper than the measured one is still found) plus ``HORIZON_MARGIN_S``
+and ``HORIZON_MARGIN_FRACTION`` of it (the simulated contact's lag, the cross-correlation's
+shift). On the calibration benchmark the loading ends at a quarter of the slowest speed's run.
+Such a partial evaluation scores only its phases (its other samples are misses), so it never
+becomes the best; one that does not reach a sample of its phases is run again whole.
+
 Every evaluation is appended to ``evaluations.jsonl`` (parameter values, objective, mean NRMSE,
 failures); the simulations are kept in a :class:`~tissue_sim_ros.analysis.trial_simulation.ResultStore`,
 so a second run over the same inputs replays them instead of simulating again (resume).
@@ -48,6 +59,13 @@ __all__ = ['Evaluation', 'Objective', 'FAILED_RESIDUAL', 'BudgetSpent', 'punctur
 
 #: the residual of a sample the simulation did not give (diverged, refused, not reached)
 FAILED_RESIDUAL = 1.0
+#: the phases whose stages may stop the simulations early (module docstring); later phases run whole
+PARTIAL_PHASES = ('loading', 'inserted')
+#: the puncture stage's simulations run to this multiple of the first puncture's depth
+EVENT_REACH = 1.5
+#: a horizon's margin: this much time, and this fraction of the time since contact
+HORIZON_MARGIN_S = 0.5
+HORIZON_MARGIN_FRACTION = 0.05
 
 
 class BudgetSpent(Exception):
@@ -64,6 +82,8 @@ class Evaluation:
     comparisons: list
     results: list
     failures: list = field(default_factory=list)
+    #: the phases a partial evaluation ran for (module docstring); None: the whole curves
+    phases: tuple | str | None = None
 
     @property
     def objective(self) -> float:
@@ -112,8 +132,9 @@ class Objective:
         self.keep_time_step_s, self.max_mass_scaling = keep_time_step_s, max_mass_scaling
         self.store, self.workers, self.scheduler, self.pool = store, workers, scheduler, pool
         self.log_path = None if log_path is None else Path(log_path)
-        self._cache: dict = {}
+        self._cache: dict = {}           # (vector key, horizon key) -> Evaluation; horizon None: whole
         self._points = None              # per trial: (sample indices, phases there)
+        self._horizons: dict = {}        # stage phases -> per job the schedule's end index (None: whole)
         self.simulations_run = 0
         self.best: Evaluation | None = None
         self.on_evaluation = None        # called with each new Evaluation (progress)
@@ -133,26 +154,89 @@ class Objective:
         from tissue_sim_ros.engine.scene_overrides import apply_overrides
         return apply_overrides(self.base_spec, overrides_for(self.keys, [k.value(x) for k, x in zip(self.keys, u)]))
 
-    def jobs_for(self, u) -> list:
+    def jobs_for(self, u, ends=None) -> list:
+        """The simulation jobs of ``u``; ``ends``: per job the schedule's end index (None: whole)."""
         spec = self.spec_for(u)
+        ends = ends or [None] * len(self.plan.jobs)
         return [replace(job, scene_spec=spec, keep_time_step_s=self.keep_time_step_s,
-                        max_mass_scaling=self.max_mass_scaling) for job in self.plan.jobs]
+                        max_mass_scaling=self.max_mass_scaling, times_s=job.times_s[:end], positions=job.positions[:end])
+                for job, end in zip(self.plan.jobs, ends)]
+
+    # -- horizons -----------------------------------------------------------------------------------
+    def horizon(self, phases):
+        """Per job, the schedule's end index an evaluation for ``phases`` needs (module docstring),
+        or None when it needs the whole curves; known after the first (whole) evaluation."""
+        if phases is None or self._points is None:
+            return None
+        key = phases if isinstance(phases, str) else tuple(sorted(phases))
+        if key not in self._horizons:
+            self._horizons[key] = self._find_horizon(phases)
+        return self._horizons[key]
+
+    def _find_horizon(self, phases):
+        from tissue_sim_ros.analysis.force_events import PUNCTURE_WINDOW_M
+        if phases != 'events' and not set(phases) <= set(PARTIAL_PHASES):
+            return None
+        first = next(iter(self._cache.values()))       # the first evaluation: whole
+        needed = [0.0] * len(self.plan.jobs)           # per job: time since contact
+        for i, (comparison, (indices, sample_phases)) in enumerate(zip(first.comparisons, self._points)):
+            since = comparison.time_since_contact_s
+            if phases == 'events':
+                if not comparison.measured_punctures:
+                    continue
+                reach = EVENT_REACH * comparison.measured_punctures[0].travel_m + PUNCTURE_WINDOW_M
+                beyond = np.flatnonzero(comparison.travel_since_contact_m >= reach)
+                if not beyond.size:
+                    return None
+                t = float(since[beyond[0]])
+            else:
+                inside = indices[np.isin(sample_phases, phases)]
+                if not inside.size:
+                    continue
+                t = float(since[inside].max())
+            job = self.plan.job_of_trial[i]
+            needed[job] = max(needed[job], t)
+        ends = []
+        for job, schedule in enumerate(self.plan.schedules):
+            motion = self.plan.motions[self.plan.representative[job]]
+            until = float(motion.time_s[motion.contact_index]) + needed[job] * (1.0 + HORIZON_MARGIN_FRACTION) \
+                + HORIZON_MARGIN_S
+            end = int(np.searchsorted(schedule.trial_time_s, until)) + 1
+            ends.append(end if end < len(schedule.times_s) else None)
+        return ends if any(end is not None for end in ends) else None
 
     # -- evaluation ---------------------------------------------------------------------------------
     @staticmethod
     def _key(u) -> tuple:
         return tuple(round(float(x), 12) for x in u)
 
-    def evaluate_many(self, us) -> list[Evaluation]:
+    def evaluate_many(self, us, phases=None) -> list[Evaluation]:
         """The evaluations of the vectors ``us``: their simulations in one parallel batch (those
-        already run or stored are reused)."""
-        from tissue_sim_ros.analysis.job_runner import run_jobs
-        from tissue_sim_ros.analysis.trial_simulation import simulate
+        already run or stored are reused). ``phases``: only those phases' residuals are wanted
+        (a stage's, :meth:`stage_residuals`): the simulations may stop at their horizon."""
+        ends = self.horizon(phases)
+        scope = None if ends is None else phases
         keys = [self._key(u) for u in us]
-        new = list(dict.fromkeys(k for k in keys if k not in self._cache))
+        found = {k: self._cache.get((k, None)) or self._cache.get((k, str(scope))) for k in keys}
+        new = list(dict.fromkeys(k for k in keys if found[k] is None))
         if new and self.budget is not None and len(self._cache) + len(new) > self.budget:
             raise BudgetSpent(f'{self.budget} evaluations spent')
-        jobs = [job for k in new for job in self.jobs_for(k)]
+        for k, evaluation in zip(new, self._run(new, ends, scope)):
+            if scope is not None and self._short_of(evaluation, phases):
+                evaluation = self._run([k], None, None)[0]        # the horizon fell short: whole
+            found[k] = self._cache[(k, None if evaluation.phases is None else str(scope))] = evaluation
+            self._log(evaluation)
+            if evaluation.phases is None and (self.best is None or evaluation.objective < self.best.objective):
+                self.best = evaluation
+            if self.on_evaluation is not None:
+                self.on_evaluation(evaluation)
+        return [found[k] for k in keys]
+
+    def _run(self, vectors, ends, phases) -> list[Evaluation]:
+        """The vectors' simulations to ``ends`` (one batch), scored."""
+        from tissue_sim_ros.analysis.job_runner import run_jobs
+        from tissue_sim_ros.analysis.trial_simulation import simulate
+        jobs = [job for k in vectors for job in self.jobs_for(k, ends)]
         results = [self.store.get(job.key) if self.store is not None else None for job in jobs]
         todo = [i for i, r in enumerate(results) if r is None]
 
@@ -164,23 +248,23 @@ class Objective:
                  on_result=keep, quiet=True, pool=self.pool)
         self.simulations_run += len(todo)
         per = len(self.plan.jobs)
-        for n, k in enumerate(new):
-            evaluation = self._score(k, results[n * per:(n + 1) * per])
-            self._cache[k] = evaluation
-            self._log(evaluation)
-            if self.best is None or evaluation.objective < self.best.objective:
-                self.best = evaluation
-            if self.on_evaluation is not None:
-                self.on_evaluation(evaluation)
-        return [self._cache[k] for k in keys]
+        return [self._score(k, results[n * per:(n + 1) * per], ends, phases) for n, k in enumerate(vectors)]
 
-    def evaluate(self, u) -> Evaluation:
-        return self.evaluate_many([u])[0]
+    def _short_of(self, evaluation: Evaluation, phases) -> bool:
+        """Whether a partial evaluation left a sample of ``phases`` unreached (not diverged)."""
+        if evaluation.failures or phases == 'events':     # a puncture beyond the reach is a miss
+            return False
+        return any(np.any(np.isnan(c.simulated_n[indices[np.isin(p, phases)]]))
+                   for c, (indices, p) in zip(evaluation.comparisons, self._points))
 
-    def _score(self, u, results) -> Evaluation:
+    def evaluate(self, u, phases=None) -> Evaluation:
+        return self.evaluate_many([u], phases)[0]
+
+    def _score(self, u, results, ends=None, phases=None) -> Evaluation:
         from tissue_sim_ros.analysis.compare import compare_trial, simulated_curve
         plan = self.plan
-        curves = [simulated_curve(results[j], plan.schedules[j], plan.motions[plan.representative[j]],
+        ends = ends or [None] * len(plan.jobs)
+        curves = [simulated_curve(results[j], _cut(plan.schedules[j], ends[j]), plan.motions[plan.representative[j]],
                                   self.scene_gap_m) for j in range(len(plan.jobs))]
         comparisons = [compare_trial(trial, plan.motions[i], curves[plan.job_of_trial[i]], self.align)
                        for i, trial in enumerate(self.trials)]
@@ -189,7 +273,8 @@ class Objective:
         failures = sorted({r.diverged for r in results if r.diverged})
         residuals = np.concatenate([self._trial_residuals(c, *points)
                                     for c, points in zip(comparisons, self._points)])
-        return Evaluation(u, self.values(u), residuals, comparisons, list(results), failures)
+        return Evaluation(u, self.values(u), residuals, comparisons, list(results), failures,
+                          None if all(end is None for end in ends) else phases)
 
     def _choose_points(self, comparison):
         """The samples a trial is scored at: after its contact (the insertion only with the
@@ -250,8 +335,17 @@ class Objective:
         if self.log_path is None:
             return
         record = {'time': time.strftime('%Y-%m-%dT%H:%M:%S'), 'values': evaluation.values,
+                  'phases': None if evaluation.phases is None else str(evaluation.phases),
                   'objective': evaluation.objective, 'nrmse_mean': evaluation.nrmse_mean,
                   'failures': evaluation.failures,
                   'mass_scaling': max((r.mass_scaling for r in evaluation.results), default=float('nan'))}
         with self.log_path.open('a') as log:
             log.write(json.dumps(record, default=float) + '\n')
+
+
+def _cut(schedule, end):
+    """``schedule`` up to its sample ``end`` (None: whole)."""
+    if end is None:
+        return schedule
+    return replace(schedule, times_s=schedule.times_s[:end], positions=schedule.positions[:end],
+                   travel_m=schedule.travel_m[:end], trial_time_s=schedule.trial_time_s[:end])

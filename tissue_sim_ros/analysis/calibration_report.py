@@ -10,7 +10,8 @@
   at the start and at the optimum, the data's noise floor, the nearest other speed's mean curve
   as a prediction), ``inertia`` (the mass scaling's measured error), ``finish`` (per step of the
   fine finish: ``objective_before``, ``predicted`` by its linear model, ``objective`` run), ``warnings``,
-  ``evaluations``, ``simulations``, ``wall_s``, ``outputs``.
+  ``evaluations`` (``partial_evaluations`` of them ran the simulations only as far as a stage of
+  the search needed), ``simulations``, ``wall_s``, ``outputs``.
 - ``report.md``: the same for a person; ``calibration.csv``: one row per speed and role;
   ``evaluations.jsonl``: every evaluation of the search (written as it ran);
   ``calibration_<speed>.png``: per speed the data (trials, mean and one standard deviation), the
@@ -85,7 +86,7 @@ def _warnings(fit, rows, spread) -> list[str]:
            'add data where they differ' for a, b, rho in spread['correlated_pairs']]
     out += [f'{key} does not change the fitted curves (zero sensitivity): its value is the start'
             for key in spread['insensitive']]
-    from tissue_sim_ros.analysis.calibration_mapping import linear_model_warning
+    from tissue_sim_ros.analysis.calibration_fine import linear_model_warning
     nonlinear = linear_model_warning(fit.get('finish', []))
     if nonlinear:
         out.append(nonlinear)
@@ -215,7 +216,8 @@ def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_fi
               'speeds': rows,
               'inertia': {k: (_number(v) if isinstance(v, float) else v) for k, v in fit['inertia'].items()},
               'finish': fit.get('finish', []),
-              'evaluations': fit['evaluations'], 'simulations': fit['simulations'], 'wall_s': fit['search_wall_s']}
+              'evaluations': fit['evaluations'], 'partial_evaluations': fit['partial_evaluations'],
+              'simulations': fit['simulations'], 'wall_s': fit['search_wall_s']}
     if held_out:
         report['validation'] = {'nrmse_mean': _mean(studies['held out'][1]['comparisons']),
                                 'nrmse_mean_start': _mean(studies['held out'][0]['comparisons']),

@@ -12,9 +12,12 @@ search does what the field does:
    and travel errors), the others held: first a scan of each key over ``SCAN_POINTS`` values across its
    bounds (one parallel batch; a threshold the simulation never reaches has no gradient at all,
    so a local method cannot find it from there), the best kept, then a bounded least-squares fit;
-3. **joint refinement** (``joint``; the calibration leaves it to the space mapping when it
+3. **joint refinement** (``joint``; the calibration leaves it to the fine finish when it
    searches on a coarse scene): scipy.optimize.least_squares ('trf', bounds [0, 1] in unit
    coordinates) over every key on every residual.
+
+A stage's evaluations run the simulations only as far as its phases need (the objective's
+horizons: a loading stage stops them at the first puncture).
 
 Jacobians are forward differences of ``FD_STEP`` in unit coordinates (about 5 % of a decade on a
 log key: wider than a step of the simulation's events, narrow enough for the curvature),
@@ -54,7 +57,7 @@ def jacobian(objective, u, free, phases=None, fd_step=FD_STEP) -> np.ndarray:
         moved[i] += step
         points.append(moved)
         steps.append(step)
-    residuals = [objective.stage_residuals(e, phases) for e in objective.evaluate_many([u] + points)]
+    residuals = [objective.stage_residuals(e, phases) for e in objective.evaluate_many([u] + points, phases)]
     columns = [(r - residuals[0]) / s for r, s in zip(residuals[1:], steps)]
     return np.stack(columns, axis=1) if columns else np.zeros((residuals[0].size, 0))
 
@@ -72,7 +75,7 @@ def _least_squares(objective, u, free, phases, max_evaluations, fixed_jacobian=N
         return v
 
     def fun(x):
-        return objective.stage_residuals(objective.evaluate(full(x)), phases)
+        return objective.stage_residuals(objective.evaluate(full(x), phases), phases)
 
     def jac(x):
         return jacobian(objective, full(x), free, phases) if fixed_jacobian is None else fixed_jacobian
@@ -89,7 +92,7 @@ def _scan(objective, u, i, phases) -> np.ndarray:
         moved[i] = value
         points.append(moved)
     points.append(u)
-    scores = [float(np.sum(objective.stage_residuals(e, phases) ** 2)) for e in objective.evaluate_many(points)]
+    scores = [float(np.sum(objective.stage_residuals(e, phases) ** 2)) for e in objective.evaluate_many(points, phases)]
     return points[int(np.argmin(scores))]
 
 
@@ -134,7 +137,7 @@ def _stages(objective, u, staged, global_search, generations, seed, stage_evalua
     if staged:
         for stage, phases in STAGE_PHASES.items():
             free = [i for i, k in enumerate(objective.keys) if k.phase == stage]
-            count = objective.stage_residuals(objective.evaluate(u), phases).size
+            count = objective.stage_residuals(objective.evaluate(u, phases), phases).size
             if not free or count == 0 or len(free) == len(objective.keys):
                 continue
             log(f'staged start: {stage} ({", ".join(objective.keys[i].key for i in free)}) on '

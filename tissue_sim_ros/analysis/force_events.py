@@ -57,6 +57,8 @@ CONTACT_TRAVEL_NOISE_MULTIPLE = 3.0
 PUNCTURE_NOISE_MULTIPLE, PUNCTURE_FLOOR_N = 8.0, 1e-2
 PUNCTURE_SMOOTHING_M, MAX_SMOOTHING_HALF_WIDTH = 1e-4, 100
 DEPTH_NOISE_MULTIPLE, DEPTH_TOLERANCE_FLOOR_M, TRAVEL_MEDIAN_SAMPLES = 4.0, 1e-5, 5
+#: the travel within which a peak's force must fall to count as a puncture (``window_m``)
+PUNCTURE_WINDOW_M = 0.0015
 
 
 @dataclass(frozen=True)
@@ -150,7 +152,7 @@ def _rises(travel: np.ndarray, min_rise: float) -> bool:
 
 
 def detect_punctures(travel_m, force_n, *, min_drop_fraction: float = 0.15,
-                     min_drop_n: float | None = None, window_m: float = 0.0015,
+                     min_drop_n: float | None = None, window_m: float = PUNCTURE_WINDOW_M,
                      inserting=None) -> list[Puncture]:
     """The punctures of an insertion, in order of travel (rule in the module docstring).
     ``inserting``: a boolean mask of the samples where the needle advances (default: those
