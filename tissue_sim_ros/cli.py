@@ -196,7 +196,8 @@ def _calibrate(args):
         parse_phase_weights(args.phase_weight)
     except ValueError as exc:
         raise CommandError(str(exc)) from None
-    main(data_spec=args.data_spec, fits=args.fit, validate_spec=args.validate_spec, scene_file=args.scene,
+    main(data_spec=args.data_spec, fits=args.fit, validate_spec=args.validate_spec,
+         leave_one_speed_out=args.leave_one_speed_out, scene_file=args.scene,
          sets=args.set, coarse_sets=args.coarse_set, align=args.align, gap_mm=args.start_gap_mm,
          max_depth_mm=args.max_depth_mm,
          tick_ms=args.tick_ms, phase_weights=args.phase_weight, inertia_bound=args.inertia_bound,
@@ -326,6 +327,9 @@ def build_parser():
                            help='the data description of the trials to fit')
     calibrate.add_argument('--validate-spec', type=_input_file, default=None, metavar='HELD_OUT.yaml',
                            help='trials to predict, not fitted (e.g. another speed)')
+    calibrate.add_argument('--leave-one-speed-out', action='store_true',
+                           help='cross-validate: first calibrate once per speed without it and predict it '
+                                '(each in DIR/leave_out_<speed>; one calibration per speed more), then on all')
     calibrate.add_argument('--fit', action='append', default=[], required=True, metavar='KEY=LOW:HIGH[:log]',
                            help='a scene key to fit and its bounds (repeatable), e.g. '
                                 'regions[0].young_modulus_pa=5000:50000:log')
@@ -346,8 +350,10 @@ def build_parser():
     calibrate.add_argument('--inertia-bound', type=_POSITIVE, default=0.02,
                            help="the mass scaling's inertia error allowed, as a fraction of the force "
                                 'range (default 0.02)')
-    calibrate.add_argument('--global', dest='global_search', action='store_true',
-                           help='start with a global search (differential evolution) for hard cases')
+    calibrate.add_argument('--global', dest='global_search', nargs='?', const='de', default=False,
+                           choices=['de', 'optuna'],
+                           help='start with a global search for hard cases: de (differential evolution, the '
+                                'default) or optuna (its TPE sampler; needs optuna installed)')
     calibrate.add_argument('--max-evaluations', type=_number(1, inclusive=True, whole=True), default=150,
                            help='parameter vectors the search may evaluate (each: one simulation per '
                                 'speed; default 150); then the best so far is the result')

@@ -33,7 +33,8 @@ import numpy as np
 
 from tissue_sim_ros.analysis.calibration_fine import REFIT_STEPS
 
-__all__ = ['INERTIA_BOUND', 'measure_inertia_error', 'calibrate', 'calibrated_spec', 'parse_phase_weights', 'main']
+__all__ = ['INERTIA_BOUND', 'measure_inertia_error', 'calibrate', 'calibrated_spec', 'noise_floor',
+           'parse_phase_weights', 'speed_folds', 'main']
 
 INERTIA_BOUND = 0.02
 #: the reduced mass scaling of the inertia check: m0 / this
@@ -190,19 +191,51 @@ def parse_phase_weights(texts) -> dict:
     return weights
 
 
-def main(*, data_spec, fits, validate_spec=None, scene_file=None, sets=(), coarse_sets=(), align='contact',
-         gap_mm=None, max_depth_mm=None, tick_ms=10.0, phase_weights=(), inertia_bound=INERTIA_BOUND, global_search=False,
-         max_evaluations=150, refit_steps=REFIT_STEPS, fine_steps=3, workers=None, scheduler=None, out='out/calibrate',
-         stream=None) -> dict:
-    """The ``tissue-sim calibrate`` command."""
-    from tissue_sim_ros.analysis.calibration_parameters import parse_fit
+def speed_folds(trials) -> list[tuple]:
+    """Leave-one-speed-out folds: per speed (ascending), (speed [m/s], the other speeds' trials,
+    that speed's trials). Every trial needs its speed (the data description's file-name pattern)."""
+    unknown = [str(t.file) for t in trials if t.speed_m_s is None]
+    if unknown:
+        raise ValueError(f'--leave-one-speed-out: no speed for {unknown[0]} (and {len(unknown) - 1} more); '
+                         "give the speed in the data description (file_name.pattern's speed group)")
+    speeds = sorted({round(t.speed_m_s, 9) for t in trials})
+    if len(speeds) < 2:
+        raise ValueError(f'--leave-one-speed-out: the trials have {len(speeds)} speed(s); expected at least 2')
+    return [(speed, [t for t in trials if round(t.speed_m_s, 9) != speed],
+             [t for t in trials if round(t.speed_m_s, 9) == speed]) for speed in speeds]
+
+
+def _fit_and_report(trials, held_out, out, *, scene, coarse, keys, scene_file, sets, data_spec, validate_spec,
+                    align, gap_m, tick_s, cross_validation=None, stream, **search) -> dict:
+    """One calibration of ``trials`` (``held_out`` predicted), its outputs in ``out``."""
     from tissue_sim_ros.analysis.calibration_report import write_report
+    from tissue_sim_ros.engine.scene import Scene
+    fit = calibrate(trials, scene, keys, coarse_scene=coarse, align=align, gap_m=gap_m, tick_s=tick_s, out=out,
+                    log=lambda text: print(text, file=stream), **search)
+    final = Scene(calibrated_spec(fit), base_dir=scene.base_dir)
+    return write_report(Path(out), fit, held_out=held_out, start_scene=scene, final_scene=final,
+                        scene_file=scene_file, sets=sets, data_spec=data_spec, validate_spec=validate_spec,
+                        align=align, gap_m=gap_m, tick_s=tick_s, workers=search.get('workers'),
+                        scheduler=search.get('scheduler'), cross_validation=cross_validation)
+
+
+def main(*, data_spec, fits, validate_spec=None, leave_one_speed_out=False, scene_file=None, sets=(), coarse_sets=(),
+         align='contact', gap_mm=None, max_depth_mm=None, tick_ms=10.0, phase_weights=(), inertia_bound=INERTIA_BOUND,
+         global_search=False, max_evaluations=150, refit_steps=REFIT_STEPS, fine_steps=3, workers=None, scheduler=None,
+         out='out/calibrate', stream=None) -> dict:
+    """The ``tissue-sim calibrate`` command; with ``leave_one_speed_out`` first one calibration per
+    speed without it (each in ``out/leave_out_<speed>``), whose predictions of it the report
+    gives as the cross-validation."""
+    from tissue_sim_ros.analysis.calibration_parameters import parse_fit
+    from tissue_sim_ros.analysis.calibration_report import speed_label
     from tissue_sim_ros.engine.scene import Scene
     from tissue_sim_ros.io.data_spec import DataSpec, load_trials
     stream = sys.stdout if stream is None else stream
     keys = [parse_fit(text) for text in fits]
     if not keys:
         raise ValueError('calibrate: give at least one --fit KEY=LOW:HIGH[:log]')
+    if leave_one_speed_out and validate_spec:
+        raise ValueError('calibrate: --leave-one-speed-out and --validate-spec are two ways to hold data out; give one')
     weights = parse_phase_weights(phase_weights)
     spec = DataSpec.from_file(data_spec)
     trials = load_trials(spec)
@@ -212,29 +245,41 @@ def main(*, data_spec, fits, validate_spec=None, scene_file=None, sets=(), coars
         gap = None if gap_mm is None else gap_mm * 1e-3
         trials = [within_depth(t, max_depth_mm * 1e-3, gap_m=gap) for t in trials]
         held_out = [within_depth(t, max_depth_mm * 1e-3, gap_m=gap) for t in held_out]
+    folds = speed_folds(trials) if leave_one_speed_out else []
     scene = Scene.from_file(scene_file, sets=sets)
     coarse = Scene.from_file(scene_file, sets=list(sets) + list(coarse_sets)) if coarse_sets else None
     print(f'calibrate: {len(keys)} key(s) on {len(trials)} trial(s) from {spec.source}'
-          f'{f", {len(held_out)} held out" if held_out else ""}; scene {scene_file or "(default)"}: '
-          f'{scene.mesh.n_elements} tetrahedra'
+          f'{f", {len(held_out)} held out" if held_out else ""}'
+          f'{f", cross-validated leaving out each of {len(folds)} speeds" if folds else ""}; '
+          f'scene {scene_file or "(default)"}: {scene.mesh.n_elements} tetrahedra'
           f'{f", searching on {coarse.mesh.n_elements}" if coarse else ""}', file=stream)
-    fit = calibrate(trials, scene, keys, coarse_scene=coarse, align=align,
-                    gap_m=None if gap_mm is None else gap_mm * 1e-3, tick_s=tick_ms * 1e-3,
-                    phase_weights=weights, inertia_bound=inertia_bound, global_search=global_search,
-                    max_evaluations=max_evaluations, refit_steps=refit_steps, fine_steps=fine_steps, out=out,
-                    workers=workers, scheduler=scheduler,
-                    log=lambda text: print(text, file=stream))
-    final = Scene(calibrated_spec(fit), base_dir=scene.base_dir)
-    report = write_report(Path(out), fit, held_out=held_out, start_scene=scene, final_scene=final,
-                          scene_file=scene_file, sets=sets, data_spec=data_spec, validate_spec=validate_spec,
-                          align=align, gap_m=None if gap_mm is None else gap_mm * 1e-3, tick_s=tick_ms * 1e-3,
-                          workers=workers, scheduler=scheduler)
+    options = dict(scene=scene, coarse=coarse, keys=keys, scene_file=scene_file, sets=sets, align=align,
+                   gap_m=None if gap_mm is None else gap_mm * 1e-3, tick_s=tick_ms * 1e-3, stream=stream,
+                   phase_weights=weights, inertia_bound=inertia_bound, global_search=global_search,
+                   max_evaluations=max_evaluations, refit_steps=refit_steps, fine_steps=fine_steps, workers=workers,
+                   scheduler=scheduler)
+    cross_validation = []
+    for speed, fitted, left in folds:
+        label = speed_label(speed)
+        print(f'cross-validation: calibrating without {label}', file=stream)
+        fold = _fit_and_report(fitted, left, Path(out) / f"leave_out_{label.replace(' ', '').replace('/', '_')}",
+                               data_spec=data_spec, validate_spec=f'{data_spec} ({label})', **options)
+        row = dict(fold['validation']['speeds'][0], role='left out', parameters={k: p['value'] for k, p in fold['parameters'].items()},
+                   report=fold['outputs']['report.json'])
+        print(f'cross-validation: {label} predicted at NRMSE {row["nrmse_calibrated"]:.4f} (noise floor '
+              f'{row["noise_floor_nrmse"] or float("nan"):.4f}, the nearest other speed\'s data '
+              f'{row["nearest_speed_nrmse"] or float("nan"):.4f})', file=stream)
+        cross_validation.append(row)
+    report = _fit_and_report(trials, held_out, Path(out), data_spec=data_spec, validate_spec=validate_spec,
+                             cross_validation=cross_validation or None, **options)
     for key, entry in report['parameters'].items():
         print(f"  {key} = {entry['value']:.6g} +- {entry['stderr']:.2g} (start {entry['start']:.6g})", file=stream)
     for warning in report['warnings']:
         print(f'  warning: {warning}', file=stream)
     print(f"fit NRMSE {report['fit']['nrmse_mean']:.4f} (start {report['fit']['nrmse_mean_start']:.4f})"
           + (f"; held out {report['validation']['nrmse_mean']:.4f}" if report.get('validation') else '')
+          + (f"; leave-one-speed-out {report['cross_validation']['nrmse_mean']:.4f}"
+             if report.get('cross_validation') else '')
           + f"; {report['evaluations']} evaluations, {report['simulations']} simulations, "
           f"{report['wall_s']:.1f} s", file=stream)
     print(f"wrote {', '.join(report['outputs'].values())}", file=stream)

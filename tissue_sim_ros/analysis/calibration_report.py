@@ -6,13 +6,16 @@
 - ``report.json``: ``parameters`` (per fitted key: ``value``, ``stderr``, ``start``, ``low``,
   ``high``, ``log``, ``phase``), ``correlation`` (``keys`` and ``matrix``), ``fit``
   (``nrmse_mean`` and ``nrmse_mean_start`` over the fitted trials, ``speeds``), ``validation``
-  (the same over the held-out trials, when given), ``speeds`` (per speed and role: model NRMSE
+  (the same over the held-out trials, when given), ``cross_validation`` (with leave-one-speed-out:
+  ``nrmse_mean`` and per speed its prediction by the calibration without it, as the ``speeds`` rows
+  with that calibration's ``parameters`` and ``report``), ``speeds`` (per speed and role: model NRMSE
   at the start and at the optimum, the data's noise floor, the nearest other speed's mean curve
   as a prediction), ``inertia`` (the mass scaling's measured error), ``finish`` (per step of the
   fine finish: ``objective_before``, ``predicted`` by its linear model, ``objective`` run), ``warnings``,
   ``evaluations`` (``partial_evaluations`` of them ran the simulations only as far as a stage of
   the search needed), ``simulations``, ``wall_s``, ``outputs``.
-- ``report.md``: the same for a person; ``calibration.csv``: one row per speed and role;
+- ``report.md``: the same for a person; ``calibration.csv``: one row per speed and role (fit,
+  held out, left out);
   ``evaluations.jsonl``: every evaluation of the search (written as it ran);
   ``calibration_<speed>.png``: per speed the data (trials, mean and one standard deviation), the
   starting scene and the calibrated scene, force against time since contact.
@@ -26,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['write_report']
+__all__ = ['speed_label', 'write_report']
 
 
 def _number(value):
@@ -34,7 +37,7 @@ def _number(value):
     return value if math.isfinite(value) else None
 
 
-def _speed_label(speed) -> str:
+def speed_label(speed) -> str:
     return 'unknown speed' if speed is None else f'{speed * 1e3:g} mm/s'
 
 
@@ -76,6 +79,10 @@ def _nearest_baseline(trials) -> dict:
     return nearest_speed_baseline(groups) if len(groups) >= 2 else {}
 
 
+def _nan(value) -> float:
+    return float('nan') if value is None else float(value)
+
+
 def _mean(comparisons) -> float:
     scores = [c.errors.get('nrmse', np.nan) for c in comparisons]
     return _number(np.nanmean(scores)) if np.isfinite(scores).any() else None
@@ -101,12 +108,13 @@ def _warnings(fit, rows, spread) -> list[str]:
         if row['nrmse_calibrated'] is None or row['nearest_speed_nrmse'] is None \
                 or not row['nrmse_calibrated'] > row['nearest_speed_nrmse']:
             continue
-        other = f"the measured {_speed_label(row['nearest_speed_m_s'])} curve ({row['nearest_speed_nrmse']:.3f})"
-        if row['role'] == 'held out':
-            out.append(f"held-out {_speed_label(row['speed_m_s'])}: the model (NRMSE {row['nrmse_calibrated']:.3f}) "
+        other = f"the measured {speed_label(row['nearest_speed_m_s'])} curve ({row['nearest_speed_nrmse']:.3f})"
+        if row['role'] in ('held out', 'left out'):
+            out.append(f"{'held-out' if row['role'] == 'held out' else 'left out (calibrated without it)'} "
+                       f"{speed_label(row['speed_m_s'])}: the model (NRMSE {row['nrmse_calibrated']:.3f}) "
                        f"predicts worse than reusing {other}")
         else:   # a curve it was fitted to: another speed's data is closer than the fit
-            out.append(f"fitted {_speed_label(row['speed_m_s'])}: the calibrated model (NRMSE "
+            out.append(f"fitted {speed_label(row['speed_m_s'])}: the calibrated model (NRMSE "
                        f"{row['nrmse_calibrated']:.3f}) is farther from the data than {other}: the search "
                        'may have stopped short, or the scene cannot take the data\'s shape')
     return out
@@ -146,7 +154,7 @@ def _plot(out, study_start, study_final, role) -> dict:
             c = study['comparisons'][members[0]]
             ax.plot(c.time_since_contact_s, c.simulated_n, style, color='C3' if style == '-' else 'C1',
                     lw=1.3, label=f"{label} (NRMSE {_number(np.nanmean([study['comparisons'][i].errors.get('nrmse', np.nan) for i in members])) or float('nan'):.3f})")
-        ax.set_title(f'{role}: {_speed_label(speed)}, {len(members)} trial(s)', fontsize=9)
+        ax.set_title(f'{role}: {speed_label(speed)}, {len(members)} trial(s)', fontsize=9)
         ax.set_xlabel('time since contact [s]')
         ax.set_ylabel('axial force [N]')
         ax.grid(alpha=0.3)
@@ -173,9 +181,17 @@ def _markdown(report) -> str:
                   'force samples are correlated).']
     lines += ['', '| role | speed | trials | NRMSE start | NRMSE calibrated | noise floor | nearest other speed\'s data |',
               '|---|---|---|---|---|---|---|']
-    lines += [f"| {r['role']} | {_speed_label(r['speed_m_s'])} | {r['trials']} | {f(r['nrmse_start'])} | "
+    lines += [f"| {r['role']} | {speed_label(r['speed_m_s'])} | {r['trials']} | {f(r['nrmse_start'])} | "
               f"{f(r['nrmse_calibrated'])} | {f(r['noise_floor_nrmse'])} | {f(r['nearest_speed_nrmse'])} |"
               for r in report['speeds']]
+    if report.get('cross_validation'):
+        lines += ['', '## Leave one speed out', '', 'Each speed predicted by a calibration that did not see it '
+                  '(its outputs in `leave_out_<speed>/`):', '',
+                  '| speed | trials | NRMSE start | NRMSE predicted | noise floor | nearest other speed\'s data |',
+                  '|---|---|---|---|---|---|']
+        lines += [f"| {speed_label(r['speed_m_s'])} | {r['trials']} | {f(r['nrmse_start'])} | {f(r['nrmse_calibrated'])} | "
+                  f"{f(r['noise_floor_nrmse'])} | {f(r['nearest_speed_nrmse'])} |"
+                  for r in report['cross_validation']['speeds']]
     inertia = report['inertia']
     lines += ['', f"Mass scaling: {inertia['mass_scaling_at_optimum']:g} at the optimum; its inertia error "
               f"{f(_number(inertia.get('error_at_optimum', float('nan'))), 3)} of the force range (bound "
@@ -187,8 +203,10 @@ def _markdown(report) -> str:
 
 
 def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_file, sets, data_spec,
-                 validate_spec, align, gap_m, tick_s, workers=None, scheduler=None) -> dict:
-    """Write every output (see the module docstring); the report dict."""
+                 validate_spec, align, gap_m, tick_s, workers=None, scheduler=None, cross_validation=None) -> dict:
+    """Write every output (see the module docstring); the report dict. ``cross_validation``: per
+    speed, its prediction by the calibration without it (the held-out row of that fold's report,
+    with its ``parameters`` and ``report``)."""
     from tissue_sim_ros.analysis.calibration import calibrated_spec
     from tissue_sim_ros.analysis.trial_simulation import ResultStore
     out.mkdir(parents=True, exist_ok=True)
@@ -222,6 +240,12 @@ def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_fi
         report['validation'] = {'nrmse_mean': _mean(studies['held out'][1]['comparisons']),
                                 'nrmse_mean_start': _mean(studies['held out'][0]['comparisons']),
                                 'speeds': [r for r in rows if r['role'] == 'held out']}
+    if cross_validation:
+        report['cross_validation'] = {'method': 'leave one speed out',
+                                      'nrmse_mean': _number(np.nanmean([_nan(r['nrmse_calibrated'])
+                                                                        for r in cross_validation])),
+                                      'speeds': cross_validation}
+    rows = rows + list(cross_validation or [])   # the CSV and the warnings; report['speeds'] keeps its roles
     report['warnings'] = _warnings(fit, rows, spread)
     outputs = {name: str(out / name) for name in ('calibrated.yaml', 'report.json', 'report.md',
                                                   'calibration.csv', 'evaluations.jsonl')}
@@ -233,7 +257,7 @@ def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_fi
     (out / 'report.json').write_text(json.dumps(report, indent=2, default=float))
     (out / 'report.md').write_text(_markdown(report))
     with (out / 'calibration.csv').open('w', newline='') as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
+        writer = csv.DictWriter(handle, fieldnames=list(rows[0]), extrasaction='ignore')
         writer.writeheader()
         writer.writerows(rows)
     return report

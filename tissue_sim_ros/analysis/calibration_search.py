@@ -4,8 +4,11 @@ and the uncertainty at the optimum.
 The objective is not smooth (a puncture is an event that moves with the parameters), so the
 search does what the field does:
 
-1. **global** (optional, ``global_search``): scipy's differential_evolution over the unit box,
-   its population evaluated in parallel (``updating='deferred'``), a few generations;
+1. **global** (optional, ``global_search``): ``'de'`` (or True) is scipy's differential_evolution
+   over the unit box, its population evaluated in parallel (``updating='deferred'``), a few
+   generations; ``'optuna'`` is Optuna's multivariate TPE sampler (when installed) with the same
+   budget, each generation's trials asked for together and evaluated as one parallel batch, the
+   start enqueued as the first trial;
 2. **staged start**: for each phase of the curve that has fitted keys and samples (loading,
    puncture, inserted, retraction, hold; :data:`~tissue_sim_ros.analysis.calibration_parameters.PHASE_RULES`),
    that phase's keys on that phase's residuals (the puncture keys on the first puncture's force
@@ -36,7 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['FD_STEP', 'CORRELATION_WARNING', 'STAGE_PHASES', 'search', 'jacobian', 'uncertainty']
+__all__ = ['FD_STEP', 'CORRELATION_WARNING', 'GLOBAL_METHODS', 'STAGE_PHASES', 'search', 'jacobian', 'uncertainty']
 
 FD_STEP = 0.03
 SCAN_POINTS = 5
@@ -108,6 +111,28 @@ def _global(objective, u0, generations, seed):
     return np.asarray(result.x)
 
 
+def _global_optuna(objective, u0, generations, seed):
+    try:
+        import optuna
+    except ImportError:
+        raise ValueError("--global optuna: optuna is not installed (pip install optuna), or use --global de") from None
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    n = len(u0)
+    names = [f'u{i}' for i in range(n)]
+    space = {name: optuna.distributions.FloatDistribution(0.0, 1.0) for name in names}
+    study = optuna.create_study(sampler=optuna.samplers.TPESampler(seed=seed, multivariate=True))
+    study.enqueue_trial(dict(zip(names, map(float, u0))))
+    for _ in range(generations):
+        trials = [study.ask(space) for _ in range(max(2, -(-8 // n)) * n)]
+        points = [np.array([t.params[name] for name in names]) for t in trials]
+        for trial, evaluation in zip(trials, objective.evaluate_many(points)):
+            study.tell(trial, evaluation.objective)
+    return np.array([study.best_trial.params[name] for name in names])
+
+
+GLOBAL_METHODS = {'de': _global, 'optuna': _global_optuna}
+
+
 def search(objective, u0, *, staged=True, global_search=False, generations=5, seed=0,
            stage_evaluations=6, joint_evaluations=20, max_evaluations=None, joint=True, fixed_jacobian=None,
            log=print) -> np.ndarray:
@@ -132,8 +157,9 @@ def search(objective, u0, *, staged=True, global_search=False, generations=5, se
 def _stages(objective, u, staged, global_search, generations, seed, stage_evaluations, joint_evaluations,
             fixed_jacobian, log):
     if global_search:
-        log(f'global stage: differential evolution, {generations} generation(s)')
-        u = _global(objective, u, generations, seed)
+        method = 'de' if global_search is True else global_search
+        log(f"global stage: {'differential evolution' if method == 'de' else 'Optuna TPE'}, {generations} generation(s)")
+        u = GLOBAL_METHODS[method](objective, u, generations, seed)
     if staged:
         for stage, phases in STAGE_PHASES.items():
             free = [i for i, k in enumerate(objective.keys) if k.phase == stage]
