@@ -95,9 +95,11 @@ def test_a_late_puncture_costs_a_residual_smooth_in_its_shift_not_a_staircase_of
     """A measured curve that rises to 1 N and drops by 0.6 N at 5 mm, and simulated ones that drop
     0 to 6 scored samples later in steps of a third of one (punctures found by the detector both
     curves share): the samples between the two peaks count 0, and the shift's one residual is
-    the drop over the force range times the shift counted in samples, so a trial's sum of squares
-    grows as the square of the shift. Scored as plain samples it is a staircase: a whole
-    sample's drop squared each time the later drop passes a scored sample, flat in between."""
+    the drop over the force range times the Huber root of the shift counted in samples, so a
+    trial's sum of squares grows smoothly, as the shift's square within half a sample and by one
+    sample's cost per sample beyond. Scored as plain samples it is a staircase: a whole sample's
+    drop squared each time the later drop passes a scored sample, flat in between; the smooth
+    cost stays within one step of it."""
     from types import SimpleNamespace
 
     from tissue_sim_ros.analysis.calibration_objective import puncture_shift_residuals
@@ -123,10 +125,13 @@ def test_a_late_puncture_costs_a_residual_smooth_in_its_shift_not_a_staircase_of
     samples = np.arange(0.0, 6.01, 1.0 / 3.0)
     drop = comparison.measured_punctures[0].drop_n / scale      # the detector's, from the smoothed force
     assert 0.8 * 0.6 < drop * scale <= 0.6
-    np.testing.assert_allclose(shifts_seen, drop * samples, atol=0.02 * drop)
-    np.testing.assert_allclose(sums[1:], (drop * samples[1:]) ** 2, rtol=0.05)
+    huber = np.where(samples <= 0.5, samples ** 2, samples - 0.25)
+    np.testing.assert_allclose(np.square(shifts_seen), drop ** 2 * huber, atol=0.03 * drop ** 2)
+    np.testing.assert_allclose(sums[1:], drop ** 2 * huber[1:], rtol=0.05, atol=0.01 * drop ** 2)
+    assert np.all(np.diff(sums) > 0)                                  # smooth: every shift costs more
     assert np.sum(np.diff(plain) < 0.01 * drop ** 2) >= 10           # plain samples: flat steps...
     assert np.max(np.diff(plain)) > 0.9 * (0.6 / scale) ** 2          # ...and a whole drop at a time
+    assert np.max(np.abs(np.array(sums) - plain)) < 1.1 * (0.6 / scale) ** 2   # within one step of them
 
 
 def test_a_stage_runs_its_simulations_only_as_far_as_its_phases_and_scores_them_as_a_whole_run(tmp_path, monkeypatch):
