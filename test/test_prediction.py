@@ -153,6 +153,33 @@ def test_predict_command_writes_its_four_files(tmp_path):
     assert 'answered in' in (out / 'prediction.md').read_text()
 
 
+def test_predict_with_a_max_error_runs_on_the_cheapest_rung_within_it(tmp_path, monkeypatch):
+    """--max-error: the rung the ladder's probe measured within it (the probe's errors, cached in
+    a directory of the test's; a mass rung here), fewer substeps for the same path, and the answer
+    within about that error of the live settings' (the probe is another path: twice it)."""
+    from tissue_sim_ros.engine.degradation_ladder import DegradationLadder
+    from tissue_sim_ros.engine.ladder_probe import probe_errors
+    scene = _scene()
+    stamps, positions, orientations = _down(scene, 0.0, 2.4)
+    path_csv = tmp_path / 'path.csv'
+    path_csv.write_text('t,x,y,z,qx,qy,qz,qw\n' + ''.join(','.join(f'{v:.9g}' for v in row) + '\n'
+                                                        for row in np.column_stack([stamps, positions, orientations])))
+    sets = ['mesh.generator=box', 'mesh.divisions=[8, 8, 6]']
+    log = open(tmp_path / 'log.txt', 'w')
+    live = predict_main(None, path_csv, tmp_path / 'live', sets=sets, stream=log)
+    monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path / 'cache'))
+    cheap = predict_main(None, path_csv, tmp_path / 'cheap', sets=sets, max_error=0.02, stream=log)
+    summary = json.loads((tmp_path / 'cheap' / 'prediction.json').read_text())
+    probed = Scene.from_file(None, sets=sets)
+    ladder = DegradationLadder(probed)
+    errors = probe_errors(probed, ladder)
+    level = max(k for k, e in enumerate(errors) if e <= 0.02)
+    assert summary['rung'] == ladder.rungs[level].name and summary['rung_error'] == pytest.approx(errors[level])
+    assert ladder.rungs[level].mass_factor > 1 and cheap.substeps < 0.6 * live.substeps
+    force = live.column('force_z_n')
+    assert np.sqrt(np.mean((cheap.column('force_z_n') - force) ** 2)) < 2 * 0.02 * np.ptp(force)
+
+
 def test_a_path_csv_without_a_column_or_with_a_word_is_refused_by_line(tmp_path):
     from tissue_sim_ros.io.trial import DataError
     bad = tmp_path / 'bad.csv'

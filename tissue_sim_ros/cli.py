@@ -215,7 +215,7 @@ def _column(text):
 
 def _predict(args):
     from tissue_sim_ros.analysis.predict import main
-    main(args.scene, args.path, args.out, sets=args.set, wrench_frame=args.wrench_frame)
+    main(args.scene, args.path, args.out, sets=args.set, wrench_frame=args.wrench_frame, max_error=args.max_error)
 
 
 def _replay(args):
@@ -389,6 +389,10 @@ def build_parser():
     _add_scene_sets(predict)
     predict.add_argument('--wrench-frame', choices=['needle', 'world'], default='needle',
                          help="the force and torque's frame (default needle, as the node's wrench.frame_id)")
+    predict.add_argument('--max-error', type=_NON_NEGATIVE, default=0.0,
+                         help="run on the cheapest degradation-ladder rung whose measured error (NRMSE of "
+                              'the axial force against the scene as configured) is within this, as the '
+                              "node's prediction.max_error (default 0: as configured)")
     predict.add_argument('--out', type=_output_dir, default='out/predict',
                          help='output directory for prediction.csv, .png, .md, .json (default: out/predict)')
     predict.set_defaults(run=_predict)

@@ -17,7 +17,16 @@ def _node_bench(args):
     from tissue_sim_ros.analysis import node_bench
     node_bench.run(duration_s=args.duration_s, rate_hz=args.rate_hz, scene_file=args.scene_file,
                    out=args.out, threads=args.threads, executor=args.executor, load=args.load,
-                   predictions=args.predictions, prediction_s=args.prediction_s)
+                   predictions=args.predictions, prediction_s=args.prediction_s, params=args.param)
+
+
+def _node_parameter(text):
+    """``name:=value`` for the node's --ros-args -p."""
+    import argparse
+    name, sep, value = text.partition(':=')
+    if not sep or not name.strip() or not value.strip():
+        raise argparse.ArgumentTypeError(f'{text!r}: expected NAME:=VALUE, e.g. prediction.max_error:=0.02')
+    return f'{name.strip()}:={value.strip()}'
 
 
 def add_node_commands(commands):
@@ -52,4 +61,7 @@ def add_node_commands(commands):
                                  'and report how fast they are answered (default 0: none)')
     node_bench.add_argument('--prediction-s', type=_POSITIVE, default=10.0,
                             help='length of each candidate path [s] (default 10)')
+    node_bench.add_argument('--param', action='append', default=[], type=_node_parameter, metavar='NAME:=VALUE',
+                            help='another node parameter (repeatable), as ros-args -p takes it, e.g. '
+                                 'prediction.max_error:=0.02')
     node_bench.set_defaults(run=_node_bench)

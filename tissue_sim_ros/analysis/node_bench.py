@@ -304,10 +304,11 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
             log_dir: str | Path | None = None, speed_mm_s: float = 5.0, depth_mm: float = 15.0,
             domain_id: int | None = None, publish_rate_hz: float = 50.0,
             threads: int | None = None, executor: str | None = None, load: int = 0,
-            predictions: int = 0, prediction_s: float = 10.0) -> dict:
+            predictions: int = 0, prediction_s: float = 10.0, params=()) -> dict:
     """Run the node and the scripted driver for ``duration_s`` (with ``load`` busy processes and
     a listening client beside them when ``load`` > 0, a burst of ``predictions`` candidate paths
-    of ``prediction_s`` seconds); the figures as a dict."""
+    of ``prediction_s`` seconds; ``params``: more node parameters, ``name:=value``); the figures
+    as a dict."""
     from tissue_sim_ros.ros.drive import insertion_trajectory, scene_start
     start = scene_start(scene_file)
     times, positions = insertion_trajectory(start, speed_mm_s * 1e-3, depth_mm * 1e-3, 0.5,
@@ -316,7 +317,7 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
     log_dir = Path(tempfile.mkdtemp(prefix='node_bench_')) if own_dir else Path(log_dir)
     log_dir.mkdir(parents=True, exist_ok=True)
     earlier_logs = set(log_dir.glob('*.mcap'))
-    run = _run_node(log_dir, _node_params(log_dir, publish_rate_hz, scene_file, threads, executor),
+    run = _run_node(log_dir, _node_params(log_dir, publish_rate_hz, scene_file, threads, executor) + list(params),
                     domain_id, start, times, positions, rate_hz, duration_s, load, predictions, prediction_s)
     path = _new_log(log_dir, earlier_logs)
     log, window = _log_timings(path), run['window']
@@ -324,6 +325,7 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
         'scene': scene_file or 'default (config/liver_sample.yaml)',
         'engine_threads_asked': threads if threads is not None else 'default',
         'executor': executor or 'default',
+        'parameters': list(params),
         'load': run['load'],
         'listener': run['listener'],
         'machine_before': run['machine'],
@@ -362,7 +364,8 @@ def report(r: dict) -> str:
         f'node bench: {r["scene"]}, engine threads {r["engine_threads"]}, executor {r["executor"]}, '
         f'{r["duration_s"]:.1f} s measured, poses at {r["pose_rate_hz"]:g} Hz '
         f'({r["poses_sent"]} sent, {r["poses_logged"]} logged by the node), node up in {r["startup_s"]:.1f} s',
-        f'  load beside the node {r["load"]}; before the run: {r["machine_before"]}',
+        f'  load beside the node {r["load"]}; before the run: {r["machine_before"]}'
+        + (f'; parameters {" ".join(r["parameters"])}' if r.get('parameters') else ''),
         f'  wrench rate          {r["wrench_rate_hz"]:8.3f} Hz   ({r["wrench_rate_error_pct"]:+.2f} %; goal within '
         f'{100 * g["rate_rel"]:.1f} %)',
         f'  tick period          p50 {r["tick_period_ms_p50"]:.3f} ms, |deviation| p99 '
@@ -394,11 +397,11 @@ def report(r: dict) -> str:
 
 def run(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | None = None,
         out: str | None = None, threads: int | None = None, executor: str | None = None,
-        load: int = 0, predictions: int = 0, prediction_s: float = 10.0) -> dict:
+        load: int = 0, predictions: int = 0, prediction_s: float = 10.0, params=()) -> dict:
     """Measure and print; with ``out``, keep the MCAP log there and write node_bench.json."""
     result = measure(duration_s=duration_s, rate_hz=rate_hz, scene_file=scene_file, log_dir=out,
                      threads=threads, executor=executor, load=load, predictions=predictions,
-                     prediction_s=prediction_s)
+                     prediction_s=prediction_s, params=params)
     print(report(result))
     if out:
         (Path(out) / 'node_bench.json').write_text(json.dumps(result, indent=2))

@@ -7,7 +7,8 @@ any other columns are accepted and ignored), its first pose the scene's initial 
 (``config/candidate_path.csv`` is a 10 s example on the default scene). Writes into ``--out``:
 ``prediction.csv`` (one row per pose: time from start, the prediction's columns, the phase),
 ``prediction.png`` (force, tip depth and target displacements against time), ``prediction.md``
-and ``prediction.json`` (figures and the speed: wall time and real-time factor). The wrench is in
+and ``prediction.json`` (figures and the speed: wall time and real-time factor; with
+``--max-error``, the ladder's rung it ran on and that rung's measured error). The wrench is in
 the needle frame by default, as the node's (``--wrench-frame world`` for the world frame).
 """
 from __future__ import annotations
@@ -110,10 +111,24 @@ def _figures(prediction) -> dict:
     return figures
 
 
-def main(scene_file, path_file, out, *, sets=(), wrench_frame='needle', stream=None):
+def _rung(scene, max_error) -> dict:
+    """Set ``scene`` to its ladder's cheapest rung within ``max_error`` (the probe's errors,
+    measured once per scene and cached); its name and error."""
+    from tissue_sim_ros.engine.degradation_ladder import DegradationLadder
+    from tissue_sim_ros.engine.ladder_probe import cached_probe_errors
+    ladder = DegradationLadder(scene)
+    ladder.predicted_errors = cached_probe_errors(scene, DegradationLadder)
+    level = ladder.cheapest_within(max_error)
+    ladder.set_level(level)
+    return {'rung': ladder.rung.name, 'rung_error': float(ladder.predicted_errors[level])}
+
+
+def main(scene_file, path_file, out, *, sets=(), wrench_frame='needle', max_error=0.0, stream=None):
     """The command: read the path, predict from the scene at rest, write the four outputs, print
     the figures (the speed among them). ``wrench_frame``: 'needle' (the node's default
-    wrench.frame_id) or 'world'. Returns the Prediction."""
+    wrench.frame_id) or 'world'. ``max_error`` > 0: on the cheapest degradation-ladder rung whose
+    measured error against the scene as configured is within it, as the node's
+    ``prediction.max_error`` (the rung and its error in the outputs). Returns the Prediction."""
     from tissue_sim_ros.engine.driver import SimulationDriver
     from tissue_sim_ros.engine.prediction import check_path
     from tissue_sim_ros.engine.scene import Scene
@@ -129,8 +144,12 @@ def main(scene_file, path_file, out, *, sets=(), wrench_frame='needle', stream=N
     print(f'scene {scene_file or "(default liver sample)"}: {scene.mesh.n_elements} tetrahedra, '
           f'dt = {scene.dt * 1e3:.3f} ms; path {path_file}: {len(path)} poses over {path.duration_s:g} s',
           file=stream)
+    rung = _rung(scene, max_error) if max_error > 0 else None
+    if rung is not None:
+        print(f"on the ladder's rung '{rung['rung']}' (measured error {rung['rung_error']:.4f} of the "
+              f'force range against the scene as configured, within {max_error:g})', file=stream)
     prediction = SimulationDriver(scene, wrench_frame=wrench_frame).predict(path)
-    figures = _figures(prediction)
+    figures = dict(_figures(prediction), **(rung or {}))
     write_prediction(prediction, out, title=f'prediction of {Path(path_file).name}', wrench_frame=wrench_frame)
     summary = {'scene': str(scene_file) if scene_file else 'default (config/liver_sample.yaml)',
                'path': str(path_file), 'sets': list(sets), 'wrench_frame': wrench_frame,
@@ -148,6 +167,8 @@ def main(scene_file, path_file, out, *, sets=(), wrench_frame='needle', stream=N
              *(f'| target {name}: largest displacement | {value * 1e3:.3g} mm |'
                for name, value in figures['target_peak_displacement_m'].items()),
              f'| answered in | {figures["wall_s"]:.3g} s wall, {figures["real_time_factor"]:.3g}x real time |',
+             *([f'| settings | the ladder\'s rung {figures["rung"]} (error {figures["rung_error"]:.4f}) |']
+               if 'rung' in figures else []),
              '', 'Files: prediction.csv (one row per pose), prediction.png, prediction.json.', '']
     (out / 'prediction.md').write_text('\n'.join(lines))
     for line in lines[6:-3]:

@@ -9,8 +9,8 @@ of its axial force minus level 0's over the slow part, divided by level 0's forc
 (NRMSE), the measure the comparison with load-cell data uses. A level that diverges scores inf.
 
 The errors depend only on the scene, so they are kept in the user cache
-(``ladder/<hash>.json``, the hash of the scene's keys, its mesh file, the package version and
-the probe's constants): a node measures a scene once (about 1.5 s of CPU on the default scene,
+(``ladder/<hash>.json``, the hash of the scene's keys, its mesh file, the package version, what
+the rungs change and the probe's constants): a node measures a scene once (about 1.5 s of CPU on the default scene,
 in a background thread), later starts read the file.
 """
 from __future__ import annotations
@@ -87,15 +87,16 @@ def probe_errors(scene, ladder) -> list[float]:
 
 def scene_hash(scene) -> str:
     """A hash of what the probe's result depends on: the scene's keys, its mesh file's bytes,
-    the package version and the probe's constants."""
+    the package version, what the rungs change and the probe's constants."""
     from tissue_sim_ros import __version__
+    from tissue_sim_ros.engine.degradation_ladder import RUNG_RULES
     digest = hashlib.sha256()
     digest.update(json.dumps(scene.spec, sort_keys=True, default=str).encode())
     if scene.spec['mesh']['generator'] == 'file':
         path = Path(scene.spec['mesh']['file'])
         path = path if path.is_absolute() else Path(scene.base_dir) / path
         digest.update(path.read_bytes())
-    digest.update(repr((__version__, PROBE_SPEED_M_S, PROBE_PAST_CONTACT_M, _APPROACH_SPEED_M_S,
+    digest.update(repr((__version__, RUNG_RULES, PROBE_SPEED_M_S, PROBE_PAST_CONTACT_M, _APPROACH_SPEED_M_S,
                         _CLEARANCE_M, _TICK_S)).encode())
     return digest.hexdigest()[:24]
 

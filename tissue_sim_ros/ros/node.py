@@ -193,10 +193,10 @@ class TissueSimNode(Node):
             self._measure_ladder(ladder)
 
         def rung():
-            errors = None if ladder is None else ladder.predicted_errors
-            if cfg.prediction_max_error <= 0 or errors is None or None in errors:
+            level = None if ladder is None or cfg.prediction_max_error <= 0 else \
+                ladder.cheapest_within(cfg.prediction_max_error)
+            if level is None:
                 return None, None
-            level = max(k for k, error in enumerate(errors) if error <= cfg.prediction_max_error)
             chosen = ladder.rungs[level]
             return chosen.threshold, ladder.base_mass_scaling * chosen.mass_factor
 
