@@ -164,9 +164,9 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
     inertia['mass_scaling_at_optimum'] = used
     inertia['error_at_optimum'] = inertia['error_at_start'] * used / inertia['mass_scaling']
     return {'keys': keys, 'u0': u0, 'u': u, 'start': start, 'best': best, 'uncertainty': spread,
-            'inertia': inertia, 'objective': objective, 'evaluations': len(evaluations), 'partial_evaluations': partial,
-            'failed': failed,
-            'simulations': simulations, 'search_wall_s': time.perf_counter() - wall0, 'finish': finish}
+            'inertia': inertia, 'objective': objective, 'evaluations': len(evaluations),
+            'partial_evaluations': partial, 'failed': failed, 'simulations': simulations,
+            'search_wall_s': time.perf_counter() - wall0, 'finish': finish}
 
 
 def calibrated_spec(fit: dict) -> dict:
@@ -264,7 +264,8 @@ def main(*, data_spec, fits, validate_spec=None, leave_one_speed_out=False, scen
         print(f'cross-validation: calibrating without {label}', file=stream)
         fold = _fit_and_report(fitted, left, Path(out) / f"leave_out_{label.replace(' ', '').replace('/', '_')}",
                                data_spec=data_spec, validate_spec=f'{data_spec} ({label})', **options)
-        row = dict(fold['validation']['speeds'][0], role='left out', parameters={k: p['value'] for k, p in fold['parameters'].items()},
+        row = dict(fold['validation']['speeds'][0], role='left out',
+                   parameters={k: p['value'] for k, p in fold['parameters'].items()},
                    report=fold['outputs']['report.json'])
         print(f'cross-validation: {label} predicted at NRMSE {row["nrmse_calibrated"]:.4f} (noise floor '
               f'{row["noise_floor_nrmse"] or float("nan"):.4f}, the nearest other speed\'s data '

@@ -73,7 +73,8 @@ def gauss_newton(objective, u, *, steps: int, free=None, phases=None, rcond=None
     step (module docstring). ``rcond``: each step only along the Jacobian's right singular vectors
     whose singular value is at least this fraction of the largest (:func:`_step`). ``enough``:
     called with each accepted evaluation, True ends the steps (the fit is as close to the data as
-    the data's own repeats are to each other). Without residuals in ``phases``, ``u`` as it is. Returns the best point, the Jacobian taken at ``u`` and each step's
+    the data's own repeats are to each other). Without residuals in ``phases``, ``u`` as it is.
+    Returns the best point, the Jacobian taken at ``u`` and each step's
     record (``objective_before``, ``predicted`` by the linear model, ``objective`` run, on those
     residuals): what :func:`linear_model_warning` reads."""
     from tissue_sim_ros.analysis.calibration_search import jacobian
@@ -122,7 +123,8 @@ def _step(B, r, x, rcond) -> np.ndarray:
     U, S, Vt = np.linalg.svd(B, full_matrices=False)
     keep = S >= rcond * S[0] if S.size and S[0] > 0 else np.zeros(S.size, dtype=bool)
     step = Vt[keep].T @ ((U[:, keep].T @ -r) / S[keep])
-    room = np.where(step > 0, (1.0 - x) / np.where(step > 0, step, 1.0), np.where(step < 0, -x / np.where(step < 0, step, -1.0), np.inf))
+    with np.errstate(divide='ignore', invalid='ignore'):      # the room to each bound along the step
+        room = np.where(step > 0, (1.0 - x) / step, np.where(step < 0, -x / step, np.inf))
     return step * min(1.0, float(np.min(room, initial=np.inf)))
 
 

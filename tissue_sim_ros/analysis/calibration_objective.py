@@ -19,12 +19,12 @@ benchmark two such samples held 82 % of a trial's objective at the search's resu
 Jacobian's predictions missed by 12-21x. So those samples count 0 too, and each measured
 puncture adds one residual instead: the measured drop over the force range times the signed root
 of the Huber cost of the matched simulated puncture's shift (k-th with k-th) counted in scored
-samples, with the inserted phase's weight. Its square grows as the shift's square within half a
-sample (smooth where the finish works) and by one sample's cost per sample beyond, as the
-samples it replaces did: growing as the square all the way, a shift of ten samples weighed ten
-times what the pointwise error did, and on the bovine liver (one trial, 25 mm) the search traded
-the curve for the puncture's depth (NRMSE 0.077 where the pointwise objective had reached 0.063). On the benchmark's stored runs the fine finish then reached the
-objective of the true values (5.3e-5 against 5.1e-5, from 0.0083) where it had stopped at 8x it.
+samples, with the inserted phase's weight (:func:`huber_root`). Its square grows as the shift's
+square within half a sample (smooth where the finish works) and by one sample's cost per sample
+beyond, as the samples it replaces did. Growing as the square all the way, a shift of ten
+samples weighed ten times what the pointwise error did, and on the bovine liver (one trial,
+25 mm) the search traded the curve for the puncture's depth (NRMSE 0.077 where the pointwise
+objective had reached 0.063; 0.073 with the Huber cost).
 
 A run that diverges, trips the watchdog, or whose keys the scene refuses, scores 1 at every
 residual (a miss by the whole force range: worse than any run that finishes) and its reason is
@@ -102,8 +102,8 @@ def puncture_shift_residuals(comparison, indices, error, scale):
     """``error`` (a trial's residuals at the scored samples ``indices``) with the samples strictly
     between each measured puncture and the simulated one matched with it (k-th with k-th) set to
     0, and per measured puncture its shift as one residual: the measured drop over the force
-    range ``scale`` times the shift of the simulated puncture counted in scored samples (0 for a
-    puncture the simulation has no match for). See the module docstring."""
+    range ``scale`` times the Huber root of the simulated puncture's shift counted in scored
+    samples (0 for a puncture the simulation has no match for). See the module docstring."""
     travel = comparison.travel_since_contact_m
     spacing = np.diff(travel[indices])
     spacing = float(np.median(spacing[spacing > 0])) if np.any(spacing > 0) else 0.0
@@ -171,7 +171,8 @@ class Objective:
         spec = self.spec_for(u)
         ends = ends or [None] * len(self.plan.jobs)
         return [replace(job, scene_spec=spec, keep_time_step_s=self.keep_time_step_s,
-                        max_mass_scaling=self.max_mass_scaling, times_s=job.times_s[:end], positions=job.positions[:end])
+                        max_mass_scaling=self.max_mass_scaling, times_s=job.times_s[:end],
+                        positions=job.positions[:end])
                 for job, end in zip(self.plan.jobs, ends)]
 
     # -- horizons -----------------------------------------------------------------------------------
@@ -189,7 +190,7 @@ class Objective:
         from tissue_sim_ros.analysis.force_events import PUNCTURE_WINDOW_M
         if phases != 'events' and not set(phases) <= set(PARTIAL_PHASES):
             return None
-        first = next(iter(self._cache.values()))       # the first evaluation: whole
+        first = next(iter(self._cache.values()))       # the first evaluation (whole: it chose the points)
         needed = [0.0] * len(self.plan.jobs)           # per job: time since contact
         for i, (comparison, (indices, sample_phases)) in enumerate(zip(first.comparisons, self._points)):
             since = comparison.time_since_contact_s

@@ -189,7 +189,8 @@ def _markdown(report) -> str:
                   '(its outputs in `leave_out_<speed>/`):', '',
                   '| speed | trials | NRMSE start | NRMSE predicted | noise floor | nearest other speed\'s data |',
                   '|---|---|---|---|---|---|']
-        lines += [f"| {speed_label(r['speed_m_s'])} | {r['trials']} | {f(r['nrmse_start'])} | {f(r['nrmse_calibrated'])} | "
+        lines += [f"| {speed_label(r['speed_m_s'])} | {r['trials']} | {f(r['nrmse_start'])} | "
+                  f"{f(r['nrmse_calibrated'])} | "
                   f"{f(r['noise_floor_nrmse'])} | {f(r['nearest_speed_nrmse'])} |"
                   for r in report['cross_validation']['speeds']]
     inertia = report['inertia']

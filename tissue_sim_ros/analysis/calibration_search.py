@@ -158,7 +158,8 @@ def _stages(objective, u, staged, global_search, generations, seed, stage_evalua
             fixed_jacobian, log):
     if global_search:
         method = 'de' if global_search is True else global_search
-        log(f"global stage: {'differential evolution' if method == 'de' else 'Optuna TPE'}, {generations} generation(s)")
+        name = 'differential evolution' if method == 'de' else 'Optuna TPE'
+        log(f'global stage: {name}, {generations} generation(s)')
         u = GLOBAL_METHODS[method](objective, u, generations, seed)
     if staged:
         for stage, phases in STAGE_PHASES.items():
