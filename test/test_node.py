@@ -916,10 +916,11 @@ def test_the_cloud_is_recorded_at_its_own_rate(harness, tmp_path):
 
 
 def test_a_slow_engine_costs_no_tick_and_the_ladder_steps_down_and_back_up(harness, monkeypatch):
-    """The engine made artificially slow (each advance sleeps twice the budget's share per
+    """The engine made artificially slow (each advance sleeps 1.5 times the budget's share per
     substep, as a scene far too large for the machine would take; the sleep releases the GIL
     as the kernels do): the wrench still goes out every tick, the lag is reported and bounded,
-    the ladder steps down until the engine keeps up within its budget, and back up once the
+    the ladder steps down until the engine keeps up within its budget (the mass rung x4, half
+    the substeps: the thresholds do not change a sleep per substep), and back up once the
     engine is fast again.
     The ladder's timings are shortened (the same rules, quicker) to keep the test short."""
     from tissue_sim_ros.ros import engine_pacing
@@ -927,9 +928,11 @@ def test_a_slow_engine_costs_no_tick_and_the_ladder_steps_down_and_back_up(harne
     monkeypatch.setattr(engine_pacing, 'UP_AFTER_S', 1.0)
     monkeypatch.setattr(engine_pacing, 'SETTLE_S', 0.5)
     monkeypatch.setattr(engine_pacing, 'START_GRACE_S', 0.5)
+    from tissue_sim_ros.engine.scene import Scene
     slow = {'on': True}
-    scene = make_scene()
-    per_substep = 2.0 * 0.8 * scene.dt    # twice what the budget (80 % of real time) allows
+    # finer than make_scene's box: its 8.9 ms step x4 is past the mass rungs' cap (no mass rung)
+    scene = Scene.from_file(None, mesh={'generator': 'box', 'divisions': [10, 10, 8]})
+    per_substep = 1.5 * 0.8 * scene.dt    # 1.5 times what the budget (80 % of real time) allows
     lags = [0.0]
 
     def slow_down(substeps):
