@@ -69,3 +69,21 @@ def test_no_mass_rung_steps_longer_than_the_cap():
         assert factors == offered
         assert all(scene.simulation.dt * math.sqrt(f) <= MAX_RUNG_TIME_STEP_S for f in factors)
         assert ladder.rungs[-1].threshold == 0.5
+
+
+def test_a_scene_set_up_at_a_higher_mass_scaling_equals_one_rescaled_at_run_time():
+    """with_mass_scaling (the calibration's affordable-stiffness rule) and rescale_masses (the
+    ladder's and predictions' rule) are one rule: the same masses and damping force. The step:
+    the run-time one grows as sqrt(mass) (the elastic limit), the scene's own estimate faster
+    (the Kelvin-Voigt limit grows with the mass itself), so the run-time step stays stable."""
+    from tissue_sim_ros.engine.scene_overrides import with_mass_scaling
+    scene = Scene.from_file(None)
+    scaling = scene.simulation.mass_scaling
+    heavier = Scene(with_mass_scaling(scene.spec, 4.0 * scaling)).simulation
+    sim = scene.simulation
+    dt0 = sim.dt
+    sim.rescale_masses(4.0 * scaling)
+    np.testing.assert_allclose(heavier.mass, sim.mass, rtol=1e-12)
+    np.testing.assert_allclose(heavier.damping_rate, sim.damping_rate, rtol=1e-12)
+    assert sim.dt == pytest.approx(2.0 * dt0, rel=1e-12)
+    assert sim.dt <= heavier.dt <= heavier.critical_time_step()

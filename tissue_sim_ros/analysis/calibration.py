@@ -3,12 +3,14 @@
 1. The fitted trials (a data description, :mod:`tissue_sim_ros.io.data_spec`) and the scene
    (with ``--set``); each ``--fit KEY=LOW:HIGH[:log]`` starts from the scene's value.
 2. Affordable stiffness: a trial that would shrink the time step below the starting scene's keeps
-   that step by raising the mass scaling (the critical step grows as its square root). The
-   inertia error this brings is measured once, on the scene the search runs on: the fastest
-   speed's simulation (the shortest, and the largest inertial and damping forces: the worst case)
-   at the starting mass scaling m0 and at m0 / 4; the quasi-static error of mass scaling is linear
-   in it (the inertial force m a and the mass-proportional damping force both scale with the mass), so
-   e(m) = (4/3) d (m / m0), d the NRMSE between the two runs. The mass scaling is capped where
+   that step by raising the mass scaling (the critical step grows as its square root); its
+   damping force stays the scene's (the rate falls as the mass scaling rises:
+   ``scene_overrides.with_mass_scaling``, the rule the node's degradation ladder follows). The inertia
+   error this brings is measured once, on the scene the search runs on: the fastest speed's
+   simulation (the shortest, and the largest inertial forces: the worst case) at the starting
+   mass scaling m0 and at m0 / 4, the damping force kept; the quasi-static error of mass scaling
+   is linear in it (the inertial force m a scales with the mass), so e(m) = (4/3) d (m / m0), d the
+   NRMSE between the two runs. The mass scaling is capped where
    e(m) reaches ``inertia_bound`` (default 0.02 of the force range); beyond that the step
    shrinks instead (slower, never less accurate). e at the optimum is reported.
 3. The search (:mod:`~tissue_sim_ros.analysis.calibration_search`) on the objective
@@ -50,8 +52,9 @@ def measure_inertia_error(objective, u0) -> dict:
     jobs = objective.jobs_for(u0)
     fastest = int(np.argmin([job.times_s[-1] - job.times_s[0] for job in jobs]))
     job = jobs[fastest]
+    from tissue_sim_ros.engine.scene_overrides import with_mass_scaling
     m0 = float(job.scene_spec['solver']['mass_scaling'])
-    lighter = dict(job.scene_spec, solver=dict(job.scene_spec['solver'], mass_scaling=m0 / INERTIA_CHECK_FACTOR))
+    lighter = with_mass_scaling(job.scene_spec, m0 / INERTIA_CHECK_FACTOR)
     plain = replace(job, keep_time_step_s=None, max_mass_scaling=None)
     heavy, light = run_jobs(simulate, [plain, replace(plain, scene_spec=lighter)], workers=objective.workers,
                             scheduler=objective.scheduler, quiet=True, pool=objective.pool)
@@ -170,9 +173,10 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
 
 
 def calibrated_spec(fit: dict) -> dict:
-    """The scene keys of the optimum, with the mass scaling it ran with."""
-    spec = fit['objective'].spec_for(fit['u'])
-    return dict(spec, solver=dict(spec['solver'], mass_scaling=fit['inertia']['mass_scaling_at_optimum']))
+    """The scene keys of the optimum, with the mass scaling it ran with (and the damping rate that
+    keeps the scene's damping force at it)."""
+    from tissue_sim_ros.engine.scene_overrides import with_mass_scaling
+    return with_mass_scaling(fit['objective'].spec_for(fit['u']), fit['inertia']['mass_scaling_at_optimum'])
 
 
 def parse_phase_weights(texts) -> dict:

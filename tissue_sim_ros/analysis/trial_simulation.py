@@ -82,6 +82,7 @@ _SCENES: dict = {}
 
 def _scene(job: SimulationJob):
     from tissue_sim_ros.engine.scene import Scene
+    from tissue_sim_ros.engine.scene_overrides import with_mass_scaling
     key = hashlib.sha256(json.dumps(job.scene_spec, sort_keys=True, default=str).encode()
                          + str(job.base_dir).encode()).hexdigest()
     scene = _SCENES.get(key)
@@ -91,7 +92,7 @@ def _scene(job: SimulationJob):
             scaling = scene.spec['solver']['mass_scaling'] * (job.keep_time_step_s / scene.dt) ** 2
             if job.max_mass_scaling is not None:
                 scaling = min(scaling, job.max_mass_scaling)
-            spec = dict(job.scene_spec, solver=dict(scene.spec['solver'], mass_scaling=scaling))
+            spec = with_mass_scaling(dict(job.scene_spec, solver=scene.spec['solver']), scaling)
             scene = Scene(spec, base_dir=job.base_dir)
         scene.model.set_threads(job.threads)
         _SCENES.clear()                 # one scene per worker at a time: memory

@@ -93,3 +93,14 @@ def apply_overrides(spec: dict, overrides) -> dict:
                     node[key] = {}
                 node, schema = node[key], schema[key]
     return spec
+
+
+def with_mass_scaling(spec: dict, mass_scaling: float) -> dict:
+    """``spec`` (its ``solver.mass_scaling`` a number) at ``mass_scaling``, its mass-proportional
+    damping rate lowered by the same ratio so that the damping force is the one the scene states:
+    a mass scaling raised to afford a stiffer scene or a cheaper run changes only the inertia
+    (Simulation.rescale_masses, the same rule at run time)."""
+    solver = spec['solver']
+    ratio = float(mass_scaling) / float(solver['mass_scaling'])
+    return dict(spec, solver=dict(solver, mass_scaling=float(mass_scaling),
+                                  damping_per_s=float(solver['damping_per_s']) / ratio))
