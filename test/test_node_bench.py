@@ -198,5 +198,9 @@ def test_measure_end_to_end_under_load(tmp_path):
     assert 0 < r['wrench_rate_hz'] <= 50.0 * 1.05 and r['ticks'] > 0
     assert Path(r['mcap']).is_file() and (tmp_path / 'out' / 'node.log').is_file()
     assert _my_spinners() == []
+    # the window started once the prediction workers had loaded (they take seconds, the window 1 s)
+    assert r['prediction_workers'] > 0 and r['prediction_workers_state'] == 'warm'
+    assert r['prediction_warm_up_s'] > 0.0
     text = node_bench.report(r)
     assert 'load beside the node 1 busy process' in text and 'listening client     wrench' in text
+    assert 'prediction workers warm' in text

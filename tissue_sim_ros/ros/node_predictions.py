@@ -181,6 +181,7 @@ class PredictionService:
         self.real_time_factors: deque = deque(maxlen=100)
         self._decode = decode
         self._received: queue.SimpleQueue = queue.SimpleQueue()
+        self._warming: list = []                 # the workers' start-up runs (futures)
         threading.Thread(target=self._intake, name='tissue_sim-prediction-intake', daemon=True).start()
         if prestart:       # the state at start, copied before the engine thread runs (no race)
             start = self._directory / 'start.snapshot'
@@ -326,10 +327,21 @@ class PredictionService:
             path = check_path([0.0, 0.01], [position, position], [orientation, orientation],
                               max_jump_m=self.max_jump_m)
             pool = self._ensure_pool()
-            for _ in range(self.workers):
-                pool.submit(_work, str(snapshot), path, self.wrench_frame, self.threads, None, None)
+            self._warming = [pool.submit(_work, str(snapshot), path, self.wrench_frame, self.threads, None, None)
+                             for _ in range(self.workers)]
         except Exception as exc:  # noqa: BLE001 - the first request will start them instead
             self._log_once('prediction: start', f'the prediction workers did not start: {exc}', 'warning')
+
+    @property
+    def workers_state(self) -> str:
+        """'warm' once the workers started with the node have loaded their kernels (the first
+        request is then answered at full speed), 'starting' until then (they load the machine:
+        node-bench waits for it), 'not started' without prediction.prestart (the first request
+        starts them)."""
+        warming = self._warming
+        if not warming:
+            return 'not started'
+        return 'warm' if all(future.done() for future in warming) else 'starting'
 
     def status(self, name: str) -> tuple:
         """The DiagnosticStatus tuple ``<node>: predictions``."""
@@ -340,7 +352,8 @@ class PredictionService:
         threshold, mass_scaling = self._rung()
         values = {'requests': self.requests, 'answered': self.answered, 'refused': self.refused,
                   'queued': queued, 'workers': self.workers, 'threads_per_worker': self.threads,
-                  'snapshots': self.snapshots, 'answer_s_p50': float(np.percentile(answer, 50)),
+                  'snapshots': self.snapshots, 'workers_state': self.workers_state,
+                  'answer_s_p50': float(np.percentile(answer, 50)),
                   'answer_s_max': float(answer.max()), 'real_time_factor_median': float(np.median(rtf)),
                   'settings': 'as the live scene' if threshold is None else
                   f'non-linearity threshold {threshold:g}, mass scaling {mass_scaling:g}',
