@@ -104,3 +104,44 @@ def test_the_compiled_inside_step_is_the_general_path_bit_for_bit(shape, monkeyp
     assert np.array_equal(compiled[1], general[1])
     # the work put in is summed in another order (a loop against numpy's dot)
     assert compiled[2] == pytest.approx(general[2], rel=1e-9)
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_engaging_samples_finds_the_hits_a_ray_test_of_every_triangle_finds(seed):
+    """engage_samples tries, per sample, only the near triangles whose box across the axis holds
+    it: the same hits (triangle, barycentric weights) as the ray test against the whole deformed
+    surface, on a dented, jittered box under a tilted tip."""
+    from tissue_sim_ros.engine.mesh import box_mesh, surface_triangles
+    from tissue_sim_ros.engine.needle_kernels import first_surface_hit
+    from tissue_sim_ros.engine.needle_tip import engage_samples
+    rng = np.random.default_rng(seed)
+    mesh = box_mesh(size=(0.04, 0.04, 0.02), divisions=(12, 12, 6))
+    rest = mesh.rest_positions
+    triangles = surface_triangles(mesh.tetrahedra, rest)
+    centre = np.array([0.02, 0.02, 0.02])
+    distance = np.linalg.norm(rest[:, :2] - centre[:2], axis=1)
+    displacement = rng.normal(scale=2e-4, size=rest.shape)
+    displacement[:, 2] -= 0.003 * np.exp(-(distance / 0.004) ** 2)
+    tilt = rng.uniform(-0.35, 0.35, size=2)                          # up to 20 degrees
+    axis = np.array([tilt[0], tilt[1], -1.0]) / np.linalg.norm([tilt[0], tilt[1], -1.0])
+    rotation = np.linalg.qr(np.column_stack([axis, rng.normal(size=(3, 2))]))[0][:, [1, 2, 0]]
+    rotation[:, 2] = axis                        # the needle frame's z along the axis
+    tip = centre + rng.normal(scale=5e-4, size=3) - np.array([0, 0, 0.0045])   # 1.5 mm past the dent
+    offsets = np.column_stack([rng.uniform(-0.0015, 0.0015, (60, 2)), rng.uniform(-0.003, 0.0, 60)])
+    back, reach = 0.004, 0.005
+    n = len(triangles)
+    engaged, new = np.zeros(60, dtype=np.bool_), np.zeros(60, dtype=np.bool_)
+    nodes, weights = np.full((60, 4), -1, dtype=np.int64), np.zeros((60, 4))
+    count = engage_samples(rest, displacement, triangles, tip, rotation, axis, offsets, engaged, new, back,
+                           reach + back, np.zeros(n, dtype=np.int64), np.zeros((n, 4)),
+                           np.zeros((n, 3), dtype=triangles.dtype), np.zeros(n, dtype=np.int64), nodes, weights)
+    expected = 0
+    for s in range(60):
+        origin = tip + rotation @ offsets[s] - back * axis
+        hit, t, w0, w1, w2 = first_surface_hit(rest, displacement, triangles, origin, axis, 0.0, back)
+        assert engaged[s] == (hit >= 0)
+        if hit >= 0:
+            expected += 1
+            assert list(nodes[s, :3]) == list(triangles[hit])
+            np.testing.assert_allclose(weights[s, :3], [w0, w1, w2], atol=1e-12)   # origin's round-off
+    assert count == expected and count > 10 and new.sum() == count

