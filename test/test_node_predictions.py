@@ -164,3 +164,46 @@ def test_max_error_runs_predictions_on_the_cheapest_rung_within_it(harness):
                            wrench_frame=h.node.config.wrench_frame).values[:, :3]
         distance.append(np.sqrt(np.mean((values - expected) ** 2)) / np.abs(expected).max())
     assert distance[0] < 0.6 * distance[1], distance
+
+
+def test_stopping_the_pool_drops_a_running_item_instead_of_holding_the_exit(tmp_path):
+    """A process whose pool is stopped while a worker runs a long item (a prediction, or the
+    start-up run of workers still loading on a loaded machine) exits at once: concurrent.futures
+    joins its manager thread at exit, which waits for running items unless the workers are gone.
+    Here a 60 s item; the process exits in seconds, and its worker is gone."""
+    import subprocess
+    import sys
+    script = tmp_path / 'pool_exit.py'
+    script.write_text(
+        'import multiprocessing, os, sys, time\n'
+        'from concurrent.futures import ProcessPoolExecutor\n'
+        'from tissue_sim_ros.ros.node_predictions import stop_pool\n'
+        'if __name__ == "__main__":\n'
+        '    pool = ProcessPoolExecutor(1, multiprocessing.get_context("spawn"))\n'
+        '    assert pool.submit(os.getpid).result(timeout=60) > 0\n'       # the worker is up
+        '    running = pool.submit(time.sleep, 60.0)\n'
+        '    time.sleep(0.5)\n'
+        '    print(*[p.pid for p in pool._processes.values()], flush=True)\n'
+        '    if sys.argv[1] == "stop":\n'
+        '        stop_pool(pool)\n'
+        '    else:\n'
+        '        pool.shutdown(wait=False, cancel_futures=True)\n')
+    t0 = time.monotonic()
+    done = subprocess.run([sys.executable, str(script), 'stop'], capture_output=True, text=True, timeout=50)
+    took = time.monotonic() - t0
+    assert done.returncode == 0, done.stderr
+    assert took < 30.0, f'exit held {took:.1f} s'
+    (worker,) = [int(pid) for pid in done.stdout.split()]
+    time.sleep(0.5)
+    assert not _alive(worker)
+    # the truth this rests on: without terminating the workers, the exit waits for the item
+    with pytest.raises(subprocess.TimeoutExpired):
+        subprocess.run([sys.executable, str(script), 'shutdown only'], capture_output=True, timeout=took + 5.0)
+
+
+def _alive(pid):
+    try:
+        with open(f'/proc/{pid}/stat') as stat:
+            return stat.read().rsplit(')', 1)[1].split()[0] != 'Z'
+    except OSError:
+        return False
