@@ -210,6 +210,9 @@ class EngineLoop:
         def job():
             self.driver.reset()
             self._reset_inputs()
+            now_ns = self._now_ns()
+            if now_ns > 0:     # the time owed from before the reset is not simulated on the tissue at rest
+                self.pacing.hold(now_ns)
             self.advances += 1                   # a new state (the trace's index)
             self._record(event_row(RESET, self.advances))
             self._publish_state()
