@@ -8,7 +8,8 @@ this process when ``workers`` is 1, or on a Dask distributed cluster when ``sche
 address ('tcp://host:8786', or a ``distributed.Client``). A progress bar (tqdm, on stderr) counts
 the jobs done; ``on_result(index, result)`` sees each result as it arrives (the caller saves it:
 that is what makes a run resumable). ``function`` and the jobs must pickle (a module-level
-function and plain data).
+function and plain data). A job that raises ends its batch at once: the simulations still
+running are dropped (``process_pools.stop_pool``), not waited for.
 
 A study that runs many small batches (a calibration: one per parameter vector or Jacobian)
 keeps one :class:`WorkerPool` open across them: starting a spawned worker (Python, numpy, numba
@@ -21,6 +22,8 @@ import multiprocessing
 import os
 import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
+
+from tissue_sim_ros.process_pools import stop_pool
 
 __all__ = ['default_workers', 'run_jobs', 'run_logged', 'WorkerPool']
 
@@ -53,14 +56,17 @@ class WorkerPool:
         self.executor = None
 
     def __enter__(self):
-        if self.workers > 1:
+        if self.workers > 1:      # spawned, not forked: libgomp (numba's OpenMP layer) is not fork-safe
             self.executor = ProcessPoolExecutor(max_workers=self.workers, initializer=_one_thread,
                                                 mp_context=multiprocessing.get_context('spawn'))
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, exc_type, *exc):
         if self.executor is not None:
-            self.executor.shutdown(cancel_futures=True)
+            if exc_type is None:
+                self.executor.shutdown(cancel_futures=True)
+            else:          # a failure or an interruption: the running simulations are dropped
+                stop_pool(self.executor)
             self.executor = None
         return False
 
@@ -92,11 +98,8 @@ def run_jobs(function, jobs, *, workers: int | None = None, scheduler=None, labe
             for index, job in enumerate(jobs):
                 done(index, function(job))
         else:
-            # spawned, not forked: libgomp (numba's OpenMP layer) is not safe across a fork
-            context = multiprocessing.get_context('spawn')
-            with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context,
-                                     initializer=_one_thread) as pool:
-                futures = {pool.submit(function, job): index for index, job in enumerate(jobs)}
+            with WorkerPool(min(workers, len(jobs))) as own:
+                futures = {own.executor.submit(function, job): index for index, job in enumerate(jobs)}
                 for future in as_completed(futures):
                     done(futures[future], future.result())
     return results

@@ -46,11 +46,11 @@ from tissue_sim_ros.engine.pose import NeedleInputError, pose_jump
 from tissue_sim_ros.engine.prediction import (check_path, predict_snapshot, prediction_columns,
                                               write_snapshot)
 from tissue_sim_ros.engine.solver import SimulationDiverged
+from tissue_sim_ros.process_pools import stop_pool
 from tissue_sim_ros.ros.conversions import header, stamp_to_ns
 from tissue_sim_ros.units import NS_PER_S
 
-__all__ = ['WORKER_NICENESS', 'PredictionService', 'path_arrays', 'path_msg', 'prediction_msg', 'auto_workers',
-           'stop_pool']
+__all__ = ['WORKER_NICENESS', 'PredictionService', 'path_arrays', 'path_msg', 'prediction_msg', 'auto_workers']
 
 #: How much lower the workers' scheduling priority is than the node's (os.nice).
 WORKER_NICENESS = 10
@@ -134,25 +134,6 @@ def _start_worker(niceness: int, parent_pid: int) -> None:
     threading.Thread(target=watch_parent, name='tissue_sim-prediction-parent-watch', daemon=True).start()
     from tissue_sim_ros.engine.warm_up import warm_up
     warm_up()
-
-
-def stop_pool(pool) -> None:
-    """Stop a worker pool now: queued work cancelled, and the workers terminated, so that a running
-    item (a prediction, or the start-up run of workers still loading) is dropped instead of
-    holding the node's exit until it ends: concurrent.futures joins its manager thread at
-    interpreter exit, and that thread waits for running items (SIGINT took 22-31 s beside two busy
-    processes on 2 cores, while niced workers were still loading). Python 3.14's
-    ProcessPoolExecutor.terminate_workers; before it, the worker processes the pool holds (taken
-    before the shutdown, which lets go of them)."""
-    terminate = getattr(pool, 'terminate_workers', None)
-    if terminate is not None:
-        terminate()
-        return
-    processes = list((getattr(pool, '_processes', None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for process in processes:
-        with contextlib.suppress(OSError, ValueError):     # already gone, or already closed
-            process.terminate()
 
 
 def _work(snapshot, path, wrench_frame, threads, threshold, mass_scaling):
