@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from tissue_sim_ros.analysis.calibration_fine import REFIT_STEPS
+from tissue_sim_ros.engine.scene_overrides import with_mass_scaling
 
 __all__ = ['INERTIA_BOUND', 'measure_inertia_error', 'calibrate', 'calibrated_spec', 'noise_floor',
            'parse_phase_weights', 'speed_folds', 'main']
@@ -52,7 +53,6 @@ def measure_inertia_error(objective, u0) -> dict:
     jobs = objective.jobs_for(u0)
     fastest = int(np.argmin([job.times_s[-1] - job.times_s[0] for job in jobs]))
     job = jobs[fastest]
-    from tissue_sim_ros.engine.scene_overrides import with_mass_scaling
     m0 = float(job.scene_spec['solver']['mass_scaling'])
     lighter = with_mass_scaling(job.scene_spec, m0 / INERTIA_CHECK_FACTOR)
     plain = replace(job, keep_time_step_s=None, max_mass_scaling=None)
@@ -175,7 +175,6 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
 def calibrated_spec(fit: dict) -> dict:
     """The scene keys of the optimum, with the mass scaling it ran with (and the damping rate that
     keeps the scene's damping force at it)."""
-    from tissue_sim_ros.engine.scene_overrides import with_mass_scaling
     return with_mass_scaling(fit['objective'].spec_for(fit['u']), fit['inertia']['mass_scaling_at_optimum'])
 
 

@@ -20,8 +20,7 @@ batch is spent. Shortened, not clipped to a box: the loading cannot tell the law
 from the stiffness well (on the benchmark the loading Jacobian's singular values are 0.28 and
 0.0017, the second almost all amplitude), and with the step solved inside a box the stiffness's
 long step stopped at the box's face and the amplitude took up the rest, from the truth to -47 %
-in one step. Chord steps
-with the Jacobian held converged linearly (on the small synthetic study, stiffness -13 %, -8 %,
+in one step. Chord steps with the Jacobian held converged linearly (on the small synthetic study, stiffness -13 %, -8 %,
 -4 % after one, two, three; with the updates -3 % and +1 % after two and three). On the
 benchmark the finish reached the objective of the true values (0.000058 against 0.000051) in
 three steps. The first Jacobian gives the standard errors: the fine scene's, though taken where

@@ -99,6 +99,12 @@ def _scan(objective, u, i, phases) -> np.ndarray:
     return points[int(np.argmin(scores))]
 
 
+def _popsize(n: int) -> int:
+    """Differential evolution's population per key (its population is this x ``n``): about 8
+    vectors in all, at least 2 per key."""
+    return max(2, -(-8 // n))
+
+
 def _global(objective, u0, generations, seed):
     from scipy.optimize import differential_evolution
 
@@ -106,7 +112,7 @@ def _global(objective, u0, generations, seed):
         return [e.objective for e in objective.evaluate_many(list(population))]
     n = len(u0)
     result = differential_evolution(lambda x: objective.evaluate(x).objective, [(0.0, 1.0)] * n,
-                                    x0=np.asarray(u0), maxiter=generations, popsize=max(2, -(-8 // n)),
+                                    x0=np.asarray(u0), maxiter=generations, popsize=_popsize(n),
                                     updating='deferred', workers=batch, polish=False, seed=seed, tol=1e-3)
     return np.asarray(result.x)
 
@@ -122,8 +128,8 @@ def _global_optuna(objective, u0, generations, seed):
     space = {name: optuna.distributions.FloatDistribution(0.0, 1.0) for name in names}
     study = optuna.create_study(sampler=optuna.samplers.TPESampler(seed=seed, multivariate=True))
     study.enqueue_trial(dict(zip(names, map(float, u0))))
-    for _ in range(generations):
-        trials = [study.ask(space) for _ in range(max(2, -(-8 // n)) * n)]
+    for _ in range(generations):      # each generation as large as differential evolution's
+        trials = [study.ask(space) for _ in range(_popsize(n) * n)]
         points = [np.array([t.params[name] for name in names]) for t in trials]
         for trial, evaluation in zip(trials, objective.evaluate_many(points)):
             study.tell(trial, evaluation.objective)

@@ -41,7 +41,6 @@ MAX_RUNG_TIME_STEP_S = 0.01
 RUNG_RULES = f'{STEPS!r}: the damping force kept, steps up to {MAX_RUNG_TIME_STEP_S} s'
 
 
-
 @dataclass(frozen=True)
 class Rung:
     """One level of the ladder: its name, the non-linearity threshold, the factor on the scene's
@@ -98,8 +97,8 @@ class DegradationLadder:
         self.level = level
 
     def cheapest_within(self, max_error: float) -> int | None:
-        """The lowest (cheapest) level whose measured error is at most ``max_error``; None before
-        the errors are measured."""
+        """The cheapest (deepest) level whose measured error is at most ``max_error`` (0 when none
+        is); None before the errors are measured."""
         errors = self.predicted_errors
         if errors is None or None in errors:
             return None

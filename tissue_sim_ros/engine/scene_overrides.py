@@ -6,7 +6,8 @@ or by name: ``model.geometric=false``, ``solver.mass_scaling=100``,
 VALUE is read as YAML (``20000``, ``true``, ``null``, ``[0.0, 0.0, 0.16]``, ``exponential``).
 An override is applied to the scene file's keys before they are checked, so an impossible value
 gets the file's own error naming the key; an unknown key is refused here, naming the override
-and the keys known at that level.
+and the keys known at that level. ``with_mass_scaling``: a scene's keys at another mass
+scaling, the damping force kept (the rule of Simulation.rescale_masses, at set-up).
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ import yaml
 
 from tissue_sim_ros.engine.scene_schema import SCHEMA, SceneError
 
-__all__ = ['parse_override', 'apply_overrides', 'select_region']
+__all__ = ['parse_override', 'apply_overrides', 'select_region', 'with_mass_scaling']
 
 _PART = re.compile(r'^([A-Za-z_][A-Za-z0-9_]*)(?:\[([^\]]*)\])?$')
 
