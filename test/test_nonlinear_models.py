@@ -280,12 +280,13 @@ def test_set_element_lame_refuses_bad_values(jittered_block, liver):
         model.set_element_lame(np.ones(m), np.full(m, np.nan))
 
 
-def test_float32_element_constants_change_only_their_rounding(liver):
-    """precision='float32' stores the element pass's constants in float32 (the arithmetic stays
-    float64): its forces equal the float64 pass's run on those constants rounded to float32, and
-    differ from the float64 model's by the rounding alone (below 1e-6 of the largest force), for
-    the full model with viscosity, the law and a threshold, on strains large enough for the
-    safeguard."""
+def test_float32_pass_is_single_precision_arithmetic_within_its_rounding(liver):
+    """precision='float32' runs the element pass in float32, constants and arithmetic: its forces
+    are within float32's resolution of the float64 model's (2e-6 of the largest force; 4e-7 is
+    seen), for the full model with viscosity, the law and a threshold, on strains large enough for
+    the safeguard; and they are not the float64 arithmetic on float32-rounded constants (which
+    agrees with float64 arithmetic to 1e-14), so the arithmetic really is float32. The implicit
+    integrators, whose Newton tangent is a 1e-8 difference, refuse it."""
     mesh = ts.box_mesh(size=(0.03, 0.03, 0.02), divisions=(3, 3, 2))
     rng = np.random.default_rng(7)
     u = rng.normal(scale=2e-3, size=(mesh.n_nodes, 3))
@@ -293,14 +294,17 @@ def test_float32_element_constants_change_only_their_rounding(liver):
     options = dict(geometric=True, physical=ts.MeanRatioLaw.exponential(0.5, 8.0, 1.5, 12.0),
                    viscosity=ts.Viscosity(lambda_v=5.0, mu_v=2.0), nonlinearity_threshold=0.01)
     single = ts.TensorMassModel(mesh, liver, precision='float32', **options)
-    assert single._element_blocks.dtype == np.float32
+    assert single._element_blocks.dtype == np.float32 and single._work.dtype == np.float32
     double = ts.TensorMassModel(mesh, liver, **options)
     exact = double.internal_forces(u, v)
     double._element_blocks = double._element_blocks.astype(np.float32).astype(np.float64)
-    rounded = double.internal_forces(u, v)
+    rounded_constants = double.internal_forces(u, v)
     forces = single.internal_forces(u, v)
+    assert single.safeguarded_count > 0
     scale = np.abs(exact).max()
-    assert np.abs(forces - rounded).max() <= 1e-14 * scale
-    assert 0 < np.abs(forces - exact).max() < 1e-6 * scale
+    assert 0 < np.abs(forces - exact).max() < 2e-6 * scale
+    assert np.abs(forces - rounded_constants).max() > 1e-9 * scale
+    with pytest.raises(ValueError, match='precision'):
+        ts.Simulation(single, integrator='implicit')
     with pytest.raises(ValueError, match='precision'):
         ts.TensorMassModel(mesh, liver, precision='float16')

@@ -37,6 +37,12 @@ from tissue_sim_ros.engine.inversion_safeguard import STRETCH_CLAMP, safeguarded
 # (the watchdog looks for them), so no 'nnan' / 'ninf'.
 FASTMATH = {'contract', 'reassoc', 'nsz', 'arcp', 'afn'}
 
+# The literals of the element arithmetic, typed float32. Against a float64 value they widen
+# exactly (all are powers of two), so the float64 pass is unchanged; in a float32 pass
+# (model.precision) they keep the arithmetic in float32, where a float64 literal would widen every
+# lane to float64 and halve the vector width.
+ZERO, HALF, ONE, TWO, FOUR = (np.float32(value) for value in (0.0, 0.5, 1.0, 2.0, 4.0))
+
 # Physically non-linear law kinds (see material.MeanRatioLaw); the parameters are a flat array.
 LAW_NONE = 0
 LAW_POLYNOMIAL = 1   # dlambda/lambda = sum_k p_lk s^k, dmu/mu = sum_k p_mk s^k; params [K, p_l1..p_lK, p_m1..p_mK]
@@ -97,39 +103,39 @@ def element_gradient(field, i0, i1, i2, i3, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a
 @njit(cache=True, inline='always')
 def deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22):
     """det F of F = I + H (volume ratio; <= 0 for an inverted element)."""
-    return ((1.0 + h00) * ((1.0 + h11) * (1.0 + h22) - h12 * h21) - h01 * (h10 * (1.0 + h22) - h12 * h20)
-            + h02 * (h10 * h21 - (1.0 + h11) * h20))
+    return ((ONE + h00) * ((ONE + h11) * (ONE + h22) - h12 * h21) - h01 * (h10 * (ONE + h22) - h12 * h20)
+            + h02 * (h10 * h21 - (ONE + h11) * h20))
 
 
 @njit(cache=True, inline='always')
 def green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22):
     """Green-Lagrange strain E = (H + H^T + H^T H) / 2 as (e00, e11, e22, e01, e02, e12)."""
-    return (0.5 * (h00 + h00 + h00 * h00 + h10 * h10 + h20 * h20),
-            0.5 * (h11 + h11 + h01 * h01 + h11 * h11 + h21 * h21),
-            0.5 * (h22 + h22 + h02 * h02 + h12 * h12 + h22 * h22),
-            0.5 * (h01 + h10 + h00 * h01 + h10 * h11 + h20 * h21),
-            0.5 * (h02 + h20 + h00 * h02 + h10 * h12 + h20 * h22),
-            0.5 * (h12 + h21 + h01 * h02 + h11 * h12 + h21 * h22))
+    return (HALF * (h00 + h00 + h00 * h00 + h10 * h10 + h20 * h20),
+            HALF * (h11 + h11 + h01 * h01 + h11 * h11 + h21 * h21),
+            HALF * (h22 + h22 + h02 * h02 + h12 * h12 + h22 * h22),
+            HALF * (h01 + h10 + h00 * h01 + h10 * h11 + h20 * h21),
+            HALF * (h02 + h20 + h00 * h02 + h10 * h12 + h20 * h22),
+            HALF * (h12 + h21 + h01 * h02 + h11 * h12 + h21 * h22))
 
 
 @njit(cache=True, inline='always')
 def _green_strain_rate(h00, h01, h02, h10, h11, h12, h20, h21, h22,
                        r00, r01, r02, r10, r11, r12, r20, r21, r22):
     """dE/dt = sym(F^T dF/dt), F = I + H, dF/dt = R, as (q00, q11, q22, q01, q02, q12)."""
-    return ((1.0 + h00) * r00 + h10 * r10 + h20 * r20,
-            h01 * r01 + (1.0 + h11) * r11 + h21 * r21,
-            h02 * r02 + h12 * r12 + (1.0 + h22) * r22,
-            0.5 * ((1.0 + h00) * r01 + h10 * r11 + h20 * r21 + h01 * r00 + (1.0 + h11) * r10 + h21 * r20),
-            0.5 * ((1.0 + h00) * r02 + h10 * r12 + h20 * r22 + h02 * r00 + h12 * r10 + (1.0 + h22) * r20),
-            0.5 * (h01 * r02 + (1.0 + h11) * r12 + h21 * r22 + h02 * r01 + h12 * r11 + (1.0 + h22) * r21))
+    return ((ONE + h00) * r00 + h10 * r10 + h20 * r20,
+            h01 * r01 + (ONE + h11) * r11 + h21 * r21,
+            h02 * r02 + h12 * r12 + (ONE + h22) * r22,
+            HALF * ((ONE + h00) * r01 + h10 * r11 + h20 * r21 + h01 * r00 + (ONE + h11) * r10 + h21 * r20),
+            HALF * ((ONE + h00) * r02 + h10 * r12 + h20 * r22 + h02 * r00 + h12 * r10 + (ONE + h22) * r20),
+            HALF * (h01 * r02 + (ONE + h11) * r12 + h21 * r22 + h02 * r01 + h12 * r11 + (ONE + h22) * r21))
 
 
 @njit(cache=True, inline='always')
 def _isotropic_stress(lam, mu, e00, e11, e22, e01, e02, e12):
     """lambda tr(E) I + 2 mu E of a symmetric E, as (s00, s11, s22, s01, s02, s12)."""
     tr_e = lam * (e00 + e11 + e22)
-    return (tr_e + 2.0 * mu * e00, tr_e + 2.0 * mu * e11, tr_e + 2.0 * mu * e22,
-            2.0 * mu * e01, 2.0 * mu * e02, 2.0 * mu * e12)
+    return (tr_e + TWO * mu * e00, tr_e + TWO * mu * e11, tr_e + TWO * mu * e22,
+            TWO * mu * e01, TWO * mu * e02, TWO * mu * e12)
 
 
 @njit(cache=True, inline='always')
@@ -144,7 +150,7 @@ def _viscous_stress(h00, h01, h02, h10, h11, h12, h20, h21, h22,
 @njit(cache=True, inline='always')
 def _first_piola(h00, h01, h02, h10, h11, h12, h20, h21, h22, s00, s11, s22, s01, s02, s12):
     """P = F S, F = I + H, S symmetric: row-major nine scalars (P is not symmetric)."""
-    return _product3(1.0 + h00, h01, h02, h10, 1.0 + h11, h12, h20, h21, 1.0 + h22,
+    return _product3(ONE + h00, h01, h02, h10, ONE + h11, h12, h20, h21, ONE + h22,
                      s00, s01, s02, s01, s11, s12, s02, s12, s22)
 
 
@@ -248,8 +254,12 @@ def pack_element_blocks(shape_gradients, volume_lambda, volume_mu, viscous_lambd
 # Distortions s below this are round-off of the rest state (q/q_rest is computed to ~1e-15, and
 # a quarter of the elements at rest land on the s > 0 side) and count as none, skipping the
 # law's pow and exponentials; their corrections would be ~1e-12 of the coefficients.
+# In a float32 pass q/q_rest carries float32 round-off (~1e-7, a few ulps), so its floor is 1e-6:
+# the corrections it skips are below 1e-6 times the law's slope, float32's own resolution.
 DISTORTION_FLOOR = 1e-13
+DISTORTION_FLOOR_FLOAT32 = 1e-6
 _UNDISTORTED_CUBE = (1.0 - DISTORTION_FLOOR) ** 3
+_UNDISTORTED_CUBE_FLOAT32 = (1.0 - DISTORTION_FLOOR_FLOAT32) ** 3
 
 
 @register_jitable
@@ -298,7 +308,7 @@ def _gather_differences(work, row, field, j, values, i0, i1, i2, i3):
 
 
 @njit(cache=True, inline='always')
-def _classify_lanes(work, row, threshold_squared, physical):
+def _classify_lanes(work, row, threshold_squared, physical, undistorted_cube):
     """Displacement gradient H of every lane, and whether it takes the non-linear path
     (|H|_F^2 >= threshold^2); with the physical law also det F and tr(F^T F G), and whether the
     law's corrections can be non-zero. Returns the count of non-linear lanes (of all BLOCK)."""
@@ -309,21 +319,21 @@ def _classify_lanes(work, row, threshold_squared, physical):
         norm_sq = (h00 * h00 + h01 * h01 + h02 * h02 + h10 * h10 + h11 * h11
                    + h12 * h12 + h20 * h20 + h21 * h21 + h22 * h22)
         nonlinear = norm_sq >= threshold_squared
-        work[row, _at(_NONLINEAR, j)] = 1.0 if nonlinear else 0.0
+        work[row, _at(_NONLINEAR, j)] = ONE if nonlinear else ZERO
         count += nonlinear
         if physical:
             e00, e11, e22, e01, e02, e12 = green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
             det_f = deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22)
             # tr(C G) with C = I + 2E
-            tr_cg = (work[row, _at(GRAM, j)] * (1.0 + 2.0 * e00) + work[row, _at(GRAM + 1, j)] * (1.0 + 2.0 * e11)
-                     + work[row, _at(GRAM + 2, j)] * (1.0 + 2.0 * e22)
-                     + 4.0 * (work[row, _at(GRAM + 3, j)] * e01 + work[row, _at(GRAM + 4, j)] * e02
+            tr_cg = (work[row, _at(GRAM, j)] * (ONE + TWO * e00) + work[row, _at(GRAM + 1, j)] * (ONE + TWO * e11)
+                     + work[row, _at(GRAM + 2, j)] * (ONE + TWO * e22)
+                     + FOUR * (work[row, _at(GRAM + 3, j)] * e01 + work[row, _at(GRAM + 4, j)] * e02
                               + work[row, _at(GRAM + 5, j)] * e12))
             scale = work[row, _at(RATIO_SCALE, j)]
             # the mean ratio fell (s = 1 - q/q_rest > DISTORTION_FLOOR), decided on the cubes
             # without the cube root; most deformed elements of a needle dent do not distort
-            distorted = scale * scale * scale * det_f * det_f < _UNDISTORTED_CUBE * tr_cg * tr_cg * tr_cg
-            work[row, _at(_NEEDS_LAW, j)] = 1.0 if (nonlinear & distorted) else 0.0
+            distorted = scale * scale * scale * det_f * det_f < undistorted_cube * tr_cg * tr_cg * tr_cg
+            work[row, _at(_NEEDS_LAW, j)] = ONE if (nonlinear & distorted) else ZERO
             work[row, _at(_DET, j)] = det_f
             work[row, _at(_TR_CG, j)] = tr_cg
             work[row, _at(_STRAIN, j)] = e00
@@ -369,20 +379,20 @@ def _stress_lanes(work, row, gradient_stored, small_strain, finite_strain, physi
         else:
             lam = work[row, _at(LAMBDA, j)]
             mu = work[row, _at(MU, j)]
-        r00 = r01 = r02 = r10 = r11 = r12 = r20 = r21 = r22 = 0.0
-        lam_v = mu_v = 0.0
+        r00 = r01 = r02 = r10 = r11 = r12 = r20 = r21 = r22 = ZERO
+        lam_v = mu_v = ZERO
         if viscous:
             r00, r01, r02, r10, r11, r12, r20, r21, r22 = _lane_gradient(work, row, _DV, j)
             lam_v = work[row, _at(VISCOUS_LAMBDA, j)]
             mu_v = work[row, _at(VISCOUS_MU, j)]
-        p00 = p01 = p02 = p10 = p11 = p12 = p20 = p21 = p22 = 0.0
+        p00 = p01 = p02 = p10 = p11 = p12 = p20 = p21 = p22 = ZERO
         if small_strain:
             # E = sym(H), and sym(dH/dt) for the viscous stress
-            s00, s11, s22, s01, s02, s12 = _isotropic_stress(lam, mu, h00, h11, h22, 0.5 * (h01 + h10),
-                                                             0.5 * (h02 + h20), 0.5 * (h12 + h21))
+            s00, s11, s22, s01, s02, s12 = _isotropic_stress(lam, mu, h00, h11, h22, HALF * (h01 + h10),
+                                                             HALF * (h02 + h20), HALF * (h12 + h21))
             if viscous:
                 v00, v11, v22, v01, v02, v12 = _isotropic_stress(
-                    lam_v, mu_v, r00, r11, r22, 0.5 * (r01 + r10), 0.5 * (r02 + r20), 0.5 * (r12 + r21))
+                    lam_v, mu_v, r00, r11, r22, HALF * (r01 + r10), HALF * (r02 + r20), HALF * (r12 + r21))
                 s00 += v00
                 s11 += v11
                 s22 += v22
@@ -391,7 +401,7 @@ def _stress_lanes(work, row, gradient_stored, small_strain, finite_strain, physi
                 s12 += v12
             p00, p01, p02, p10, p11, p12, p20, p21, p22 = s00, s01, s02, s01, s11, s12, s02, s12, s22
         if finite_strain:
-            nonlinear = work[row, _at(_NONLINEAR, j)] > 0.0
+            nonlinear = work[row, _at(_NONLINEAR, j)] > ZERO
             if physical:     # _classify_lanes has them
                 e00 = work[row, _at(_STRAIN, j)]
                 e11 = work[row, _at(_STRAIN + 1, j)]
@@ -428,18 +438,18 @@ def _stress_lanes(work, row, gradient_stored, small_strain, finite_strain, physi
                 p22 = g22 if nonlinear else p22
             else:
                 p00, p01, p02, p10, p11, p12, p20, p21, p22 = g00, g01, g02, g10, g11, g12, g20, g21, g22
-            m00 = 1.0 + 2.0 * e00 - clamp_squared
-            m11 = 1.0 + 2.0 * e11 - clamp_squared
-            m22 = 1.0 + 2.0 * e22 - clamp_squared
-            m01 = 2.0 * e01
-            m02 = 2.0 * e02
-            m12 = 2.0 * e12
+            m00 = ONE + TWO * e00 - clamp_squared
+            m11 = ONE + TWO * e11 - clamp_squared
+            m22 = ONE + TWO * e22 - clamp_squared
+            m01 = TWO * e01
+            m02 = TWO * e02
+            m12 = TWO * e12
             minor2 = m00 * m11 - m01 * m01
             minor3 = (m00 * (m11 * m22 - m12 * m12) - m01 * (m01 * m22 - m12 * m02)
                       + m02 * (m01 * m12 - m11 * m02))
             # bitwise, not short-circuit: no branches in the lane loop
-            inside = (m00 > 0.0) & (minor2 > 0.0) & (minor3 > 0.0) & (det_f > 0.0)
-            work[row, _at(_SLOW, j)] = 1.0 if (safeguard & nonlinear & (not inside)) else 0.0
+            inside = (m00 > ZERO) & (minor2 > ZERO) & (minor3 > ZERO) & (det_f > ZERO)
+            work[row, _at(_SLOW, j)] = ONE if (safeguard & nonlinear & (not inside)) else ZERO
         a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z = _get9(work, row, SHAPE, j)
         f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z = _piola_forces(
             p00, p01, p02, p10, p11, p12, p20, p21, p22, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
@@ -529,7 +539,13 @@ def _thread_pass_of(geometric, physical, viscous):
                     nonlinear_counts, safeguard, safeguard_counts, slow_elements, corrected_lambda,
                     corrected_mu, shape_gradients, volume_lambda, volume_mu, viscous_lambda, viscous_mu,
                     safeguard_scratch):
-        clamp_squared = STRETCH_CLAMP * STRETCH_CLAMP
+        # the pass's scalars in the work array's precision (float32 arithmetic stays float32)
+        real = work.dtype.type
+        clamp_squared = real(STRETCH_CLAMP * STRETCH_CLAMP)
+        nonlinear_from = real(threshold_squared)
+        # the float64 floor rounds to none in float32 (1 - 1e-13 is 1): then float32's own
+        undistorted_cube = (real(_UNDISTORTED_CUBE) if real(_UNDISTORTED_CUBE) < real(1.0)
+                            else real(_UNDISTORTED_CUBE_FLOAT32))
         n_chunks = chunk_bounds.shape[0] - 1
         n_workers = buffers.shape[0]
         buf = buffers[t]
@@ -554,7 +570,7 @@ def _thread_pass_of(geometric, physical, viscous):
                         work[t, _at(_DV + k, j)] = 0.0
                 lanes_nonlinear = 0
                 if nonlinear_model:
-                    lanes_nonlinear = _classify_lanes(work, t, threshold_squared, physical)
+                    lanes_nonlinear = _classify_lanes(work, t, nonlinear_from, physical, undistorted_cube)
                     for j in range(n):
                         n_nonlinear += work[t, _at(_NONLINEAR, j)] > 0.0
                     if physical and lanes_nonlinear > 0:

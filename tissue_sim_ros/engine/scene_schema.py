@@ -101,8 +101,8 @@ SCHEMA = {
         'viscosity_mu_pa_s': (0.0, 'float0', 'Kelvin-Voigt mu_v [Pa s]'),
         'nonlinearity_threshold': (0.0, 'float0', 'elements deformed less than this take the linear force'),
         'inversion_safeguard': (True, 'bool', 'St Venant-Kirchhoff safeguard for near-inverted elements'),
-        'precision': ('float64', ('float64', 'float32'), "the element pass's stored element constants "
-                                                         '(float32: half the memory traffic, forces within 1e-6)'),
+        'precision': ('float64', ('float64', 'float32'), "the element pass's constants and arithmetic "
+                                                         '(float32: forces within 1e-6; explicit integrator only)'),
         'relaxation': ([], MappingList({
             'relative_modulus': (None, 'float+', 'g_i, the part of the shear modulus this term relaxes '
                                                  '(required; 0 < g_i, sum of all g_i < 1)'),

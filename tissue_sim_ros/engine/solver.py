@@ -135,6 +135,10 @@ class Simulation:
         if integrator not in INTEGRATORS:
             raise ValueError(f'integrator = {integrator!r}: expected one of {", ".join(INTEGRATORS)}')
         self.integrator = integrator
+        if integrator != 'explicit' and getattr(model, 'precision', 'float64') != 'float64':
+            raise ValueError(f'solver.integrator = {integrator!r} needs model.precision = float64, got '
+                             f'{model.precision!r}: its Newton tangent differences forces 1e-8 of the body '
+                             f'size apart, below float32 arithmetic\'s resolution (1e-7)')
         if not (isinstance(mass_scaling, (int, float)) and math.isfinite(mass_scaling) and mass_scaling >= 1.0):
             raise ValueError(f'mass_scaling = {mass_scaling!r}: expected a finite factor >= 1')
         self.mass_scaling = float(mass_scaling)
