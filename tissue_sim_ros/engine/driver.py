@@ -228,7 +228,7 @@ class SimulationDriver:
         needle = self.scene.needle
         axis = needle.axis
         self.inertia.update(self.scene.simulation, elapsed, axis,
-                            -float(np.dot(needle.wrench_force, axis)))
+                            -float(np.dot(needle.wrench_force, axis)), len(needle.puncture_events))
 
     def _take_finite_wrenches(self) -> None:
         """Each needle's wrench of the state as it is, zeros where it is not finite."""
