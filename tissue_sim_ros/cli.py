@@ -251,7 +251,7 @@ def build_parser():
                        help='models to run (default: all): linear, linear+visc, physical, physical+visc, '
                             'geometric, geometric+visc, full, full+visc, full+thr0.02')
     bench.add_argument('--precision', choices=['float64', 'float32'], default='float64',
-                       help="the element pass's stored element constants (default float64)")
+                       help="the element pass's constants and arithmetic (default float64)")
     bench.set_defaults(run=_bench)
     insert = commands.add_parser('insert', help='simulate a straight needle insertion and retraction (no ROS)')
     insert.add_argument('--scene', type=_input_file, default=None,

@@ -81,7 +81,7 @@ def run(sizes=None, models=None, material=None, stream=print, precision='float64
     sizes = sizes or list(SIZES)
     models = {name: MODELS[name] for name in (models or MODELS)}
     stream(f'threads: {numba.get_num_threads()} ({numba.config.THREADING_LAYER} layer); best of 5 batches; '
-           f'element constants in {precision}')
+           f'element pass in {precision}')
     stream('displacement: a needle-like dent, 5 mm deep, 5 mm Gaussian radius, at the top centre')
     stream(f'{"model":<15} {"tets":>8} {"force [ms]":>11} {"step [ms]":>10} {"tet-steps/s":>12} {"non-linear":>11}')
     rows = []

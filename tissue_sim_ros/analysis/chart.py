@@ -6,7 +6,7 @@ scene), sampled every 20 ms, no retraction. A configuration is the scene plus ``
 overrides along four axes:
 
 * the model (linear, physically non-linear, geometric, full; the full model without viscosity,
-  with other non-linearity thresholds, and with its element constants in float32), on each mesh
+  with other non-linearity thresholds, and with its element pass in float32), on each mesh
   level;
 * the mesh refinement (``mesh.fine_size_m`` and ``mesh.divisions`` scaled: coarse, medium, the
   scene's, and in the full preset a finer one);

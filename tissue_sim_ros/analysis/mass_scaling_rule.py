@@ -12,9 +12,10 @@ The rule:
   rule makes first.
 
 *Measured, not estimated:* the per-run estimate (:mod:`tissue_sim_ros.engine.inertia_estimate`)
-sees the inertial and damping force along the loading, not a puncture that the scaling moves in
-time, and on the chart's short insertion that is most of the error (default scene, 5 mm/s: 100x
-measured 0.078 against the unscaled reference, estimated 0.019; README).
+is first order (the added force while loading, and the punctures it moves earlier), 0.79-0.85
+of the measured error on the default scene from 100x up, and at smaller scalings it is an
+expectation over where the force samples fall (25x: 0.011-0.024 estimated, 0.0024-0.059
+measured; README). A bound wants the error itself.
 
 It is found by probes, from s = START:
 

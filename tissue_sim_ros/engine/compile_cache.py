@@ -247,7 +247,7 @@ def call_compiled_apart(kernel, args, model, precision='float64'):
     or, when the cache lacks it, compiled first in a separate process (then loaded).
 
     model: (geometric, physical, viscous), the pass's flags (forces.element_kernel); precision:
-    its element constants' (model.PRECISIONS), another signature of the same pass."""
+    its constants' and arithmetic's (model.PRECISIONS), another signature of the same pass."""
     if _processes_allowed():
         found, result = _from_cache(kernel, args, precision)
         if found:

@@ -19,8 +19,11 @@ A puncture moves. A membrane ruptures at a force, and the scaled run carries the
 on top of the unscaled one's, so it reaches that force dt = A / (dF/dt) earlier, dF/dt the axial
 force's rate as it loads. For that dt one run has dropped and the other not: their difference is
 the drop D, which adds D^2 dt to the integral of the squared error. At each puncture the estimate
-takes A and dF/dt as they were before it (both smoothed over SMOOTHING_S) and D as the fall of
-the axial force within SMOOTHING_S after it.
+takes A and dF/dt as they were before it (both smoothed over SMOOTHING_S; the rate is not
+followed during a drop) and D as the fall of the axial force within SMOOTHING_S after it. This is
+the force criterion's shift (membrane.criterion: force, the default scene's); a membrane that
+ruptures on its energy moves further, A x / F for the travel x since contact on a force F, which
+the estimate does not model.
 
 Why weighted and smoothed, measured against runs without mass scaling on a small sample (3 mm
 at 10 mm/s, test_inertia_estimate.py): the plain momentum balance (all of b on the needle) read
@@ -74,9 +77,11 @@ def weighted_body_force(mass, damping_rate, velocity, previous_velocity, displac
 class InertiaEstimate:
     """Running estimate of the force error that mass scaling adds (module docstring).
 
-    ``update`` after each advance with the simulated time it covered and the needle's axis and
-    axial force; ``error`` is the rms added force over the range of the axial force (None
-    before two updates or while the force has no range); ``rms_n`` in newtons.
+    ``update`` after each advance with the simulated time it covered, the needle's axis and
+    axial force, and its punctures so far; ``error`` is the rms force error (the added force's and
+    the moved punctures') over the range of the axial force (None before two updates or while the
+    force has no range); ``rms_n`` in newtons; ``puncture_shifts_s`` each puncture's estimated
+    shift in time.
     With mass scaling 1 everything stays 0. A change of the mass scaling (the node's ladder)
     restarts the acceleration, not the statistics.
     """
@@ -139,7 +144,8 @@ class InertiaEstimate:
             shift = min(shift, self._duration)       # not before the run began
             self.puncture_shifts_s.append(shift)
             self._pending = [self._force, force, shift, elapsed]
-        elif self._force is not None and elapsed > 0.0:
+        elif self._force is not None and elapsed > 0.0 and self._pending is None:
+            # not while a drop is followed: the next puncture's shift wants the loading's rate
             rate = (force - self._force) / elapsed
             self._rate += (rate - self._rate) * -math.expm1(-elapsed / SMOOTHING_S)
         self._punctures = punctures
