@@ -151,6 +151,9 @@ class NeedleTissue(MembraneContact):
         self.compiled_inside = True
         self._mass_generation = 0
         self._initial_pose = validate_pose(position, orientation, f'{name}.initial_pose')
+        self._bonds_in_solve = None         # the patch an implicit step held this step (implicit_bonds)
+        self._velocity_before = np.zeros((self.mesh.n_nodes, 3))
+        simulation.couplings.append(self)
         self.reset()
         self._check_outside(*self._initial_pose, f'{name}.initial_pose')
 
@@ -189,6 +192,7 @@ class NeedleTissue(MembraneContact):
         self.applied_forces[:] = 0.0
         self._forces_applied = False
         self.n_applied = 0
+        self._bonds_in_solve = None
         self._mass_version = None
         self._update_tip()
 
@@ -269,7 +273,25 @@ class NeedleTissue(MembraneContact):
         """Contact, shaft constraints and friction after the tissue's step; puncture; wrench.
 
         Allocates no arrays on the way (work arrays are made in the constructor and at contact).
+        After an implicit step the work the needle's corrections put in is counted over the moves
+        they make, f . Delta u: counted as f . v dt (the explicit solver's count), it took in the
+        step's own motion, and the tissue springing back in one step when a membrane ruptures
+        (quasi-static: no inertia to slow it) made the work put in negative and tripped the
+        energy watchdog.
         """
+        sim = self.simulation
+        if sim._implicit is None:
+            self._after_step(dt)
+            return
+        work = sim.input_work
+        self._velocity_before[:] = sim.velocity
+        self._after_step(dt)
+        if self._forces_applied:
+            np.subtract(sim.velocity, self._velocity_before, out=self._velocity_before)
+            work += float(np.vdot(self.applied_forces, self._velocity_before)) * dt
+        sim.input_work = work
+
+    def _after_step(self, dt):
         sim = self.simulation
         self.contact_force[:] = 0.0
         inverse_mass = self._inverse_mass()
@@ -351,6 +373,16 @@ class NeedleTissue(MembraneContact):
         if not self._touching() and self.n_points:
             self._track_apex(inverse_mass, apex, deepest)
         self._update_phase(dt, speed_along)
+
+    def implicit_bonds(self):
+        """The bonded contact an implicit step holds inside its solve (engine.implicit_bonds):
+        (nodes, weights, targets at the needle end after this step, the sample forces it writes),
+        or none. Called by the step, after this step's pose is set."""
+        patch = self._bonds_in_solve = self.patch
+        if patch is None:
+            return ()
+        put_rigid_points(self._tip, self.rotation, patch.offsets, len(patch.offsets), patch.targets, 0)
+        return ((patch.nodes, patch.weights, patch.targets, patch.sample_forces),)
 
     def _inverse_mass(self):
         """(n, 3) inverse mass of each free DOF, 0 for held ones (the solver's compliance over a

@@ -90,7 +90,12 @@ class MembraneContact:
         if patch.scale_generation != self._mass_generation:
             patch.set_masses(inverse_mass, self._force_scale, self._mass_generation)
         n = len(patch.offsets)
-        total = patch.solve(self.rest, sim.displacement, self._tip, self.rotation, dt)
+        held = patch is self._bonds_in_solve          # an implicit step held it: its forces are written
+        self._bonds_in_solve = None
+        if held:
+            total = patch.sample_forces.sum(axis=0, out=patch.total)
+        else:
+            total = patch.solve(self.rest, sim.displacement, self._tip, self.rotation, dt)
         advancing = float(self._travel @ self.axis) > 0.0
         if float(total @ self.axis) < 0.0 and not advancing:   # it would pull back: contact lost
             self.patch = None
@@ -99,7 +104,8 @@ class MembraneContact:
             if self.n_points == 0:
                 self.phase = 'approach'
             return
-        patch.apply(sim.displacement, sim.velocity, inverse_mass, self._force_scale, dt, self.applied_forces)
+        if not held:                # (held: the step counted the bonds' work itself)
+            patch.apply(sim.displacement, sim.velocity, inverse_mass, self._force_scale, dt, self.applied_forces)
         self.contact_force[:] = total
         patch.work += float(total @ self._travel)
         start = self._add_applied(n)

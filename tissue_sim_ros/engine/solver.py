@@ -180,6 +180,8 @@ class Simulation:
         # CPU time of the calling thread in the force kernel (element pass + node update), all
         # steps: with more numba threads, theirs is not in it (about this times the threads)
         self.kernel_s = 0.0
+        # objects whose implicit_bonds() the implicit integrators hold inside each step (needles)
+        self.couplings = []
         self.reset()
         self._warm_up()
 
