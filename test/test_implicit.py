@@ -6,6 +6,7 @@ import pytest
 
 import tissue_sim_ros as ts
 from tissue_sim_ros.engine.driver import SimulationDriver
+from tissue_sim_ros.engine.implicit_bonds import BondRows
 from tissue_sim_ros.engine.scene import Scene, SceneError
 
 COARSE = ['mesh.fine_size_m=0.003', 'mesh.divisions=[6,6,5]']
@@ -136,14 +137,17 @@ def test_implicit_stable_and_dissipative_ten_times_past_the_explicit_limit(cube,
 
 
 class _Bonds:
-    """A coupling that bonds sample points (weights over ``nodes``) to fixed targets."""
+    """A coupling that bonds sample points ((s, J) weights over (s, J) nodes) to fixed targets."""
 
     def __init__(self, nodes, weights, targets):
-        self.bond = (np.asarray(nodes), np.asarray(weights, dtype=float), np.asarray(targets, dtype=float),
-                     np.zeros((len(targets), 3)))
+        self.rows = BondRows.along_axes(nodes, weights, targets)
 
     def implicit_bonds(self):
-        return (self.bond,)
+        return (self.rows,)
+
+    @property
+    def forces(self):
+        return self.rows.forces.reshape(-1, 3)
 
 
 @pytest.mark.parametrize('integrator', ['quasi_static', 'implicit'])
@@ -163,7 +167,7 @@ def test_bonds_held_in_the_solve_are_prescribed_displacements(cube, liver, integ
                              integrator=integrator, newton_tolerance=1e-11)
 
     bonded = simulation()
-    bonds = _Bonds(held, np.eye(4), cube.rest_positions[held] + move)
+    bonds = _Bonds(held[:, None], np.ones((4, 1)), cube.rest_positions[held] + move)
     bonded.couplings.append(bonds)
     prescribed = simulation()
     prescribed.prescribe(held, lambda t: move)
@@ -181,7 +185,7 @@ def test_bonds_held_in_the_solve_are_prescribed_displacements(cube, liver, integ
     holding = (prescribed.mass[held, None] * ((prescribed.velocity[held] - v_old) / dt
                                               + 50.0 * prescribed.velocity[held])
                if integrator == 'implicit' else 0.0) - prescribed.internal_force[held]
-    forces = bonds.bond[3]
+    forces = bonds.forces
     assert np.abs(forces).max() > 1e-3
     np.testing.assert_allclose(forces, holding, rtol=0, atol=1e-7 * np.abs(forces).max())
 
@@ -196,12 +200,12 @@ def test_barycentric_bond_held_exactly_and_in_balance(cube, liver):
     target = weights @ cube.rest_positions[nodes] + [0.0, 0.0, -1e-3]
     sim = ts.Simulation(ts.TensorMassModel(cube, liver), fixed=_bottom(cube), dt=0.05,
                         integrator='quasi_static', newton_tolerance=1e-11)
-    bonds = _Bonds(nodes, weights, target)
+    bonds = _Bonds(nodes[None, :], weights, target)
     sim.couplings.append(bonds)
     sim.step(2)
     point = weights @ (cube.rest_positions[nodes] + sim.displacement[nodes])
     assert np.abs(point - target).max() < 1e-12
-    force = bonds.bond[3][0]
+    force = bonds.forces[0]
     assert force[2] < -1e-3                               # it pushes the tissue down
     free = sim.dof_kind == 0
     balance = np.where(free, sim.internal_force, 0.0).sum(axis=0) + force

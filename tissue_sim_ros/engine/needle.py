@@ -60,6 +60,7 @@ import math
 
 import numpy as np
 
+from tissue_sim_ros.engine.implicit_bonds import BondRows
 from tissue_sim_ros.engine.mesh import element_neighbours, face_elements
 from tissue_sim_ros.engine.needle_contact import disc_offsets
 from tissue_sim_ros.engine.needle_kernels import (first_surface_hit, follow_rigid_samples, locate_point,
@@ -375,14 +376,19 @@ class NeedleTissue(MembraneContact):
         self._update_phase(dt, speed_along)
 
     def implicit_bonds(self):
-        """The bonded contact an implicit step holds inside its solve (engine.implicit_bonds):
-        (nodes, weights, targets at the needle end after this step, the sample forces it writes),
-        or none. Called by the step, after this step's pose is set."""
+        """The bonds an implicit step holds inside its solve (engine.implicit_bonds): the bonded
+        contact's samples at their targets on the needle end after this step, as BondRows along
+        x, y and z, or none. Called by the step, after this step's pose is set. The shaft's
+        points are not held this way: several in one element ask its affine field for lateral
+        positions that disagree (0.3 mm of least-squares gap left on the coarse scene, and the
+        quasi-static run stalled after the puncture); they stay with shaft_solve, after the step."""
         patch = self._bonds_in_solve = self.patch
         if patch is None:
             return ()
         put_rigid_points(self._tip, self.rotation, patch.offsets, len(patch.offsets), patch.targets, 0)
-        return ((patch.nodes, patch.weights, patch.targets, patch.sample_forces),)
+        self._patch_rows = BondRows.along_axes(np.broadcast_to(patch.nodes, patch.weights.shape), patch.weights,
+                                               patch.targets)
+        return (self._patch_rows,)
 
     def _inverse_mass(self):
         """(n, 3) inverse mass of each free DOF, 0 for held ones (the solver's compliance over a

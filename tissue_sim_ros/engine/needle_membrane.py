@@ -93,6 +93,7 @@ class MembraneContact:
         held = patch is self._bonds_in_solve          # an implicit step held it: its forces are written
         self._bonds_in_solve = None
         if held:
+            patch.sample_forces[:] = self._patch_rows.forces.reshape(-1, 3)
             total = patch.sample_forces.sum(axis=0, out=patch.total)
         else:
             total = patch.solve(self.rest, sim.displacement, self._tip, self.rotation, dt)
