@@ -250,3 +250,22 @@ def test_implicit_scene_checks():
     with pytest.raises((SceneError, ValueError), match='relaxation'):
         Scene.from_file(None, sets=COARSE + ['solver.integrator=quasi_static',
                                              'model.relaxation=[{relative_modulus: 0.3, time_constant_s: 1.0}]'])
+
+
+def test_conjugate_gradient_stops_at_its_floor_with_its_best_iterate(cube, liver):
+    """Asked for an exact solve (tolerance 0), the matrix-free conjugate gradient stops once its
+    residual stagnates (the differenced products' rounding floor), well before its iteration cap,
+    and what it returns solves J w = b to 1e-6 of |b|."""
+    sim = ts.Simulation(ts.TensorMassModel(cube, liver), fixed=_bottom(cube), integrator='implicit', dt=1e-3)
+    step = sim._implicit
+    step._update_diagonals()
+    vectors = step._vectors
+    vectors['x'][:] = 0.0
+    vectors['v'][:] = 0.0
+    step._forces(vectors['x'], vectors['v'], vectors['tangent_base'])
+    rhs = np.random.default_rng(3).normal(size=vectors['x'].shape) * (sim.dof_kind == 0)
+    solution, product = np.zeros_like(rhs), np.zeros_like(rhs)
+    iterations = step._solve(rhs, 0.0, solution)
+    assert iterations < step.max_cg_iterations // 4
+    step._apply(solution, product)
+    assert np.linalg.norm(product - rhs) < 1e-6 * np.linalg.norm(rhs)
