@@ -33,7 +33,9 @@ RCOND = 1e-10
 class BondRows:
     """Rows of bonds: nodes (m, J) and weights (m, J) of each row's material point (padding:
     weight 0), directions (m, 3) unit, targets (m,) [m] along them; ``forces`` (m,) [N] is
-    written at the end of the step (each row's force on the tissue along its direction)."""
+    written at the end of the step (each row's force on the tissue along its direction). Its
+    points and directions are fixed once made (BondSet keeps their factor while the same rows
+    come back); the targets may change every step."""
 
     def __init__(self, nodes, weights, directions, targets):
         self.nodes = np.ascontiguousarray(nodes, dtype=np.int64)
@@ -63,16 +65,16 @@ class BondSet:
         return bool(self.rows)
 
     def set(self, rows, inverse_diagonal, key, n_nodes):
-        """The step's rows; C and Pi rebuilt when the rows' points and directions or the
-        preconditioner (``key``) change."""
+        """The step's rows; C and Pi rebuilt when the rows (by identity) or the preconditioner
+        (``key``) change."""
         self.rows = [r for r in rows if len(r.targets)]
         if not self.rows:
             return
-        key = (key, n_nodes) + tuple((r.nodes.tobytes(), r.weights.tobytes(), r.directions.tobytes())
-                                     for r in self.rows)
         self._targets = np.concatenate([r.targets for r in self.rows])
-        if key == self._key:
+        if (self._key is not None and self._key[0] == (key, n_nodes) and len(self._key[1]) == len(self.rows)
+                and all(a is b for a, b in zip(self._key[1], self.rows))):
             return
+        key = ((key, n_nodes), tuple(self.rows))      # the rows themselves: by identity
         entries_row, entries_col, entries_val = [], [], []
         start = 0
         for r in self.rows:

@@ -153,6 +153,7 @@ class NeedleTissue(MembraneContact):
         self._mass_generation = 0
         self._initial_pose = validate_pose(position, orientation, f'{name}.initial_pose')
         self._bonds_in_solve = None         # the patch an implicit step held this step (implicit_bonds)
+        self._patch_rows_of = None
         self._velocity_before = np.zeros((self.mesh.n_nodes, 3))
         simulation.couplings.append(self)
         self.reset()
@@ -386,8 +387,11 @@ class NeedleTissue(MembraneContact):
         if patch is None:
             return ()
         put_rigid_points(self._tip, self.rotation, patch.offsets, len(patch.offsets), patch.targets, 0)
-        self._patch_rows = BondRows.along_axes(np.broadcast_to(patch.nodes, patch.weights.shape), patch.weights,
-                                               patch.targets)
+        if self._patch_rows_of is not patch:          # made once a patch, its targets set each step
+            self._patch_rows = BondRows.along_axes(np.broadcast_to(patch.nodes, patch.weights.shape),
+                                                   patch.weights, patch.targets)
+            self._patch_rows_of = patch
+        self._patch_rows.targets[:] = patch.targets.reshape(-1)
         return (self._patch_rows,)
 
     def _inverse_mass(self):
