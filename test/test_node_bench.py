@@ -158,7 +158,10 @@ def test_background_load_spins_listens_and_stops_whatever_happens():
     assert not any(_alive(pid) for pid in pids) and _my_spinners() == []
     assert load.listener['wrench']['count'] == 25 and load.listener['cloud']['count'] == 10
     sent_rate = 24 / (sent_at[-1] - sent_at[0])  # about 50 Hz; less on a loaded machine
-    assert load.listener['wrench']['rate_hz'] == pytest.approx(sent_rate, rel=0.25)
+    # the rate they were sent at, from their source stamps, whatever the listener's scheduling;
+    # the receipt rate bunches when its middleware thread is starved (92 Hz seen for 48 Hz sent)
+    assert load.listener['wrench']['sent_rate_hz'] == pytest.approx(sent_rate, rel=0.1)
+    assert sent_rate / 3 < load.listener['wrench']['rate_hz'] < 3 * sent_rate
     assert '2 busy processes + 1 listening client' in load.describe()
 
 

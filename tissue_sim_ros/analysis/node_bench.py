@@ -406,7 +406,8 @@ def report(r: dict) -> str:
     listener = r.get('listener') or {}
     if listener:
         lines.append('  listening client     ' + ', '.join(
-            f'{name} {v["count"]} messages at {v["rate_hz"]:.2f} Hz' for name, v in listener.items()))
+            f'{name} {v["count"]} messages at {v["rate_hz"]:.2f} Hz (sent at {v.get("sent_rate_hz", 0.0):.2f})'
+            for name, v in listener.items()))
     return '\n'.join(lines)
 
 
