@@ -3,11 +3,12 @@ constraints of Newton's step (issue 17 item 1).
 
 A bond row holds a material point (weights w_k over nodes k) along a direction d at a target:
 sum_k w_k d . X_k = t, with X the positions (rest + displacement). A bonded contact holds each
-sample along the three axes (a row per axis; other directions are for holds along a line).
-Together the rows are C X = t, C sparse (rows x 3n). Applied after an implicit step through each DOF's own
-stiffness (the uncoupled correction), a bond moves its nodes with their neighbours held, so it
-reported the force that pushes those nodes alone: on the coarse default scene at 5 mm/s the
-capsule ruptured at 2.8 mm of tip travel instead of 7.6 mm. Here the step itself holds them:
+sample along the three axes, a row per axis. Together the rows of every needle are C X = t, C
+sparse (rows x 3n), factored as one, so bonds that share nodes are held together. Applied after
+an implicit step through each DOF's own stiffness (the uncoupled correction), a bond moves its
+nodes with their neighbours held, so it reported the force that pushes those nodes alone: on
+the coarse default scene at 5 mm/s the capsule ruptured at 2.8 mm of tip travel instead of
+7.6 mm. Here the step itself holds them:
 
 - the predictor is moved onto the rows, x += D^-1 C^T Pi (t - C X), Pi = (C D^-1 C^T)^+, D the
   conjugate gradient's (Jacobi) preconditioner;

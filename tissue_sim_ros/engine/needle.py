@@ -154,7 +154,8 @@ class NeedleTissue(MembraneContact):
         self._initial_pose = validate_pose(position, orientation, f'{name}.initial_pose')
         self._bonds_in_solve = None         # the patch an implicit step held this step (implicit_bonds)
         self._patch_rows_of = None
-        self._velocity_before = np.zeros((self.mesh.n_nodes, 3))
+        # the tissue's velocity before the needle's corrections (after_step, implicit integrators)
+        self._velocity_before = np.zeros((self.mesh.n_nodes, 3)) if simulation.integrator != 'explicit' else None
         simulation.couplings.append(self)
         self.reset()
         self._check_outside(*self._initial_pose, f'{name}.initial_pose')
@@ -282,7 +283,7 @@ class NeedleTissue(MembraneContact):
         energy watchdog.
         """
         sim = self.simulation
-        if sim._implicit is None:
+        if sim.integrator == 'explicit':
             self._after_step(dt)
             return
         work = sim.input_work
