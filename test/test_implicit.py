@@ -112,6 +112,31 @@ def test_static_answer_same_for_all_integrators(cube, liver, full):
         assert np.abs(sim.displacement - reference).max() < 1e-6 * np.abs(reference).max()
 
 
+def test_continuation_finds_the_equilibrium_where_newton_loses_its_way(cube, liver):
+    """A quasi-static step of the full model started from a squashed predictor (the top pushed
+    down 60 % of the height, sheared): Newton's direction there finds no descent (before
+    pseudo-transient continuation the step stopped, 0.5 N left), the continuation takes over and
+    ends on the equilibrium the same step reaches from rest, to 1e-8 relative."""
+    z = cube.rest_positions[:, 2]
+    options = dict(geometric=True, physical=ts.MeanRatioLaw.exponential(mu_amplitude=0.5, mu_rate=4.0))
+
+    def simulation():
+        return _loaded(ts.Simulation(ts.TensorMassModel(cube, liver, **options), fixed=_bottom(cube),
+                                     newton_tolerance=1e-11, integrator='quasi_static', dt=1.0), cube)
+
+    reference = simulation()
+    reference.step(1)
+    assert reference._implicit.continued_steps == 0
+    squashed = simulation()
+    squashed.velocity[:, 2] = -0.6 * z              # the predictor x = u + v dt, dt = 1 s
+    squashed.velocity[:, 0] = 0.3 * z * np.sin(40.0 * cube.rest_positions[:, 1])
+    squashed.velocity[_bottom(cube)] = 0.0
+    squashed.step(1)
+    assert squashed._implicit.continued_steps == 1
+    error = np.abs(squashed.displacement - reference.displacement).max()
+    assert error < 1e-8 * np.abs(reference.displacement).max()
+
+
 def test_implicit_stable_and_dissipative_ten_times_past_the_explicit_limit(cube, liver):
     """Free vibration from a random displacement, no damping: at 10x the critical step the
     explicit solver's watchdog stops it; backward Euler's energy falls every step."""

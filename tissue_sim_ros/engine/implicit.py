@@ -53,6 +53,14 @@ bevel's bond at 1.2 N the residual fell 30x then grew, so every Newton iteration
 2000-iteration cap and Newton stalled at 3.73 s. And a step that reaches the Newton iteration
 limit with its residual under STALL_TOLERANCE of the forces is kept, as a stall (1e-7 N against
 a 1e-8 N goal at 3.6 s, the same floor).
+
+Where Newton's matrix is not positive definite, its direction can lead nowhere: 1.5 s into the
+retraction of that run the surface elements around the needle were crushed, the direction was
+40 mm long at a surface node and no fraction of it reduced the 0.75 N residual, and the run
+stopped. Such a step now goes on by pseudo-transient continuation (``_continue``): J + D / delta
+with the rest stiffness's diagonal D, delta growing as the residual falls, so it follows the
+residual's gradient flow through the indefinite region and ends as Newton on the same root.
+That step took one continuation iteration, and the run went through the retraction (10 s in 95 s).
 """
 import math
 
@@ -70,6 +78,12 @@ STALL_TOLERANCE = 1e-3
 #: the conjugate gradient stops when its residual has not reached a new low (1 % below the
 #: lowest) for this many iterations
 STAGNATION = 50
+#: pseudo-transient continuation (see ImplicitStep._continue): the first pseudo time step, in
+#: units of the rest stiffness's diagonal (1: the shift equals it), the most iterations it may
+#: add to a step, and the residual growth that makes it shorten its pseudo step instead
+CONTINUATION_START = 1.0
+CONTINUATION_ITERATIONS = 200
+CONTINUATION_GROWTH = 2.0
 
 
 def stiffness_diagonal(tetrahedra, shape_gradients, volume_lambda, volume_mu, n_nodes):
@@ -114,6 +128,8 @@ class ImplicitStep:
         # element non-linear: the same tangent to O(|H|) where both agree), the residual with it.
         self._smooth_tangent = model.nonlinearity_threshold > 0 and (model.geometric or model.physical)
         self.stalled_steps = 0              # steps accepted where the line search found no descent
+        self.continued_steps = 0            # steps Newton finished by pseudo-transient continuation
+        self._pseudo_step = None            # its pseudo time step while it runs (None: Newton)
         self._diagonal_key = None
         self.newton_iterations = 0          # of the last step
         self.cg_iterations = 0              # of the last step, all Newton iterations together
@@ -146,6 +162,8 @@ class ImplicitStep:
         self._free = (sim.dof_kind == 0).astype(float)
         jacobi = self._inertia + stiffness + viscous / dt
         self._inverse_diagonal = np.where(jacobi > 0, 1.0 / np.where(jacobi > 0, jacobi, 1.0), 0.0) * self._free
+        self._elastic_diagonal = (stiffness + viscous / dt) * self._free   # the continuation's shift per unit
+        self._shift = self._inertia.copy()      # J's diagonal term: the inertia (+ the continuation's)
         # the compliance each DOF offers a constraint over this step (module docstring): the
         # preconditioner's diagonal is its stiffness over dt^2
         self.constraint_inverse_mass = self._inverse_diagonal / (dt * dt)
@@ -204,7 +222,7 @@ class ImplicitStep:
         self._forces(probe, probe_v, vec['probe_force'], smooth=self._smooth_tangent)
         np.subtract(vec['probe_force'], vec['tangent_base'], out=out)
         out *= -1.0 / h
-        out += self._inertia * w
+        out += self._shift * w
         out *= self._free
 
     def _solve(self, rhs, tolerance, out):
@@ -258,6 +276,43 @@ class ImplicitStep:
         if self.bonds:
             self.bonds.project(z, self._inverse_diagonal)
 
+    def _line_search(self, x, norm):
+        """Backtracking on |R| along Newton's direction: the full step unless it fails to reduce
+        the residual, halved down to 1/64. Leaves the point in the trial vectors; returns its |R|."""
+        vec = self._vectors
+        step = 1.0
+        while True:
+            np.multiply(vec['direction'], step, out=vec['trial'])
+            vec['trial'] += x
+            trial_norm = self._evaluate(vec['trial'], vec['trial_v'], vec['trial_force'], vec['trial_residual'])
+            if trial_norm <= (1.0 - 1e-4 * step) * norm or step < 1.0 / 64:
+                return trial_norm
+            step *= 0.5
+
+    def _set_pseudo_step(self, pseudo_step):
+        """Newton's matrix J (None) or J + D / pseudo_step, D the rest stiffness's diagonal."""
+        self._pseudo_step = pseudo_step
+        np.copyto(self._shift, self._inertia)
+        if pseudo_step is not None:
+            self._shift += self._elastic_diagonal / pseudo_step
+
+    def _continue(self, x, norm):
+        """One iteration of pseudo-transient continuation (Kelley & Keyes, SIAM J. Numer. Anal. 35,
+        1998): the direction solved with J + D / delta is taken whole; the pseudo step delta
+        grows as the residual falls (switched evolution relaxation, delta |R| held), so the
+        iteration follows the residual's gradient flow where Newton's matrix is indefinite and
+        becomes Newton's again near the root, which it shares. A residual that grows more than
+        CONTINUATION_GROWTH-fold is refused and delta cut 10x. Returns the trial's |R|, or None
+        when refused."""
+        vec = self._vectors
+        np.add(x, vec['direction'], out=vec['trial'])
+        trial_norm = self._evaluate(vec['trial'], vec['trial_v'], vec['trial_force'], vec['trial_residual'])
+        if not trial_norm <= CONTINUATION_GROWTH * norm:
+            self._set_pseudo_step(0.1 * self._pseudo_step)
+            return None
+        self._set_pseudo_step(self._pseudo_step * norm / max(trial_norm, 1e-300))
+        return trial_norm
+
     # -- the step ---------------------------------------------------------------------------------
     def step(self, targets):
         """Advance the simulation's state by one step. ``targets``: (nodes, axes mask, (k, 3)
@@ -283,14 +338,16 @@ class ImplicitStep:
                     math.sqrt(float(np.vdot(sim.external_forces, sim.external_forces))))
         goal = max(self.newton_tolerance * scale, self._absolute_tolerance)
         self.cg_iterations = 0
-        iteration = 0
+        iteration, limit = 0, self.max_newton_iterations
+        self._set_pseudo_step(None)
         while norm > goal:
-            if iteration == self.max_newton_iterations and norm <= STALL_TOLERANCE * scale:
+            if iteration >= limit and norm <= STALL_TOLERANCE * scale:
                 self.stalled_steps += 1     # close enough, as a stall: the differenced tangent's floor
                 break
-            if iteration == self.max_newton_iterations or not math.isfinite(norm):
+            if iteration >= limit or not math.isfinite(norm):
+                method = 'Newton' if self._pseudo_step is None else 'Newton, then continuation,'
                 sim._diverged(f'the {"quasi-static" if self.quasi_static else "implicit"} step did not '
-                              f'converge: Newton residual {norm:.3g} N after {iteration} iterations '
+                              f'converge: {method} residual {norm:.3g} N after {iteration} iterations '
                               f'(goal {goal:.3g} N)')
             iteration += 1
             eta = min(0.01, norm / first) if first > 0 else 0.01
@@ -301,27 +358,28 @@ class ImplicitStep:
             np.negative(residual, out=vec['trial_residual'])
             # no finer than a tenth of Newton's goal: below it the differenced products are noise
             self.cg_iterations += self._solve(vec['trial_residual'], max(eta * norm, 0.1 * goal), vec['direction'])
-            # backtracking on |R|: the full Newton step unless it fails to reduce the residual
-            step = 1.0
-            while True:
-                np.multiply(vec['direction'], step, out=vec['trial'])
-                vec['trial'] += x
-                trial_norm = self._evaluate(vec['trial'], vec['trial_v'], vec['trial_force'], vec['trial_residual'])
-                if trial_norm <= (1.0 - 1e-4 * step) * norm or step < 1.0 / 64:
-                    break
-                step *= 0.5
-            if trial_norm > norm:
+            if self._pseudo_step is not None:
+                trial_norm = self._continue(x, norm)
+                if trial_norm is None:
+                    continue
+            else:
+                trial_norm = self._line_search(x, norm)
+            if trial_norm > norm and self._pseudo_step is None:
                 # no descent along Newton's direction: the residual is not smooth here (an element
-                # at the threshold or the inversion safeguard's switch). Close enough is kept.
+                # at the threshold or the inversion safeguard's switch), or Newton's matrix is not
+                # positive definite (elements crushed around a retracting needle: its direction
+                # was 40 mm long). Close enough is kept; otherwise continuation takes over.
                 if norm <= STALL_TOLERANCE * scale:
                     self.stalled_steps += 1
                     break
-                sim._diverged(f'the {"quasi-static" if self.quasi_static else "implicit"} step stalled: '
-                              f'Newton residual {norm:.3g} N after {iteration} iterations, no descent '
-                              f'along its direction (goal {goal:.3g} N)')
+                self.continued_steps += 1
+                self._set_pseudo_step(CONTINUATION_START)
+                limit = iteration + CONTINUATION_ITERATIONS
+                continue
             x[:], v[:], force[:], residual[:] = vec['trial'], vec['trial_v'], vec['trial_force'], vec['trial_residual']
             norm = trial_norm
         self.newton_iterations = iteration
+        self._set_pseudo_step(None)
         largest = float(np.abs(x).max())
         if largest >= sim.displacement_limit:
             sim._diverged(f'a displacement reached {largest:.3g} m, past {sim.displacement_limit:.3g} m '
