@@ -137,6 +137,43 @@ def test_continuation_finds_the_equilibrium_where_newton_loses_its_way(cube, liv
     assert error < 1e-8 * np.abs(reference.displacement).max()
 
 
+def test_no_root_at_the_nonlinearity_threshold_is_a_stall_not_a_failure(cube, liver):
+    """The threshold switches an element's force between two laws, so an equilibrium can fall in
+    the jump and have no root. A scan of 60 loads on the full model with threshold 0.02 meets two
+    such (before, each stopped the step: 9e-6 N left after 200 iterations); every step now ends,
+    those as stalls. Measured at the stalled state, by flipping the elements within 1e-4 of the
+    threshold: the residual left is within that jump, and the jump within the step's estimate."""
+    from tissue_sim_ros.engine import forces
+    from tissue_sim_ros.engine.solver import SimulationDiverged
+
+    def jump(model, x):
+        both = []
+        for threshold in (0.02, 0.02 * (1.0 - 1e-4)):
+            model.accumulate_forces(x, np.zeros_like(x), threshold_squared=threshold ** 2)
+            both.append(np.zeros_like(x))
+            forces.reduce_buffers(*model.force_buffers, both[-1])
+        return np.linalg.norm(both[0] - both[1])
+
+    top = _top(cube)
+    stalled = 0
+    for scale in np.linspace(0.2, 3.0, 60):
+        model = ts.TensorMassModel(cube, liver, geometric=True, nonlinearity_threshold=0.02,
+                                   physical=ts.MeanRatioLaw.exponential(mu_amplitude=0.5, mu_rate=4.0))
+        sim = ts.Simulation(model, fixed=_bottom(cube), newton_tolerance=1e-11, integrator='quasi_static', dt=1.0)
+        sim.external_forces[top, 0] = scale * 0.01 / len(top)
+        sim.external_forces[top, 2] = -scale * 0.02 / len(top)
+        try:
+            sim.step(1)
+        except SimulationDiverged as exc:
+            pytest.fail(f'load x{scale:.3f}: {exc}')
+        step = sim._implicit
+        if step.stalled_steps:
+            stalled += 1
+            measured = jump(model, sim.displacement)
+            assert 0.0 < np.linalg.norm(step._vectors['residual']) <= measured <= step._threshold_jump
+    assert stalled >= 1
+
+
 def test_implicit_stable_and_dissipative_ten_times_past_the_explicit_limit(cube, liver):
     """Free vibration from a random displacement, no damping: at 10x the critical step the
     explicit solver's watchdog stops it; backward Euler's energy falls every step."""
