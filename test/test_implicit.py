@@ -174,6 +174,20 @@ def test_no_root_at_the_nonlinearity_threshold_is_a_stall_not_a_failure(cube, li
     assert stalled >= 1
 
 
+def test_summary_counts_the_solves(cube, liver):
+    """The line a run prints about its implicit solves counts them: steps, and the Newton
+    iterations of each step added up; the explicit solver has none to print."""
+    sim = _loaded(ts.Simulation(ts.TensorMassModel(cube, liver, geometric=True), fixed=_bottom(cube),
+                                integrator='quasi_static', dt=1.0), cube)
+    newton = 0
+    for _ in range(3):
+        sim.step(1)
+        newton += sim._implicit.newton_iterations
+    assert newton >= 3
+    assert sim.implicit_summary().startswith(f'quasi-static: 3 steps, {newton / 3:.1f} Newton')
+    assert ts.Simulation(ts.TensorMassModel(cube, liver), fixed=_bottom(cube)).implicit_summary() == ''
+
+
 def test_implicit_stable_and_dissipative_ten_times_past_the_explicit_limit(cube, liver):
     """Free vibration from a random displacement, no damping: at 10x the critical step the
     explicit solver's watchdog stops it; backward Euler's energy falls every step."""

@@ -10,7 +10,7 @@ import pytest
 from test_needle import small_scene
 from tissue_sim_ros.analysis.mass_scaling_rule import MAX_PROBES, MAX_SCALING, choose_mass_scaling
 from tissue_sim_ros.engine.driver import SimulationDriver
-from tissue_sim_ros.engine.inertia_estimate import InertiaEstimate, weighted_body_force
+from tissue_sim_ros.engine.inertia_estimate import InertiaEstimate, inertia_line, weighted_body_force
 
 
 def test_weighted_body_force_equals_numpy():
@@ -32,8 +32,9 @@ class _Drift:
     """Every node displaced by ``delta`` along the axis and moving at a constant ``v`` along it:
     a rigid translation, so all of the damping force reaches the needle (psi = 1 everywhere)."""
 
-    def __init__(self, mass_scaling, n=50, v=0.003, rate=50.0):
+    def __init__(self, mass_scaling, n=50, v=0.003, rate=50.0, integrator='explicit'):
         self.mass_scaling = mass_scaling
+        self.integrator = integrator
         self.mass = np.full(n, 2e-5 * mass_scaling)
         self.damping_rate = np.full(n, rate)
         self.axis = np.array([0.0, 0.0, -1.0])
@@ -55,6 +56,18 @@ def test_a_steady_drift_adds_the_scaled_damping_force(mass_scaling):
     assert estimate.error == pytest.approx(added / 1.0, rel=0.02, abs=1e-15)
     if mass_scaling == 1.0:
         assert estimate.rms_n == 0.0
+
+
+def test_a_quasi_static_run_has_no_inertia_to_scale():
+    """The quasi-static integrator drops the masses: the same drift at mass scaling 400 adds
+    nothing, and the line every run prints says so instead of an error estimate."""
+    sim = _Drift(400.0, integrator='quasi_static')
+    estimate = InertiaEstimate()
+    for k in range(101):
+        estimate.update(sim, 0.02 if k else 0.0, sim.axis, k / 100)
+    assert estimate.rms_n == 0.0 and estimate.error is None
+    assert inertia_line(400.0, estimate.error, estimate.rms_n, 'quasi_static').startswith('quasi-static: no inertia')
+    assert 'mass scaling 400: estimated inertia error' in inertia_line(400.0, 0.01, 0.002, 'implicit')
 
 
 def test_a_puncture_moved_by_the_added_force_counts_its_drop():

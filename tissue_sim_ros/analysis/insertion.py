@@ -175,6 +175,9 @@ def main(scene_file, speed_mm_s, out, *, travel_mm=None, depth_mm=None, hold_s=0
           f'{result.wall_time:.2f} s wall: real-time factor {result.real_time_factor:.2f} '
           f'({result.steps} steps)', file=stream)
     from tissue_sim_ros.engine.inertia_estimate import inertia_line
-    print(inertia_line(scene.simulation.mass_scaling, result.inertia_error, result.inertia_rms_n), file=stream)
+    print(inertia_line(scene.simulation.mass_scaling, result.inertia_error, result.inertia_rms_n,
+                       scene.simulation.integrator), file=stream)
+    if scene.simulation.integrator != 'explicit':
+        print(scene.simulation.implicit_summary(), file=stream)
     print(f'wrote {out / "insertion.csv"} and {out / "insertion.png"}', file=stream)
     return result

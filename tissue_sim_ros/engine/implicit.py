@@ -133,14 +133,31 @@ class ImplicitStep:
         # across it turns into an arbitrary 'stiffness'. The tangent is taken without it (every
         # element non-linear: the same tangent to O(|H|) where both agree), the residual with it.
         self._smooth_tangent = model.nonlinearity_threshold > 0 and (model.geometric or model.physical)
-        self.stalled_steps = 0              # steps accepted where the line search found no descent
-        self.continued_steps = 0            # steps Newton finished by pseudo-transient continuation
         self._pseudo_step = None            # its pseudo time step while it runs (None: Newton)
         self._diagonal_key = None
         self.newton_iterations = 0          # of the last step
         self.cg_iterations = 0              # of the last step, all Newton iterations together
-        self.force_evaluations = 0          # all steps
+        self.reset_counts()
         self.bonds = BondSet()              # the needles' bonded contacts, held inside the step
+
+    def reset_counts(self):
+        """The counts since the start (Simulation.reset: its warm-up step is not counted)."""
+        self.stalled_steps = 0              # steps accepted where the line search found no descent
+        self.continued_steps = 0            # steps Newton finished by pseudo-transient continuation
+        self.force_evaluations = 0          # all steps, and their iterations together
+        self.steps = 0
+        self.total_newton_iterations = 0
+        self.total_cg_iterations = 0
+
+    def summary(self) -> str:
+        """One line on the solves so far: iterations a step, stalls and continuations."""
+        name = 'quasi-static' if self.quasi_static else 'implicit (backward Euler)'
+        steps = max(self.steps, 1)
+        return (f'{name}: {self.steps} steps, {self.total_newton_iterations / steps:.1f} Newton and '
+                f'{self.total_cg_iterations / steps:.0f} conjugate-gradient iterations a step '
+                f'({self.force_evaluations} element passes); {self.stalled_steps} kept as stalls (residual '
+                f'within {STALL_TOLERANCE:g} of the forces, or of the jump at the non-linearity threshold), '
+                f'{self.continued_steps} finished by continuation')
 
     # -- the pieces -------------------------------------------------------------------------------
     def constraint_compliance(self):
@@ -396,6 +413,9 @@ class ImplicitStep:
             norm = trial_norm
         self.newton_iterations = iteration
         self._set_pseudo_step(None)
+        self.steps += 1
+        self.total_newton_iterations += iteration
+        self.total_cg_iterations += self.cg_iterations
         largest = float(np.abs(x).max())
         if largest >= sim.displacement_limit:
             sim._diverged(f'a displacement reached {largest:.3g} m, past {sim.displacement_limit:.3g} m '

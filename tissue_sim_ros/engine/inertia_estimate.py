@@ -107,6 +107,8 @@ class InertiaEstimate:
     def update(self, simulation, elapsed: float, axis, axial_force: float, punctures: int = 0) -> None:
         """After an advance of ``elapsed`` simulated seconds: ``axis`` and ``axial_force`` of the
         needle, ``punctures`` the membranes it has punctured so far."""
+        if simulation.integrator == 'quasi_static':    # no inertia: nothing scaled to estimate
+            return
         self._low = min(self._low, axial_force)
         self._high = max(self._high, axial_force)
         self._follow_punctures(elapsed, axial_force, punctures)
@@ -171,8 +173,10 @@ class InertiaEstimate:
         return self.rms_n / span
 
 
-def inertia_line(mass_scaling, error, rms_n) -> str:
+def inertia_line(mass_scaling, error, rms_n, integrator='explicit') -> str:
     """The line every run prints about its mass scaling's estimated error."""
+    if integrator == 'quasi_static':
+        return 'quasi-static: no inertia, so no inertia error (the mass scaling is not used)'
     if mass_scaling <= 1.0:
         return 'mass scaling 1: no inertia error added'
     text = 'not estimated (no force range)' if error is None else f'{error:.3f} of the axial force range'

@@ -254,6 +254,10 @@ class Simulation:
             return self._implicit.constraint_compliance()
         return np.where(self.dof_kind == 0, self.inverse_mass[:, None], 0.0), 1.0 + self.dt * self.damping_rate
 
+    def implicit_summary(self) -> str:
+        """The implicit integrators' line on their solves so far ('' for the explicit one)."""
+        return '' if self._implicit is None else self._implicit.summary()
+
     def critical_time_step(self):
         """Estimated critical (largest stable) time step [s] of the linearised model, cached.
 
@@ -283,6 +287,8 @@ class Simulation:
         self.reference_energy = None   # measured at the first step, after any initial state is set
         self.safeguarded_elements = 0
         self.max_safeguarded_elements = 0
+        if self._implicit is not None:
+            self._implicit.reset_counts()
 
     # -- stepping -------------------------------------------------------------------------------
     def step(self, n_steps=1):

@@ -395,8 +395,9 @@ class TissueSimNode(Node):
             self.engine.stop()
             from tissue_sim_ros.engine.inertia_estimate import inertia_line
             inertia = self.engine.driver.inertia
-            self.get_logger().info(inertia_line(self.engine.driver.scene.simulation.mass_scaling,
-                                                inertia.error, inertia.rms_n))
+            simulation = self.engine.driver.scene.simulation
+            self.get_logger().info(inertia_line(simulation.mass_scaling, inertia.error, inertia.rms_n,
+                                                simulation.integrator))
         if self._recorder is not None:
             path = self._recorder.path
             self._recorder.close()
