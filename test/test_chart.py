@@ -78,6 +78,10 @@ def test_grid_covers_the_axes():
     assert {r['task'] for r in rows} == {'insertion', 'compression'}
     assert {r['integrator'] for r in rows if r['task'] == 'compression'} == {'explicit', 'implicit', 'quasi_static'}
     assert 'fine' in {r['mesh'] for r in chart.configurations(1e-3, quick=False)}
+    unscaled = [r for r in chart.configurations(1e-3, quick=False) if r['integrator'] == 'implicit'
+                and r['mass_scaling'] == 1.0]
+    assert len(unscaled) == 1 and unscaled[0] not in rows     # the quick preset's time (chart.py)
+    assert any(r['integrator'] == 'quasi_static' and r['task'] == 'insertion' for r in rows)
 
 
 def test_plate_compression_rows_against_the_analytic_force():

@@ -82,6 +82,10 @@ DAMPINGS = (6.25, 12.5, 25.0)
 #: (integrator, multiple of the scene's explicit step, mass scaling or None for the scene's)
 INTEGRATOR_RUNS = (('implicit', 1.0, None), ('implicit', 4.0, None), ('implicit', 4.0, 1.0),
                    ('quasi_static', 4.0, None))
+#: the quick preset leaves out the implicit run without mass scaling: beside the reference it is
+#: the slowest row (144 s of 309 s on 2 cores), and the quasi-static row, which stays, shows the
+#: same error without inertia (0.049 against its 0.052)
+QUICK_INTEGRATOR_RUNS = tuple(run for run in INTEGRATOR_RUNS if run != ('implicit', 4.0, 1.0))
 START_GAP_M = 0.001
 #: plate compression: (integrator, multiple of the cube's explicit step)
 COMPRESSION_INTEGRATORS = (('explicit', 1.0), ('implicit', 10.0), ('quasi_static', 10.0))
@@ -115,7 +119,7 @@ def configurations(scene_dt: float, *, quick: bool) -> list[dict]:
             rows.append(dict(task='insertion', model='full', mesh='scene', integrator='explicit', mass_scaling=scaling,
                              reference=False, overrides=MODELS['full'] + [f'solver.mass_scaling={scaling:g}',
                                                                           f'solver.damping_per_s={damping:g}']))
-    for integrator, multiple, scaling in INTEGRATOR_RUNS:
+    for integrator, multiple, scaling in QUICK_INTEGRATOR_RUNS if quick else INTEGRATOR_RUNS:
         sets = MODELS['full'] + [f'solver.integrator={integrator}', f'solver.time_step_s={multiple * scene_dt!r}']
         if scaling is not None:
             sets.append(f'solver.mass_scaling={scaling:g}')
