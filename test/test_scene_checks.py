@@ -58,6 +58,18 @@ def test_set_overrides_reach_the_scene_as_the_file_would():
     assert apply_overrides({}, ['solver.mass_scaling=100']) == {'solver': {'mass_scaling': 100}}
 
 
+def test_an_exponent_without_a_dot_is_a_number_in_a_file_and_in_a_set(tmp_path):
+    """YAML 1.1 reads 2e4 (no dot) as a string: the scene takes it as the number it is, from a
+    file and from --set, and still refuses what is not a number, naming it."""
+    path = tmp_path / 'exponents.yaml'
+    path.write_text('regions:\n  - name: liver\n    young_modulus_pa: 2e4\n')
+    from_file = Scene.from_file(path, mesh=COARSE, sets=['solver.newton_tolerance=1e-6'])
+    assert from_file.spec['regions'][0]['young_modulus_pa'] == 20000.0
+    assert from_file.spec['solver']['newton_tolerance'] == 1e-6
+    with pytest.raises(SceneError, match=r"solver.newton_tolerance = '1e-6x': expected a finite number"):
+        Scene.from_file(None, mesh=COARSE, sets=['solver.newton_tolerance=1e-6x'])
+
+
 @pytest.mark.parametrize('override, words', [
     ('model.geometrc=true', ['model.geometrc', 'known keys here: geometric']),
     ('regions[kidney].young_modulus_pa=1', ["no region named 'kidney'", "'liver'"]),

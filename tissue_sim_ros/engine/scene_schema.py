@@ -178,6 +178,11 @@ def _check_value(name, value, kind):
         raise SceneError(f'{name} = {value!r}: expected {expected}')
 
     def number(v):
+        if isinstance(v, str):      # YAML 1.1 reads an exponent without a dot (1e-5) as a string
+            try:
+                v = float(v)
+            except ValueError:
+                fail('a finite number')
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             fail('a finite number')
         return float(v)
