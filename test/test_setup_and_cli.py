@@ -51,6 +51,17 @@ def test_cli_reports_a_bad_scene_and_a_divergence_in_one_line(tmp_path, capsys, 
     err = capsys.readouterr().err
     assert 'diverged at step 2500' in err and 'model.geometric: true' in err
 
+def test_insert_without_a_puncture_says_so_instead_of_nan(tmp_path, capsys):
+    """The default scene's needle starts 9 mm above the surface: 12 mm of travel indents the
+    capsule without puncturing it. The comparison with the bovine liver says there is no puncture
+    to compare, not '+nan mm and +nan N off'."""
+    from tissue_sim_ros import cli
+    assert cli.main(['insert', '--travel-mm', '12', '--speed-mm-s', '10', '--set', 'mesh.fine_size_m=0.003',
+                     '--set', 'mesh.divisions=[6,6,5]', '--out', str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert 'no puncture in this run' in out and 'nan' not in out
+
+
 def test_console_script_prints_version():
     script = Path(sys.executable).parent / 'tissue-sim'
     result = subprocess.run([str(script), '--version'], capture_output=True, text=True, timeout=60)

@@ -157,10 +157,13 @@ def main(scene_file, speed_mm_s, out, *, travel_mm=None, depth_mm=None, hold_s=0
         comparison = compare_with_reference(result.time, result.depth, result.axial_force,
                                             plot=out / 'insertion_vs_bovine_liver.png')
         e = comparison.errors
+        travel_off = comparison.events.get('first_puncture_travel_error_m', float('nan'))
+        force_off = comparison.events.get('first_puncture_force_error_n', float('nan'))
+        puncture = (f'first puncture {1e3 * travel_off:+.2f} mm and {force_off:+.3f} N off'
+                    if np.isfinite(travel_off) and np.isfinite(force_off)
+                    else 'no puncture in this run to compare with the data\'s first')
         print(f'against the bovine-liver insertion (Okamura et al. 2004, 3 mm/s), by depth since '
-              f'contact: NRMSE {e.get("nrmse", float("nan")):.3f} over the insertion, first '
-              f'puncture {1e3 * comparison.events.get("first_puncture_travel_error_m", float("nan")):+.2f} mm '
-              f'and {comparison.events.get("first_puncture_force_error_n", float("nan")):+.3f} N off; wrote '
+              f'contact: NRMSE {e.get("nrmse", float("nan")):.3f} over the insertion, {puncture}; wrote '
               f'{out / "insertion_vs_bovine_liver.png"}', file=stream)
     for event in result.puncture_events:
         print(f'puncture of {event["region"]} at travel {np.interp(event["time_s"], result.time, result.depth) * 1e3:.2f} mm, '

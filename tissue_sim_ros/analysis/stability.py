@@ -204,7 +204,7 @@ def failure_job(job: dict) -> dict:
                 watch.after_step()
                 outputs.append(sim.reaction_force(top))
             deformed = mesh.mean_ratio(mesh.rest_positions + sim.displacement).min()
-            row['detail'] += f', compressed {deformed:.3g}'
+            row['detail'] += f', smallest mean ratio compressed {deformed:.3g}'
         else:
             sim = scene.simulation
             if case in ('step_2x', 'step_4x'):
