@@ -37,10 +37,16 @@ compliance in this step (``constraint_inverse_mass``): 1 / (m + dt gamma + dt^2 
 the uncoupled constraint correction SOFA uses with its implicit solvers. That compliance is the
 node's own with its neighbours held, stiffer than the body's: after the puncture the same runs
 read the axial force 0.20-0.22 of its range above the explicit solver's (0.94-0.96 N against
-0.66 N at 4 s) and a lateral force of 0.87-1.14 N rms where the explicit one has 0.085 N. The
-friction and cutting forces are bounded by their laws while the tissue slips, but the shaft's
-lateral hold is not: it is the next constraint to move into the solve. Until then the explicit
-solver is the one for needle forces after a puncture.
+0.66 N at 4 s) and a lateral force of 0.87-1.14 N rms where the explicit one has 0.085 N. Where
+they come from, measured on that scene: holding the shaft's points laterally inside the solve
+(springs, k = 100x each point's own stiffness) left the shaft's share at 0.005 N and the lateral
+force at 1.6 N, so the lateral force is the bevel's faces pushing the tissue after the step (a
+conical tip reads 0.17 N against the explicit 0.22 N); the axial excess is friction over a longer
+length, the tissue having sprung back at the rupture at once, without inertia (the first shaft
+point 7.75 mm behind the tip against 5.95 mm; 0.65 against 0.47 N of friction just after, and a
+steady 0.3 N more). Both need the contact itself in the solve (the faces as one-sided
+constraints, friction as a law of the slip velocity); until then the explicit solver is the one
+for needle forces after a puncture.
 
 On the full default scene (bevel tip, 13872 tetrahedra, 5 mm/s) the quasi-static step at 20 ms,
 one step a node tick, goes through the capsule as the explicit solver without mass scaling does
