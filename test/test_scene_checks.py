@@ -63,9 +63,13 @@ def test_an_exponent_without_a_dot_is_a_number_in_a_file_and_in_a_set(tmp_path):
     file and from --set, and still refuses what is not a number, naming it."""
     path = tmp_path / 'exponents.yaml'
     path.write_text('regions:\n  - name: liver\n    young_modulus_pa: 2e4\n')
-    from_file = Scene.from_file(path, mesh=COARSE, sets=['solver.newton_tolerance=1e-6'])
+    from_file = Scene.from_file(path, mesh=COARSE, sets=['solver.newton_tolerance=1e-6', 'solver.mass_scaling=1e2'])
     assert from_file.spec['regions'][0]['young_modulus_pa'] == 20000.0
     assert from_file.spec['solver']['newton_tolerance'] == 1e-6
+    assert from_file.spec['solver']['mass_scaling'] == 100.0
+    for text in ('nan', 'inf', '\u0665'):          # not finite, and a digit that is not ASCII
+        with pytest.raises(SceneError, match='solver.newton_tolerance'):
+            Scene.from_file(None, mesh=COARSE, solver={'newton_tolerance': text})
     with pytest.raises(SceneError, match=r"solver.newton_tolerance = '1e-6x': expected a finite number"):
         Scene.from_file(None, mesh=COARSE, sets=['solver.newton_tolerance=1e-6x'])
 

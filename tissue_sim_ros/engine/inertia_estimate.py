@@ -176,7 +176,8 @@ class InertiaEstimate:
 def inertia_line(mass_scaling, error, rms_n, integrator='explicit') -> str:
     """The line every run prints about its mass scaling's estimated error."""
     if integrator == 'quasi_static':
-        return 'quasi-static: no inertia, so no inertia error (the mass scaling is not used)'
+        return ('quasi-static: no inertia, so no inertia error (its step drops the masses; a mass '
+                'scaling only sets the step when time_step_s is null)')
     if mass_scaling <= 1.0:
         return 'mass scaling 1: no inertia error added'
     text = 'not estimated (no force range)' if error is None else f'{error:.3f} of the axial force range'

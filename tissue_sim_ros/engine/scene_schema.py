@@ -174,17 +174,26 @@ SCHEMA = {
 _FACES = ('bottom', 'top', 'walls', 'x_min', 'x_max', 'y_min', 'y_max')
 
 
+def _numeric_string(value):
+    """A string that is a plain decimal number (1e-5, 2.5E3) as that float, anything else as it
+    is: YAML 1.1 reads an exponent without a dot as a string."""
+    if isinstance(value, str) and value.isascii():
+        try:
+            return float(value)
+        except ValueError:
+            pass
+    return value
+
+
 def _check_value(name, value, kind):
     """Validate one value against its kind; return it normalised (floats, lists)."""
     def fail(expected):
         raise SceneError(f'{name} = {value!r}: expected {expected}')
 
     def number(v):
-        if isinstance(v, str):      # YAML 1.1 reads an exponent without a dot (1e-5) as a string
-            try:
-                v = float(v)
-            except ValueError:
-                fail('a finite number')
+        v = _numeric_string(v)
+        if isinstance(v, str):
+            fail('a finite number')
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             fail('a finite number')
         return float(v)
@@ -204,6 +213,7 @@ def _check_value(name, value, kind):
     if kind == 'scaling':
         if value == 'auto':
             return value
+        value = _numeric_string(value)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 1:
             fail("a factor >= 1 or 'auto'")
         kind = 'float+'

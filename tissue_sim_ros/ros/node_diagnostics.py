@@ -142,7 +142,8 @@ def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
         'engine_threads': engine.threads,
         'engine_dt_s': float(scene.dt),
         'mass_scaling': float(scene.simulation.mass_scaling),
-        'inertia_error_estimate': ('not estimated yet' if driver.inertia.error is None
+        'inertia_error_estimate': ('none: quasi-static, no inertia' if scene.simulation.integrator == 'quasi_static'
+                                   else 'not estimated yet' if driver.inertia.error is None
                                    else driver.inertia.error),
         'nonlinearity_threshold': float(scene.model.nonlinearity_threshold),
         'divergences': driver.divergences,
