@@ -181,7 +181,7 @@ def _numeric_string(value):
         try:
             return float(value)
         except ValueError:
-            pass
+            return value
     return value
 
 
