@@ -72,10 +72,10 @@ at the default Newton tolerance).
 The non-linearity threshold makes the residual jump where an element's |H| crosses it, and an
 equilibrium can fall in the jump: then there is no root, and the coarse scene with a conical tip
 stopped at first contact with 9e-5 N left on the four nodes of an element at |H| = 0.0199999. A
-residual under the jump one element's switch can make, 2 t^2 max_e (lambda + 2 mu) V^(2/3), is
-kept as a stall (the test measures the jump: 6e-5 N against that estimate's 2e-4 N). The floor
-is the largest element's (0.65 mN on the default scene, against forces of 0.1-1.5 N): a step with
-less left that finds no descent is kept without trying continuation.
+residual under the jump that the elements at the threshold (|H| within THRESHOLD_BAND of t) can
+make by switching, 2 t^2 (lambda + 2 mu) V^(2/3) the largest of them, is kept as a stall (the
+test measures the jump: 6e-5 N against that estimate's 2e-4 N); with no element there the floor
+is 0. A step with less left that finds no descent is kept without trying continuation.
 """
 import math
 
@@ -99,6 +99,8 @@ STAGNATION = 50
 CONTINUATION_START = 1.0
 CONTINUATION_ITERATIONS = 200
 CONTINUATION_GROWTH = 2.0
+#: an element is at the non-linearity threshold t when its |H| is within this fraction of t
+THRESHOLD_BAND = 1e-3
 
 
 def stiffness_diagonal(tetrahedra, shape_gradients, volume_lambda, volume_mu, n_nodes):
@@ -204,13 +206,12 @@ class ImplicitStep:
         # a residual this small is a displacement of 1e-12 body sizes against the stiffest DOF
         self._absolute_tolerance = 1e-12 * size * float(stiffness.max())
         self._perturbation = 1e-8 * size
-        self._threshold_jump = 0.0
+        self._element_jumps = None
         if self._smooth_tangent:
-            # the force one element's switch across the threshold makes: P_nonlinear - P_linear is
+            # the force each element's switch across the threshold makes: P_nonlinear - P_linear is
             # O((lambda + 2 mu) t^2) at |H| = t, on the element's faces (V |a_j| ~ V^(2/3)); twice that
-            threshold = model.nonlinearity_threshold
-            self._threshold_jump = 2.0 * threshold ** 2 * float(np.max(
-                (model.volume_lambda + 2.0 * model.volume_mu) / np.cbrt(model.volumes)))
+            self._element_jumps = (2.0 * model.nonlinearity_threshold ** 2
+                                   * (model.volume_lambda + 2.0 * model.volume_mu) / np.cbrt(model.volumes))
         self._diagonal_key = key
 
     def _forces(self, x, v, out, smooth=False):
@@ -354,6 +355,20 @@ class ImplicitStep:
         self._set_pseudo_step(self._pseudo_step * norm / max(trial_norm, 1e-300))
         return trial_norm
 
+    def threshold_floor(self, x):
+        """The largest force jump [N] of the elements at the non-linearity threshold at x (|H|
+        within THRESHOLD_BAND of it; module docstring), 0 if none is: a residual under it may
+        have no root to reach."""
+        if self._element_jumps is None:
+            return 0.0
+        model = self.sim.model
+        corners = x[model.tetrahedra]                                   # (m, 4, 3)
+        gradient = np.einsum('mkr,mkc->mrc', corners[:, 1:] - corners[:, :1], model.shape_gradients)
+        norms = np.sqrt(np.einsum('mrc,mrc->m', gradient, gradient))
+        threshold = model.nonlinearity_threshold
+        near = np.abs(norms - threshold) <= THRESHOLD_BAND * threshold
+        return float(self._element_jumps[near].max()) if near.any() else 0.0
+
     def _newton(self, x, v, force, residual, norm, first, goal, stall):
         """Newton's iteration from x (v, force, residual and |R| = norm evaluated there; first: the
         step's first |R|) to |R| <= goal, with continuation where it finds no descent (module
@@ -361,7 +376,7 @@ class ImplicitStep:
         sim, vec = self.sim, self._vectors
         iteration, limit = 0, self.max_newton_iterations
         while norm > goal:
-            if iteration >= limit and norm <= stall:
+            if iteration >= limit and (norm <= stall or norm <= self.threshold_floor(x)):
                 self.stalled_steps += 1     # close enough, as a stall: the differenced tangent's floor
                 break
             if iteration >= limit or not math.isfinite(norm):
@@ -389,7 +404,7 @@ class ImplicitStep:
                 # at the threshold or the inversion safeguard's switch), or Newton's matrix is not
                 # positive definite (elements crushed around a retracting needle: its direction
                 # was 40 mm long). Close enough is kept; otherwise continuation takes over.
-                if norm <= stall:
+                if norm <= stall or norm <= self.threshold_floor(x):
                     self.stalled_steps += 1
                     break
                 self.continued_steps += 1
@@ -424,9 +439,9 @@ class ImplicitStep:
         scale = max(first, math.sqrt(float(np.vdot(force, force))),
                     math.sqrt(float(np.vdot(sim.external_forces, sim.external_forces))))
         goal = max(self.newton_tolerance * scale, self._absolute_tolerance)
-        # below this a residual is kept as a stall: the differenced tangent's floor, or one element
-        # at the non-linearity threshold, whose force jumps there (there may be no root)
-        stall = max(STALL_TOLERANCE * scale, self._threshold_jump)
+        # below this a residual is kept as a stall: the differenced tangent's floor (and below the
+        # jump of an element at the non-linearity threshold: threshold_floor)
+        stall = STALL_TOLERANCE * scale
         self.cg_iterations = 0
         self._set_pseudo_step(None)
         try:
