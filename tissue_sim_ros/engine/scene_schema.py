@@ -192,8 +192,6 @@ def _check_value(name, value, kind):
 
     def number(v):
         v = _numeric_string(v)
-        if isinstance(v, str):
-            fail('a finite number')
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             fail('a finite number')
         return float(v)
