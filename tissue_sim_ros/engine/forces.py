@@ -308,9 +308,10 @@ def _gather_differences(work, row, field, j, values, i0, i1, i2, i3):
 
 
 @njit(cache=True, inline='always')
-def _classify_lanes(work, row, threshold_squared):
+def _classify_lanes(work, row, threshold_squared, physical, undistorted_cube):
     """Displacement gradient H of every lane, and whether it takes the non-linear path
-    (|H|_F^2 >= threshold^2). Returns the count of non-linear lanes (of all BLOCK)."""
+    (|H|_F^2 >= threshold^2); with the physical law also det F and tr(F^T F G), and whether the
+    law's corrections can be non-zero. Returns the count of non-linear lanes (of all BLOCK)."""
     count = 0
     for j in range(BLOCK):
         h00, h01, h02, h10, h11, h12, h20, h21, h22 = _lane_gradient(work, row, _DU, j)
@@ -320,40 +321,30 @@ def _classify_lanes(work, row, threshold_squared):
         nonlinear = norm_sq >= threshold_squared
         work[row, _at(_NONLINEAR, j)] = ONE if nonlinear else ZERO
         count += nonlinear
+        if physical:
+            e00, e11, e22, e01, e02, e12 = green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
+            det_f = deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22)
+            # tr(C G) with C = I + 2E
+            tr_cg = (work[row, _at(GRAM, j)] * (ONE + TWO * e00) + work[row, _at(GRAM + 1, j)] * (ONE + TWO * e11)
+                     + work[row, _at(GRAM + 2, j)] * (ONE + TWO * e22)
+                     + FOUR * (work[row, _at(GRAM + 3, j)] * e01 + work[row, _at(GRAM + 4, j)] * e02
+                              + work[row, _at(GRAM + 5, j)] * e12))
+            scale = work[row, _at(RATIO_SCALE, j)]
+            # the mean ratio fell (s = 1 - q/q_rest > DISTORTION_FLOOR), decided on the cubes
+            # without the cube root; most deformed elements of a needle dent do not distort
+            distorted = scale * scale * scale * det_f * det_f < undistorted_cube * tr_cg * tr_cg * tr_cg
+            work[row, _at(_NEEDS_LAW, j)] = ONE if (nonlinear & distorted) else ZERO
+            work[row, _at(_DET, j)] = det_f
+            work[row, _at(_TR_CG, j)] = tr_cg
+            work[row, _at(_STRAIN, j)] = e00
+            work[row, _at(_STRAIN + 1, j)] = e11
+            work[row, _at(_STRAIN + 2, j)] = e22
+            work[row, _at(_STRAIN + 3, j)] = e01
+            work[row, _at(_STRAIN + 4, j)] = e02
+            work[row, _at(_STRAIN + 5, j)] = e12
+            work[row, _at(_LAMBDA_C, j)] = work[row, _at(LAMBDA, j)]
+            work[row, _at(_MU_C, j)] = work[row, _at(MU, j)]
     return count
-
-
-@njit(cache=True, inline='always')
-def _distortion_lanes(work, row, undistorted_cube):
-    """For the physical law, in a block with a non-linear lane: det F, tr(F^T F G), the Green
-    strain, and whether the law's corrections can be non-zero (a non-linear lane whose mean ratio
-    fell); the Lamé values start uncorrected. Blocks without a non-linear lane skip this (with the
-    default threshold, most of a scene's blocks)."""
-    for j in range(BLOCK):
-        h00, h01, h02, h10, h11, h12, h20, h21, h22 = _get9(work, row, _H, j)
-        e00, e11, e22, e01, e02, e12 = green_strain(h00, h01, h02, h10, h11, h12, h20, h21, h22)
-        det_f = deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22)
-        # tr(C G) with C = I + 2E
-        tr_cg = (work[row, _at(GRAM, j)] * (ONE + TWO * e00) + work[row, _at(GRAM + 1, j)] * (ONE + TWO * e11)
-                 + work[row, _at(GRAM + 2, j)] * (ONE + TWO * e22)
-                 + FOUR * (work[row, _at(GRAM + 3, j)] * e01 + work[row, _at(GRAM + 4, j)] * e02
-                          + work[row, _at(GRAM + 5, j)] * e12))
-        scale = work[row, _at(RATIO_SCALE, j)]
-        # the mean ratio fell (s = 1 - q/q_rest > DISTORTION_FLOOR), decided on the cubes
-        # without the cube root; most deformed elements of a needle dent do not distort
-        distorted = scale * scale * scale * det_f * det_f < undistorted_cube * tr_cg * tr_cg * tr_cg
-        nonlinear = work[row, _at(_NONLINEAR, j)] > ZERO
-        work[row, _at(_NEEDS_LAW, j)] = ONE if (nonlinear & distorted) else ZERO
-        work[row, _at(_DET, j)] = det_f
-        work[row, _at(_TR_CG, j)] = tr_cg
-        work[row, _at(_STRAIN, j)] = e00
-        work[row, _at(_STRAIN + 1, j)] = e11
-        work[row, _at(_STRAIN + 2, j)] = e22
-        work[row, _at(_STRAIN + 3, j)] = e01
-        work[row, _at(_STRAIN + 4, j)] = e02
-        work[row, _at(_STRAIN + 5, j)] = e12
-        work[row, _at(_LAMBDA_C, j)] = work[row, _at(LAMBDA, j)]
-        work[row, _at(_MU_C, j)] = work[row, _at(MU, j)]
 
 
 @njit(cache=True, inline='always')
@@ -411,7 +402,7 @@ def _stress_lanes(work, row, gradient_stored, small_strain, finite_strain, physi
             p00, p01, p02, p10, p11, p12, p20, p21, p22 = s00, s01, s02, s01, s11, s12, s02, s12, s22
         if finite_strain:
             nonlinear = work[row, _at(_NONLINEAR, j)] > ZERO
-            if physical:     # _distortion_lanes has them
+            if physical:     # _classify_lanes has them
                 e00 = work[row, _at(_STRAIN, j)]
                 e11 = work[row, _at(_STRAIN + 1, j)]
                 e22 = work[row, _at(_STRAIN + 2, j)]
@@ -540,8 +531,7 @@ def _thread_pass_of(geometric, physical, viscous):
     its own: the kernel's cache entry holds it."""
     nonlinear_model = geometric or physical
     # the constants this model reads (they are stored in this order)
-    # (the physical law's GRAM and RATIO_SCALE only in blocks with a non-linear lane)
-    n_constants = VISCOUS_MU + 1 if viscous else MU + 1
+    n_constants = N_CONSTANTS if physical else (VISCOUS_MU + 1 if viscous else MU + 1)
 
     @njit(fastmath=FASTMATH, boundscheck=False)
     def thread_pass(is_geometric, is_physical, is_viscous, t, tetrahedra, element_blocks, displacement,
@@ -580,25 +570,18 @@ def _thread_pass_of(geometric, physical, viscous):
                         work[t, _at(_DV + k, j)] = 0.0
                 lanes_nonlinear = 0
                 if nonlinear_model:
-                    lanes_nonlinear = _classify_lanes(work, t, nonlinear_from)
-                    if lanes_nonlinear > 0:
-                        for j in range(n):
-                            n_nonlinear += work[t, _at(_NONLINEAR, j)] > 0.0
-                        if physical:
-                            for k in range(GRAM * BLOCK, N_CONSTANTS * BLOCK):
-                                work[t, k] = element_blocks[block, k]
-                            _distortion_lanes(work, t, undistorted_cube)
-                            _apply_law(work, t, law_kind, law_params)
-                # each lane loop holds only the stress it needs (the flags are constants); a
-                # block without a non-linear lane takes the small-strain stress, uncorrected
+                    lanes_nonlinear = _classify_lanes(work, t, nonlinear_from, physical, undistorted_cube)
+                    for j in range(n):
+                        n_nonlinear += work[t, _at(_NONLINEAR, j)] > 0.0
+                    if physical and lanes_nonlinear > 0:
+                        _apply_law(work, t, law_kind, law_params)
+                # each lane loop holds only the stress it needs (the flags are constants)
                 if geometric and lanes_nonlinear == BLOCK:
                     _stress_lanes(work, t, True, False, True, physical, viscous, safeguard, clamp_squared)
                 elif geometric and lanes_nonlinear > 0:
                     _stress_lanes(work, t, True, True, True, physical, viscous, safeguard, clamp_squared)
-                elif physical and lanes_nonlinear > 0:
-                    _stress_lanes(work, t, True, True, False, True, viscous, safeguard, clamp_squared)
                 else:
-                    _stress_lanes(work, t, nonlinear_model, True, False, False, viscous, safeguard,
+                    _stress_lanes(work, t, nonlinear_model, True, False, physical, viscous, safeguard,
                                   clamp_squared)
                 for j in range(n):
                     e = base + j
