@@ -248,8 +248,8 @@ def test_blocks_and_workers_do_not_change_the_forces(liver, geometric, quantile)
     lanes of the last block. Truth: each element alone (a one-element model, seven lanes of
     padding), summed per node. The full model (and the physically non-linear one) with viscosity
     and a threshold that mixes linear and non-linear lanes within blocks (at the median), or that
-    leaves most blocks without a non-linear lane (at the 97th percentile: those skip the law's
-    arithmetic); the full model's strains are large enough to bring in the safeguard."""
+    leaves most blocks without a non-linear lane (at the 97th percentile); the full model's
+    strains are large enough to bring in the safeguard."""
     mesh = ts.box_mesh(size=(0.03, 0.03, 0.02), divisions=(3, 3, 2))      # 108 = 13 * 8 + 4
     assert mesh.n_elements % 8 != 0
     rng = np.random.default_rng(5)
