@@ -114,7 +114,7 @@ def _bench(args):
     if unknown:
         raise CommandError(f'--models {" ".join(unknown)}: unknown; expected some of '
                            f'{", ".join(bench.MODELS)}')
-    bench.run(sizes=args.sizes, models=args.models, precision=args.precision)
+    bench.run(sizes=args.sizes, models=args.models, precisions=list(dict.fromkeys(args.precision)))
 
 
 def _depth_below_surface(args, start_height_mm, default_depth_mm, scene_file=None):
@@ -250,8 +250,9 @@ def build_parser():
     bench.add_argument('--models', nargs='+', default=None, metavar='MODEL',
                        help='models to run (default: all): linear, linear+visc, physical, physical+visc, '
                             'geometric, geometric+visc, full, full+visc, full+thr0.02')
-    bench.add_argument('--precision', choices=['float64', 'float32'], default='float64',
-                       help="the element pass's constants and arithmetic (default float64)")
+    bench.add_argument('--precision', nargs='+', choices=['float64', 'float32'], default=['float64'],
+                       help="the element pass's constants and arithmetic (default float64); two "
+                            "(--precision float64 float32) are timed paired, in one process")
     bench.set_defaults(run=_bench)
     insert = commands.add_parser('insert', help='simulate a straight needle insertion and retraction (no ROS)')
     insert.add_argument('--scene', type=_input_file, default=None,
