@@ -34,3 +34,10 @@ def test_paired_precisions_time_both_and_compare_their_forces_to_the_element_tru
     (line,) = [line for line in lines if 'as fast as float64' in line]
     printed = float(re.search(r'forces within ([0-9.e+-]+) of the largest', line).group(1))
     assert printed == float(f'{difference:.1e}')
+
+
+def test_a_precision_given_twice_is_timed_once():
+    lines = []
+    rows = bench.run(sizes=['1e3'], models=['linear'], precisions=['float32', 'float32'], stream=lines.append)
+    assert [r[5] for r in rows] == ['float32']
+    assert not any('as fast as' in line for line in lines)

@@ -268,7 +268,7 @@ def test_blocks_and_workers_do_not_change_the_forces(liver, geometric, quantile)
         safeguarded += alone.safeguarded_count
     assert (safeguarded > 0) == geometric
     blocks = (norms[:mesh.n_elements // 8 * 8].reshape(-1, 8) >= threshold).any(axis=1)
-    assert blocks.all() if quantile == 0.5 else blocks.sum() <= 4
+    assert blocks.all() if quantile == 0.5 else 0 < blocks.sum() < len(blocks) // 2
     for n_threads in (1, 2, 3):
         model = ts.TensorMassModel(mesh, liver, n_threads=n_threads, **options)
         forces = model.internal_forces(u, v)

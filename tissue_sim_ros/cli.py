@@ -114,7 +114,7 @@ def _bench(args):
     if unknown:
         raise CommandError(f'--models {" ".join(unknown)}: unknown; expected some of '
                            f'{", ".join(bench.MODELS)}')
-    bench.run(sizes=args.sizes, models=args.models, precisions=list(dict.fromkeys(args.precision)))
+    bench.run(sizes=args.sizes, models=args.models, precisions=args.precision)
 
 
 def _depth_below_surface(args, start_height_mm, default_depth_mm, scene_file=None):

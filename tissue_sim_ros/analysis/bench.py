@@ -54,8 +54,9 @@ def _best_per_call(functions, repeats=5, min_seconds=0.1, min_calls=3):
     for function in functions:
         function()                              # warm (compiled at import via cache)
     best = [float('inf')] * len(functions)
-    for _ in range(repeats):
-        for k, function in enumerate(functions):
+    for repeat in range(repeats):
+        order = list(enumerate(functions))
+        for k, function in (order if repeat % 2 == 0 else order[::-1]):     # none always goes first
             calls, start = 0, time.perf_counter()
             while calls < min_calls or time.perf_counter() - start < min_seconds:
                 function()
@@ -95,7 +96,7 @@ def run(sizes=None, models=None, material=None, stream=print, precisions=('float
     several precisions each model is timed in each, paired in one process, and the line after
     says how much faster the step is and how far the forces are from the first precision's."""
     material = material or Material(young_modulus=5e3, poisson_ratio=0.45, density=1060.0)
-    precisions = [precisions] if isinstance(precisions, str) else list(precisions)
+    precisions = list(dict.fromkeys(precisions))        # each once, in the order given
     sizes = sizes or list(SIZES)
     models = {name: MODELS[name] for name in (models or MODELS)}
     paired = ' (timed in alternating batches, paired)' if len(precisions) > 1 else ''
@@ -134,5 +135,6 @@ def run(sizes=None, models=None, material=None, stream=print, precisions=('float
         ratios = [f'{r[3] / linear[r[1]]:.2f}' for r in rows
                   if r[0] == name and r[5] == precisions[0] and r[1] in linear]
         if ratios:
-            stream(f'cost of {name} / linear per step, by size: {", ".join(ratios)}   (paper: 49)')
+            stream(f'cost of {name} / linear per step{f" ({precisions[0]})" if column else ""}, by size: '
+                   f'{", ".join(ratios)}   (paper: 49)')
     return rows
