@@ -99,13 +99,12 @@ def run(sizes=None, models=None, material=None, stream=print, precisions=('float
     precisions = list(dict.fromkeys(precisions))        # each once, in the order given
     sizes = sizes or list(SIZES)
     models = {name: MODELS[name] for name in (models or MODELS)}
-    paired = ' (timed in alternating batches, paired)' if len(precisions) > 1 else ''
+    paired = len(precisions) > 1
     stream(f'threads: {numba.get_num_threads()} ({numba.config.THREADING_LAYER} layer); best of 5 batches; '
-           f'element pass in {", ".join(precisions)}{paired}')
+           f'element pass in {", ".join(precisions)}' + (' (timed in alternating batches, paired)' if paired else ''))
     stream('displacement: a needle-like dent, 5 mm deep, 5 mm Gaussian radius, at the top centre')
-    column = ' precision' if len(precisions) > 1 else ''
     stream(f'{"model":<15} {"tets":>8} {"force [ms]":>11} {"step [ms]":>10} {"tet-steps/s":>12} {"non-linear":>11}'
-           f'{column}')
+           + (' precision' if paired else ''))
     rows = []
     for label in sizes:
         mesh = box_mesh(size=(0.1, 0.1, 0.05), divisions=SIZES[label])
@@ -116,25 +115,25 @@ def run(sizes=None, models=None, material=None, stream=print, precisions=('float
                 rate = mesh.n_elements / step_time
                 rows.append((name, mesh.n_elements, force_time, step_time, rate, precision))
                 stream(f'{name:<15} {mesh.n_elements:>8} {force_time * 1e3:>11.3f} {step_time * 1e3:>10.3f} '
-                       f'{rate:>12.3g} {fraction:>10.1%}' + (f' {precision}' if column else ''))
+                       f'{rate:>12.3g} {fraction:>10.1%}' + (f' {precision}' if paired else ''))
             first_step, first_forces = results[0][1], results[0][3]
             for precision, (_, step_time, _, forces) in zip(precisions[1:], results[1:]):
                 difference = np.abs(forces - first_forces).max() / np.abs(first_forces).max()
                 stream(f'  {precision}: step {first_step / step_time:.2f}x as fast as {precisions[0]}, forces '
                        f'within {difference:.1e} of the largest')
     stream('largest mesh at one step per 20 ms (rate at the largest size x 0.02 s), against the paper:')
-    width = 23 if column else 15
+    width = 23 if paired else 15
     for precision in precisions:
         for name in models:
             rate = [r for r in rows if r[0] == name and r[5] == precision][-1][4]
             paper = PAPER_TETS_AT_50HZ.get(name)
-            label = f'{name} {precision}' if column else name
+            label = f'{name} {precision}' if paired else name
             stream(f'  {label:<{width}} {rate * 0.02:>10.3g} tets' + (f'   (paper: {paper})' if paper else ''))
     linear = {r[1]: r[3] for r in rows if r[0] == 'linear' and r[5] == precisions[0]}
     for name in ('full', 'full+visc'):
         ratios = [f'{r[3] / linear[r[1]]:.2f}' for r in rows
                   if r[0] == name and r[5] == precisions[0] and r[1] in linear]
         if ratios:
-            stream(f'cost of {name} / linear per step{f" ({precisions[0]})" if column else ""}, by size: '
+            stream(f'cost of {name} / linear per step{f" ({precisions[0]})" if paired else ""}, by size: '
                    f'{", ".join(ratios)}   (paper: 49)')
     return rows
