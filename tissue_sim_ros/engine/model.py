@@ -9,7 +9,7 @@ import numpy as np
 import scipy.sparse
 from numba import njit, prange
 
-from tissue_sim_ros.engine import compile_cache, critical_step, forces
+from tissue_sim_ros.engine import compile_cache, critical_step, edge_form, forces
 from tissue_sim_ros.engine.material import Material, MaterialError, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.mesh import TetMesh, make_mesh, mean_ratio
 from tissue_sim_ros.engine.relaxation import relaxation_for
@@ -250,10 +250,10 @@ class TensorMassModel:
         self.vertex_mu = np.zeros((n, 3, 3))
         self.edge_lambda = np.zeros((n_edges, 3, 3))
         self.edge_mu = np.zeros((n_edges, 3, 3))
-        forces.accumulate_tensors(self.tetrahedra, self.shape_gradients, self.volume_lambda,
-                                  self.volume_mu, self.element_edges,
-                                  np.arange(self.mesh.n_elements), 1.0, self.vertex_lambda,
-                                  self.vertex_mu, self.edge_lambda, self.edge_mu)
+        edge_form.accumulate_tensors(self.tetrahedra, self.shape_gradients, self.volume_lambda,
+                                     self.volume_mu, self.element_edges,
+                                     np.arange(self.mesh.n_elements), 1.0, self.vertex_lambda,
+                                     self.vertex_mu, self.edge_lambda, self.edge_mu)
         self._build_adjacency()
 
     def _build_adjacency(self):
@@ -276,9 +276,9 @@ class TensorMassModel:
         bad = elements[(elements < 0) | (elements >= len(self.tetrahedra))]
         if bad.size:
             raise ValueError(f'elements: indices {bad[:10].tolist()} out of range [0, {len(self.tetrahedra)})')
-        forces.accumulate_tensors(self.tetrahedra, self.shape_gradients, self.volume_lambda,
-                                  self.volume_mu, self.element_edges, elements, -1.0,
-                                  self.vertex_lambda, self.vertex_mu, self.edge_lambda, self.edge_mu)
+        edge_form.accumulate_tensors(self.tetrahedra, self.shape_gradients, self.volume_lambda,
+                                     self.volume_mu, self.element_edges, elements, -1.0,
+                                     self.vertex_lambda, self.vertex_mu, self.edge_lambda, self.edge_mu)
         removed = (self.tetrahedra[elements].copy(), self.element_material[elements].copy(),
                    self.element_tags[elements].copy())
         keep = np.ones(len(self.tetrahedra), dtype=bool)
@@ -301,9 +301,9 @@ class TensorMassModel:
         added = self._element_data(new, material_index)
         pairs = np.sort(np.stack([new[:, [j, k]] for j, k in _LOCAL_EDGES], axis=1), axis=2).reshape(-1, 2)
         new_edges = self._edge_indices(pairs).reshape(-1, 6)
-        forces.accumulate_tensors(new, added['shape_gradients'], added['volume_lambda'],
-                                  added['volume_mu'], new_edges, np.arange(len(new)), 1.0,
-                                  self.vertex_lambda, self.vertex_mu, self.edge_lambda, self.edge_mu)
+        edge_form.accumulate_tensors(new, added['shape_gradients'], added['volume_lambda'],
+                                     added['volume_mu'], new_edges, np.arange(len(new)), 1.0,
+                                     self.vertex_lambda, self.vertex_mu, self.edge_lambda, self.edge_mu)
         for name, values in added.items():
             setattr(self, name, np.concatenate([getattr(self, name), values]))
         self.tetrahedra = np.ascontiguousarray(np.concatenate([self.tetrahedra, new]))
@@ -412,8 +412,8 @@ class TensorMassModel:
         """-K u from the assembled vertex and edge tensors (the paper's form, linear model)."""
         if out is None:
             out = np.empty((self.mesh.n_nodes, 3))
-        forces.edge_forces(self.vertex_lambda, self.vertex_mu, self.edge_lambda, self.edge_mu,
-                           self.edges, self.adjacency_ptr, self.adjacency_edge, displacement, out)
+        edge_form.edge_forces(self.vertex_lambda, self.vertex_mu, self.edge_lambda, self.edge_mu,
+                              self.edges, self.adjacency_ptr, self.adjacency_edge, displacement, out)
         return out
 
     def stiffness_matrix(self):
