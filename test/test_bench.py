@@ -5,7 +5,7 @@ import numpy as np
 
 from tissue_sim_ros.analysis import bench
 from tissue_sim_ros.engine.material import Material
-from tissue_sim_ros.engine.mesh import box_mesh
+from tissue_sim_ros.engine.mesh_generators import box_mesh
 from tissue_sim_ros.engine.model import TensorMassModel
 
 

@@ -80,7 +80,7 @@ print(scene.model.geometric, scene.model.physical, scene.model.viscous, forces.e
 
 def forces_of(flags, displacement, velocity):
     from tissue_sim_ros.engine.material import Material, MeanRatioLaw, Viscosity
-    from tissue_sim_ros.engine.mesh import box_mesh
+    from tissue_sim_ros.engine.mesh_generators import box_mesh
     from tissue_sim_ros.engine.model import TensorMassModel
     geometric, physical, viscous = flags
     model = TensorMassModel(box_mesh((0.01, 0.01, 0.01), (3, 3, 3)), Material(5000.0, 0.45, 1000.0),

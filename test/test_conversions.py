@@ -330,7 +330,7 @@ def test_marker_bytes_decode_to_the_marker_message_at_each_stamp_and_state():
     """SurfaceMarkerBytes writes corners and stamp into bytes serialized once: decoded, they are
     the message surface_marker_msg builds object by object (serialized and decoded the same way:
     CDR padding bytes are unspecified, so the comparison is of messages)."""
-    from tissue_sim_ros.engine.mesh import box_mesh
+    from tissue_sim_ros.engine.mesh_generators import box_mesh
     rng = np.random.default_rng(5)
     mesh = box_mesh((0.02, 0.03, 0.01), (4, 5, 3))
     triangles = mesh.surface_triangles()

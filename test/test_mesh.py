@@ -9,10 +9,10 @@ import meshio
 import numpy as np
 import pytest
 
-from tissue_sim_ros.engine.mesh import (
-    MeshError, MeshOrientationWarning, TetMesh, box_mesh, graded_box_mesh, load_mesh, make_mesh,
-    mean_ratio, save_mesh, signed_volumes, surface_triangles,
-)
+from tissue_sim_ros.engine.mesh import (MeshError, MeshOrientationWarning, TetMesh, make_mesh, mean_ratio,
+                                        signed_volumes, surface_triangles)
+from tissue_sim_ros.engine.mesh_generators import box_mesh, graded_box_mesh
+from tissue_sim_ros.engine.mesh_io import load_mesh, save_mesh
 
 UNIT_CORNER = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
 # Regular tetrahedron with edge 2 sqrt(2), positively oriented (checked in a test below).

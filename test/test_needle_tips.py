@@ -111,7 +111,8 @@ def test_engaging_samples_finds_the_hits_a_ray_test_of_every_triangle_finds(seed
     """engage_samples tries, per sample, only the near triangles whose box across the axis holds
     it: the same hits (triangle, barycentric weights) as the ray test against the whole deformed
     surface, on a dented, jittered box under a tilted tip."""
-    from tissue_sim_ros.engine.mesh import box_mesh, surface_triangles
+    from tissue_sim_ros.engine.mesh import surface_triangles
+    from tissue_sim_ros.engine.mesh_generators import box_mesh
     from tissue_sim_ros.engine.needle_kernels import first_surface_hit
     from tissue_sim_ros.engine.needle_tip import engage_samples
     rng = np.random.default_rng(seed)

@@ -13,8 +13,9 @@ from importlib import import_module
 _ENGINE_NAMES = {
     'Material': 'material', 'MaterialError': 'material', 'MeanRatioLaw': 'material',
     'Viscosity': 'material',
-    'MeshError': 'mesh', 'TetMesh': 'mesh', 'box_mesh': 'mesh', 'graded_box_mesh': 'mesh',
-    'load_mesh': 'mesh', 'make_mesh': 'mesh', 'mean_ratio': 'mesh', 'save_mesh': 'mesh',
+    'MeshError': 'mesh', 'TetMesh': 'mesh', 'make_mesh': 'mesh', 'mean_ratio': 'mesh',
+    'box_mesh': 'mesh_generators', 'graded_box_mesh': 'mesh_generators',
+    'load_mesh': 'mesh_io', 'save_mesh': 'mesh_io',
     'TensorMassModel': 'model',
     'Simulation': 'solver', 'SimulationDiverged': 'solver',
 }

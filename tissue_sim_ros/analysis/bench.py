@@ -10,7 +10,7 @@ import time
 import numpy as np
 
 from tissue_sim_ros.engine.material import Material, MeanRatioLaw, Viscosity
-from tissue_sim_ros.engine.mesh import box_mesh
+from tissue_sim_ros.engine.mesh_generators import box_mesh
 from tissue_sim_ros.engine.model import TensorMassModel
 from tissue_sim_ros.engine.solver import Simulation
 

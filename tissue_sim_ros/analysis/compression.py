@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tissue_sim_ros.engine.material import Material
-from tissue_sim_ros.engine.mesh import box_mesh
+from tissue_sim_ros.engine.mesh_generators import box_mesh
 from tissue_sim_ros.engine.model import TensorMassModel
 from tissue_sim_ros.engine.solver import Simulation
 
@@ -82,7 +82,7 @@ def scene_block(scene, strain, *, size=0.02, divisions=6, speed=0.01, hold_s=0.3
     scene's step rule and integrator."""
     import math
 
-    from tissue_sim_ros.engine.mesh import box_mesh
+    from tissue_sim_ros.engine.mesh_generators import box_mesh
     mesh = box_mesh(size=(size, size, size), divisions=(divisions, divisions, divisions))
     if mesh_filter is not None:
         mesh = mesh_filter(mesh)

@@ -269,7 +269,7 @@ def compile_element_pass(geometric, physical, viscous, precision='float64'):
     """In a compile process: compile one model's element pass into the cache, on a one-element
     model (the arrays it passes have the types every model's have)."""
     from tissue_sim_ros.engine.material import Material, MeanRatioLaw, Viscosity
-    from tissue_sim_ros.engine.mesh import box_mesh
+    from tissue_sim_ros.engine.mesh_generators import box_mesh
     from tissue_sim_ros.engine.model import TensorMassModel
     TensorMassModel(box_mesh((1.0, 1.0, 1.0), (1, 1, 1)), Material(1e4, 0.3, 1000.0), geometric=geometric,
                     physical=MeanRatioLaw.exponential(mu_amplitude=1.0, mu_rate=1.0) if physical else None,

@@ -1,7 +1,9 @@
-"""Tetrahedral meshes: the validated :class:`TetMesh`, generators, quality measures, meshio I/O.
+"""Tetrahedral meshes: the validated :class:`TetMesh`, its quality measures and its faces.
 
-Every array is SI (metres) and every function is vectorised with numpy: no Python loop runs
-over elements, so meshes of 5e5 tetrahedra build and validate in a fraction of a second.
+Generators (box_mesh, graded_box_mesh) are in :mod:`mesh_generators`, meshio files
+(load_mesh, save_mesh) in :mod:`mesh_io`. Every array is SI (metres) and every function is
+vectorised with numpy: no Python loop runs over elements, so meshes of 5e5 tetrahedra build and
+validate in a fraction of a second.
 
 Conventions (DESIGN.md):
 
@@ -16,7 +18,6 @@ Conventions (DESIGN.md):
 from __future__ import annotations
 
 import functools
-import math
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,22 +33,17 @@ __all__ = [
     'mean_ratio',
     'surface_triangles',
     'face_elements',
-    'box_mesh',
-    'graded_box_mesh',
-    'load_mesh',
-    'save_mesh',
     'DEGENERATE_VOLUME_TOLERANCE',
-    'ELEMENT_TAG_NAMES',
 ]
 
 #: An element with ``|V| <= DEGENERATE_VOLUME_TOLERANCE * (longest edge)**3`` is degenerate.
 #: (A regular tetrahedron has V = L**3 / (6 sqrt 2) ~ 0.118 L**3.)
 DEGENERATE_VOLUME_TOLERANCE = 1e-12
 
-#: Cell-data names read as element (region) tags by :func:`load_mesh`, first found wins.
-ELEMENT_TAG_NAMES = ('gmsh:physical', 'medit:ref', 'tag', 'region')
-
 _MAX_LISTED = 10  # how many offending indices an error message lists
+
+# mesh.py, mesh_generators.py, mesh_io.py: a warning is the caller's, not theirs
+_MESH_MODULES = str(Path(__file__).with_name('mesh'))
 
 # Local vertex numbers of the four faces of a tetrahedron (a, b, c, d), face k being the one
 # opposite vertex k; _OPPOSITE_VERTEX[k] == k.
@@ -147,44 +143,6 @@ def _as_element_tags(value, n_elements: int) -> np.ndarray:
         raise MeshError(f'element_tags: values {raw[bad[:_MAX_LISTED]].tolist()} at elements '
                         f'{_list_indices(bad)} do not fit in int32; expected |tag| < 2**31')
     return raw.astype(np.int32, order='C', copy=True)
-
-
-def _as_float_triple(value, field: str, *, positive: bool) -> np.ndarray:
-    try:
-        triple = np.array(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError) as exc:
-        raise MeshError(f'{field}: {value!r} is not numeric; expected 3 numbers') from exc
-    if triple.shape != (3,):
-        raise MeshError(f'{field}: {value!r} has {triple.size} values, expected 3')
-    if not np.isfinite(triple).all():
-        raise MeshError(f'{field}: {value!r} is not finite, expected finite numbers')
-    if positive and (triple <= 0).any():
-        raise MeshError(f'{field}: {value!r}, expected 3 positive lengths in metres')
-    return triple
-
-
-def _as_divisions(value, field: str = 'divisions') -> tuple[int, int, int]:
-    raw = np.asarray(value)
-    if raw.shape != (3,) or raw.dtype.kind not in 'iu' or (raw < 1).any():
-        raise MeshError(f'{field}: {value!r}, expected 3 integers >= 1 (cells along x, y, z)')
-    return int(raw[0]), int(raw[1]), int(raw[2])
-
-
-def _as_positive_scalar(value, field: str, *, allow_zero: bool = False,
-                        minimum: float | None = None) -> float:
-    try:
-        number = float(value)
-    except (TypeError, ValueError) as exc:
-        raise MeshError(f'{field}: {value!r} is not a number') from exc
-    if not math.isfinite(number):
-        raise MeshError(f'{field}: {value!r}, expected a finite number')
-    if minimum is not None:
-        if number < minimum:
-            raise MeshError(f'{field}: {value!r}, expected a number >= {minimum}')
-    elif number < 0 or (number == 0 and not allow_zero):
-        expected = 'a number >= 0' if allow_zero else 'a positive number'
-        raise MeshError(f'{field}: {value!r}, expected {expected}')
-    return number
 
 
 def _check_positions_tetrahedra(positions, tetrahedra) -> tuple[np.ndarray, np.ndarray]:
@@ -494,22 +452,17 @@ class TetMesh:
 
 
 def make_mesh(rest_positions, tetrahedra, element_tags=None, *,
-              fix_orientation: bool = True) -> TetMesh:
+              fix_orientation: bool = True, source: str = 'tetrahedra') -> TetMesh:
     """Validate and orient a tetrahedral mesh.
 
     Refuses (MeshError): positions not (n, 3) or not finite; tetrahedra not (m, 4) integers,
     indices outside [0, n), a node repeated within an element; degenerate elements with
     |V| <= 1e-12 * (longest edge)**3; tags not (m,) integers. Negatively oriented elements are
     repaired by swapping their vertices 2 and 3 (indices recorded in ``flipped_elements``, and
-    a MeshOrientationWarning with their count and first ids), or refused when
-    ``fix_orientation`` is False. Nodes used by no element are kept.
+    a MeshOrientationWarning with their count and first ids, prefixed by ``source``: load_mesh
+    names the file), or refused when ``fix_orientation`` is False. Nodes used by no element are
+    kept. The warning is attributed to the first caller outside the mesh modules.
     """
-    return _build_mesh(rest_positions, tetrahedra, element_tags, fix_orientation, 'tetrahedra')
-
-
-def _build_mesh(rest_positions, tetrahedra, element_tags, fix_orientation: bool, label: str) -> TetMesh:
-    """make_mesh, its orientation warning prefixed by ``label`` (the file for load_mesh) and
-    attributed to the caller of make_mesh or load_mesh."""
     positions = _as_positions(rest_positions, 'rest_positions')
     tets = _as_tetrahedra(tetrahedra, positions.shape[0])
     tags = _as_element_tags(element_tags, tets.shape[0])
@@ -537,322 +490,8 @@ def _build_mesh(rest_positions, tetrahedra, element_tags, fix_orientation: bool,
                             'expected det([p1-p0, p2-p0, p3-p0]) > 0 '
                             '(or call with fix_orientation=True to swap vertices 2 and 3)')
         tets[inverted, 2:4] = tets[inverted][:, [3, 2]]
-        warnings.warn(f'{label}: {inverted.size} negatively oriented elements re-oriented (vertices 2 '
+        warnings.warn(f'{source}: {inverted.size} negatively oriented elements re-oriented (vertices 2 '
                       f'and 3 swapped): {_list_indices(inverted)}; check the orientation convention '
-                      'of the mesh source', MeshOrientationWarning, stacklevel=3)
+                      'of the mesh source', MeshOrientationWarning,
+                      skip_file_prefixes=(_MESH_MODULES,))
     return TetMesh(positions, tets, tags, inverted.astype(np.int64))
-
-
-# --------------------------------------------------------------------------------------------
-# generators
-# --------------------------------------------------------------------------------------------
-
-def _kuhn_template() -> np.ndarray:
-    """(6, 4, 3) local corners (0/1 per axis) of the Kuhn split of the unit cube: one element per
-    permutation s of the axes, the path (0,0,0) -> e_s0 -> e_s0 + e_s1 -> (1,1,1), with vertices
-    2 and 3 swapped for odd permutations so that every element is positively oriented."""
-    permutations = [(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)]
-    template = np.zeros((6, 4, 3), dtype=np.int64)
-    for t, perm in enumerate(permutations):  # 6 template elements, built once
-        for step in range(1, 4):
-            template[t, step] = template[t, step - 1]
-            template[t, step, perm[step - 1]] = 1
-        if np.linalg.det((template[t, 1:] - template[t, 0]).astype(float)) < 0:
-            template[t, [2, 3]] = template[t, [3, 2]]
-    return template
-
-
-_KUHN_TEMPLATE = _kuhn_template()
-
-
-def _kuhn_grid_mesh(x_nodes: np.ndarray, y_nodes: np.ndarray, z_nodes: np.ndarray) -> TetMesh:
-    """The Kuhn-split tetrahedral mesh of the rectilinear grid with the given increasing node
-    coordinates. Node (i, j, k) has index i + (nx+1) (j + (ny+1) k); hexahedron (i, j, k) has
-    index i + nx (j + ny k) and owns elements 6 h .. 6 h + 5, so memory order follows space."""
-    nx, ny, nz = x_nodes.size - 1, y_nodes.size - 1, z_nodes.size - 1
-    px, pxy = nx + 1, (nx + 1) * (ny + 1)
-    gx, gy, gz = np.meshgrid(x_nodes, y_nodes, z_nodes, indexing='ij')
-    positions = np.stack([gx.ravel(order='F'), gy.ravel(order='F'), gz.ravel(order='F')], axis=1)
-
-    i, j, k = np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing='ij')
-    base = (i.ravel(order='F') + px * j.ravel(order='F') + pxy * k.ravel(order='F'))
-    offsets = (_KUHN_TEMPLATE[..., 0] + px * _KUHN_TEMPLATE[..., 1]
-               + pxy * _KUHN_TEMPLATE[..., 2])  # (6, 4)
-    tetrahedra = (base[:, None, None] + offsets[None]).reshape(-1, 4)
-    # Valid by construction; make_mesh re-checks (cheap) and would refuse an inverted element.
-    return make_mesh(positions, tetrahedra, fix_orientation=False)
-
-
-def box_mesh(size=(0.1, 0.1, 0.05), divisions=(20, 20, 10), origin=(0.0, 0.0, 0.0)) -> TetMesh:
-    """A box [origin, origin + size] (metres) of nx * ny * nz equal hexahedra, each split into 6
-    tetrahedra of volume (hexahedron volume) / 6 sharing its diagonal (0,0,0)-(1,1,1) (Kuhn /
-    Freudenthal split). Every hexahedron is split alike, so the mesh is conforming.
-
-    Node (i, j, k) has index i + (nx+1) (j + (ny+1) k); elements come hexahedron by hexahedron,
-    x fastest. (nx+1)(ny+1)(nz+1) nodes, 6 nx ny nz elements.
-    """
-    size = _as_float_triple(size, 'size', positive=True)
-    nx, ny, nz = _as_divisions(divisions)
-    origin = _as_float_triple(origin, 'origin', positive=False)
-    axes = [origin[a] + size[a] * (np.arange(n + 1) / n) for a, n in enumerate((nx, ny, nz))]
-    for a, n in enumerate((nx, ny, nz)):
-        axes[a][-1] = origin[a] + size[a]  # exact far face
-    return _kuhn_grid_mesh(*axes)
-
-
-def _graded_axis(lower: float, upper: float, focus: float, fine_size: float, growth: float,
-                 max_size: float, fine_radius: float) -> np.ndarray:
-    """Increasing node coordinates on [lower, upper], finest at ``focus``.
-
-    Target cell width as a function of the distance d = |x - focus|:
-        s(d) = fine_size                                          for d <= fine_radius,
-        s(d) = min(fine_size + ln(growth) (d - fine_radius), max_size) beyond.
-    The local cell count N(x) = integral of dx / s is the continuous form of "widths grow by
-    `growth` per cell": in the growing zone ln s rises by ln(growth) per unit of N, so cells
-    laid at equal steps of N have widths in exact geometric progression. The n = ceil(N_total)
-    nodes are placed at equal steps c = N_total / n <= 1 of N, hence every width is at most
-    s, the smallest is c * fine_size in (fine_size (1 - 1/n), fine_size], the largest at most
-    max_size, and neighbouring widths differ by a factor of at most growth**c <= growth (since
-    |d ln s / dN| <= ln(growth) everywhere). The cell that contains ``focus`` is the smallest.
-    """
-    rate = math.log(growth)
-    n_fine = fine_radius / fine_size
-    if rate > 0:
-        growth_length = (max_size - fine_size) / rate  # distance over which s reaches max_size
-        n_growth = math.log(max_size / fine_size) / rate
-
-    def count(distance):  # N from the focus to `distance` >= 0
-        beyond = np.maximum(distance - fine_radius, 0.0)
-        near = np.minimum(distance, fine_radius) / fine_size
-        if rate == 0:
-            return near + beyond / fine_size
-        growing = np.log1p(rate * np.minimum(beyond, growth_length) / fine_size) / rate
-        capped = np.maximum(beyond - growth_length, 0.0) / max_size
-        return near + growing + capped
-
-    def distance_at(cells):  # inverse of count
-        near = np.minimum(cells, n_fine) * fine_size
-        beyond = np.maximum(cells - n_fine, 0.0)
-        if rate == 0:
-            return near + beyond * fine_size
-        growing = fine_size / rate * np.expm1(rate * np.minimum(beyond, n_growth))
-        capped = np.maximum(beyond - n_growth, 0.0) * max_size
-        return near + growing + capped
-
-    def signed_count(x):
-        return np.sign(x - focus) * count(np.abs(x - focus))
-
-    n_lower, n_upper = float(signed_count(lower)), float(signed_count(upper))
-    total = n_upper - n_lower
-    n_cells = max(1, math.ceil(total - 1e-9))
-    steps = n_lower + total * (np.arange(n_cells + 1) / n_cells)
-    nodes = focus + np.sign(steps) * distance_at(np.abs(steps))
-    nodes[0], nodes[-1] = lower, upper
-    return nodes
-
-
-def graded_box_mesh(size=(0.1, 0.1, 0.05), divisions=(20, 20, 10), origin=(0.0, 0.0, 0.0), *,
-                    focus=None, focus_radius: float = 0.0, growth: float = 1.2,
-                    fine_size: float | None = None, grade_z: bool = False) -> TetMesh:
-    """A Kuhn-split box like :func:`box_mesh` whose x and y node coordinates are graded toward
-    ``focus`` (an (x, y) point in metres, default the centre of the x-y extent, e.g. where a
-    needle enters the top face).
-
-    Per graded axis (see :func:`_graded_axis` for the exact law):
-      - within ``focus_radius`` (m) of the focus, cells have the smallest width ``fine_size``
-        (m; default a quarter of the smallest coarse width of the graded axes);
-      - farther away widths grow geometrically by ``growth`` (>= 1) per cell,
-      - up to the coarse width size / divisions of that axis (``divisions`` sets the far-field
-        resolution, as in box_mesh);
-      - the number of cells follows, and all widths are scaled by one common factor in
-        (1 - 1/n, 1] so that they fill the box exactly.
-    z is uniform (divisions[2] cells) unless ``grade_z``, which grades it the same way toward the
-    top face z = origin_z + size_z (fine layer of thickness ``focus_radius``).
-    Node and element numbering as box_mesh, with nx, ny, nz the resulting cell counts.
-    """
-    size = _as_float_triple(size, 'size', positive=True)
-    divisions = _as_divisions(divisions)
-    origin = _as_float_triple(origin, 'origin', positive=False)
-    coarse = size / np.array(divisions)
-    upper = origin + size
-    if focus is None:
-        focus_xy = origin[:2] + 0.5 * size[:2]
-    else:
-        try:
-            focus_xy = np.array(focus, dtype=np.float64).reshape(-1)
-        except (TypeError, ValueError) as exc:
-            raise MeshError(f'focus: {focus!r} is not numeric; expected (x, y) in metres') from exc
-        if focus_xy.shape != (2,) or not np.isfinite(focus_xy).all():
-            raise MeshError(f'focus: {focus!r}, expected 2 finite numbers (x, y) in metres')
-        if ((focus_xy < origin[:2]) | (focus_xy > upper[:2])).any():
-            raise MeshError(f'focus: {focus!r} lies outside the box, expected x in '
-                            f'[{origin[0]}, {upper[0]}] and y in [{origin[1]}, {upper[1]}]')
-    focus_radius = _as_positive_scalar(focus_radius, 'focus_radius', allow_zero=True)
-    growth = _as_positive_scalar(growth, 'growth', minimum=1.0)
-    graded_axes = [0, 1, 2] if grade_z else [0, 1]
-    if fine_size is None:
-        fine_size = 0.25 * float(coarse[graded_axes].min())
-    fine_size = _as_positive_scalar(fine_size, 'fine_size')
-    for a in graded_axes:
-        if fine_size > coarse[a] * (1 + 1e-12):
-            raise MeshError(f'fine_size: {fine_size!r} m exceeds the coarse width {coarse[a]!r} m '
-                            f'(size / divisions) along {"xyz"[a]}; expected fine_size <= it')
-    focus_point = [focus_xy[0], focus_xy[1], upper[2]]
-    axes = []
-    for a in range(3):
-        if a in graded_axes:
-            axes.append(_graded_axis(origin[a], upper[a], focus_point[a], fine_size, growth,
-                                     max(coarse[a], fine_size), focus_radius))
-        else:
-            n = divisions[a]
-            nodes = origin[a] + size[a] * (np.arange(n + 1) / n)
-            nodes[-1] = upper[a]
-            axes.append(nodes)
-    return _kuhn_grid_mesh(*axes)
-
-
-# --------------------------------------------------------------------------------------------
-# files
-# --------------------------------------------------------------------------------------------
-
-def _format_family(path: Path, file_format: str | None) -> str:
-    """'gmsh', 'medit' or 'other' (the cell-data name used for the tags depends on it)."""
-    if file_format is not None:
-        if file_format.startswith('gmsh'):
-            return 'gmsh'
-        return 'medit' if file_format == 'medit' else 'other'
-    suffix = path.suffix.lower()
-    if suffix == '.msh':
-        return 'gmsh'
-    if suffix in ('.mesh', '.meshb'):
-        return 'medit'
-    return 'other'
-
-
-def _python_scalars(values: np.ndarray) -> np.ndarray:
-    """The same array as dtype=object holding Python ints/floats (see save_mesh)."""
-    return np.array(np.asarray(values).tolist(), dtype=object)
-
-
-def load_mesh(path) -> TetMesh:
-    """Read a tetrahedral mesh from any file meshio reads (.vtu, .vtk, .msh, .mesh, ...).
-
-    Only 'tetra' cells are used (all such blocks, in file order); other cell types are ignored.
-    Element tags come from the first cell data found among ELEMENT_TAG_NAMES, else zeros.
-    Nodes used by no tetrahedron are kept, not renumbered. Inverted elements are repaired
-    (make_mesh) with one MeshOrientationWarning naming the file; a file without tetrahedra or with an invalid mesh raises MeshError naming it.
-    """
-    import meshio
-
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f'mesh file {str(path)!r} does not exist')
-    try:
-        source = meshio.read(path)
-    except OSError:
-        raise
-    except (Exception, SystemExit) as exc:  # meshio 5.3.5 calls sys.exit(1) on a parse failure
-        raise MeshError(f'{path}: meshio could not read it as a mesh ({type(exc).__name__}: '
-                        f'{exc}); expected a file in a format meshio reads, e.g. .vtu, .vtk, '
-                        '.msh, .mesh') from exc
-    blocks = [b for b, block in enumerate(source.cells) if block.type == 'tetra']
-    if not blocks:
-        found = sorted({block.type for block in source.cells})
-        raise MeshError(f'{path}: no tetra cells; expected a tetrahedral mesh, found cell types '
-                        f'{found}')
-    points = np.asarray(source.points)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise MeshError(f'{path}: points have shape {points.shape}, expected (n, 3) (3-D nodes)')
-    tetrahedra = np.concatenate([np.asarray(source.cells[b].data) for b in blocks])
-    tags = None
-    for name in ELEMENT_TAG_NAMES:
-        if name in source.cell_data and len(source.cell_data[name]) == len(source.cells):
-            tags = np.concatenate([np.asarray(source.cell_data[name][b]).reshape(-1)
-                                   for b in blocks])
-            break
-    try:
-        return _build_mesh(points, tetrahedra, tags, True, f'{path}: tetrahedra')
-    except MeshError as exc:
-        raise MeshError(f'{path}: {exc}') from exc
-
-
-def save_mesh(mesh: TetMesh, path, *, point_data=None, cell_data=None,
-              file_format: str | None = None, binary: bool = True) -> None:
-    """Write ``mesh`` with meshio, always with its element tags as cell data named so that
-    :func:`load_mesh` reads them back: 'gmsh:physical' (+ 'gmsh:geometrical') for Gmsh,
-    'medit:ref' for Medit, 'tag' otherwise.
-
-    ``point_data``: {name: (n, ...) array}; ``cell_data``: {name: (m, ...) array}, one row per
-    element. ``file_format`` is a meshio format name (default from the suffix: .msh is Gmsh 4.1,
-    'gmsh22' asks for Gmsh 2.2); ``binary`` applies to Gmsh, VTU and VTK (Medit: .mesh is ASCII,
-    .meshb binary).
-
-    Gmsh 4.1 stores physical tags per entity, not per element: when the tags differ, they are
-    written as ElementData 'tag' (one block, element order kept), which load_mesh reads back.
-    """
-    import meshio
-
-    if not isinstance(mesh, TetMesh):
-        raise MeshError(f'mesh: {type(mesh).__name__}, expected a TetMesh')
-    path = Path(path)
-    if file_format is None and path.suffix.lower() == '.msh':
-        file_format = 'gmsh'
-    family = _format_family(path, file_format)
-    tags = mesh.element_tags
-
-    cells_out = {}
-    for name, values in (cell_data or {}).items():
-        values = np.asarray(values)
-        if values.ndim < 1 or values.shape[0] != mesh.n_elements:
-            raise MeshError(f'cell_data[{name!r}]: shape {values.shape}, expected first '
-                            f'dimension {mesh.n_elements} (one row per element)')
-        if name in ELEMENT_TAG_NAMES or name.startswith('gmsh:'):
-            raise MeshError(f'cell_data[{name!r}]: the name is reserved for the element tags; '
-                            'expected another name (the tags are written from mesh.element_tags)')
-        cells_out[name] = [values]
-    points_out = {}
-    for name, values in (point_data or {}).items():
-        values = np.asarray(values)
-        if values.ndim < 1 or values.shape[0] != mesh.n_nodes:
-            raise MeshError(f'point_data[{name!r}]: shape {values.shape}, expected first '
-                            f'dimension {mesh.n_nodes} (one row per node)')
-        points_out[name] = values
-
-    if family == 'gmsh' and file_format == 'gmsh22':
-        # per-element tags: physical = region, elementary entity = region
-        cells_out['gmsh:physical'] = [tags]
-        cells_out['gmsh:geometrical'] = [tags]
-    elif family == 'gmsh':  # 4.1: tags belong to entities; all elements in entity (3, 1)
-        cells_out['gmsh:geometrical'] = [np.ones(mesh.n_elements, dtype=np.int32)]
-        uniform = bool((tags == tags[0]).all())
-        if uniform and tags[0] != 0:  # entity 1 carries the one physical tag
-            cells_out['gmsh:physical'] = [tags]
-            points_out['gmsh:dim_tags'] = np.tile(np.array([[3, 1]]), (mesh.n_nodes, 1))
-        elif not uniform:  # per-element tags as ElementData
-            cells_out['tag'] = [tags]
-    elif family == 'medit':
-        cells_out['medit:ref'] = [tags]
-    else:
-        cells_out['tag'] = [tags]
-
-    if family == 'gmsh' and not binary:
-        # meshio 5.3.5 writes ASCII Gmsh NodeData/ElementData values with repr(), which under
-        # numpy 2 gives 'np.int32(1)' and an unreadable file; Python scalars repr cleanly.
-        points_out = {name: _python_scalars(values) if not name.startswith('gmsh:') else values
-                      for name, values in points_out.items()}
-        cells_out = {name: [_python_scalars(values[0])] if not name.startswith('gmsh:')
-                     else values for name, values in cells_out.items()}
-
-    out = meshio.Mesh(np.asarray(mesh.rest_positions), [('tetra', np.asarray(mesh.tetrahedra))],
-                      point_data=points_out, cell_data=cells_out)
-    options = {}
-    resolved = file_format
-    if resolved is None:
-        resolved = {'.vtu': 'vtu', '.vtk': 'vtk'}.get(path.suffix.lower())
-    if resolved in ('gmsh', 'gmsh22', 'vtu', 'vtk'):
-        options['binary'] = binary
-    try:
-        meshio.write(path, out, file_format=file_format, **options)
-    except (meshio.ReadError, meshio.WriteError) as exc:  # unknown suffix or format name
-        raise MeshError(f'{path}: meshio cannot write it ({exc}); expected a suffix such as '
-                        ".vtu, .vtk, .msh, .mesh or a meshio file_format such as 'gmsh22'") from exc

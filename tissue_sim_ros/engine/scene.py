@@ -24,7 +24,9 @@ import numpy as np
 import yaml
 
 from tissue_sim_ros.engine.material import Material, MaterialError, MeanRatioLaw, Viscosity
-from tissue_sim_ros.engine.mesh import box_mesh, graded_box_mesh, load_mesh, make_mesh
+from tissue_sim_ros.engine.mesh import make_mesh
+from tissue_sim_ros.engine.mesh_generators import box_mesh, graded_box_mesh
+from tissue_sim_ros.engine.mesh_io import load_mesh
 from tissue_sim_ros.engine.model import TensorMassModel
 from tissue_sim_ros.engine.needle import (Friction, Membrane, NeedleGeometry, NeedleTissue,
                                           RegionInteraction, TipShape, slerp)
