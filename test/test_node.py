@@ -34,8 +34,7 @@ from conftest import call_service, diag_values, subscribe_node_outputs  # noqa: 
 from tissue_sim_ros.ros import conversions as cv  # noqa: E402
 from tissue_sim_ros.ros import node as node_mod  # noqa: E402
 from tissue_sim_ros.ros.node_main import make_executor  # noqa: E402
-from tissue_sim_ros.ros.pose_input import (BAD_INPUT_KINDS, PoseInput,  # noqa: E402
-                                           PoseInputLimits)
+from tissue_sim_ros.ros.pose_input import BAD_INPUT_KINDS  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DOMAIN_ID = 60 + os.getpid() % 50
@@ -222,82 +221,6 @@ def publish_at_stamps(h, stamps, positions, lead_s=0.05):
         if delay > 0:
             time.sleep(delay)
         h.publish_pose(p, int(s))
-
-
-# --------------------------------------------------------------------------------------------
-# pose input (pure)
-
-
-def _limits(**kw):
-    return PoseInputLimits(**{'expected_frame_id': 'world', **kw})
-
-
-def test_pose_input_interpolates_between_samples_and_holds_after():
-    pi = PoseInput(_limits(max_jump_m=0.01))
-    q0 = np.array([0.0, 0.0, 0.0, 1.0])
-    q1 = np.array([0.0, 0.0, math.sin(0.1), math.cos(0.1)])  # 0.2 rad about z
-    assert pi.offer([0, 0, 0], q0, 'world', 1 * NS, 1 * NS) == (None, None)
-    assert pi.offer([0.004, 0, 0], q1, 'world', 1 * NS + 10_000_000, 1 * NS)[0] is None
-    p, q = pi.pose_at(1 * NS + 2_500_000)  # a quarter of the way
-    np.testing.assert_allclose(p, [0.001, 0, 0], atol=1e-15)
-    np.testing.assert_allclose(q, [0, 0, math.sin(0.025), math.cos(0.025)], atol=1e-12)
-    p, q = pi.pose_at(5 * NS)  # after the newest: held
-    np.testing.assert_allclose(p, [0.004, 0, 0])
-    np.testing.assert_allclose(q, q1)
-    assert pi.pose_at(0)[0].tolist() == [0.004, 0, 0]  # older samples were dropped meanwhile
-
-
-def test_pose_input_refuses_each_kind_and_names_it():
-    pi = PoseInput(_limits(max_jump_m=0.005, max_future_s=0.5), reference_pose=([0, 0, 0], DOWN))
-    t = 10 * NS
-    cases = [
-        ([np.nan, 0, 0], DOWN, 'world', t, 'non_finite'),
-        ([0, 0, 0], [1.0, 0, 0, np.inf], 'world', t, 'non_finite'),
-        ([0, 0, 0], [1.1, 0, 0, 0], 'world', t, 'non_unit_quaternion'),
-        ([0, 0, 0], DOWN, 'map', t, 'wrong_frame'),
-        ([0, 0, 0], DOWN, 'world', t + 2 * NS, 'future_stamp'),
-        ([0.006, 0, 0], DOWN, 'world', t, 'jump'),  # from the needle (reference)
-        ([0, 0, 0], [0, 0, 0, 1.0], 'world', t, 'jump'),  # 180 degrees
-    ]
-    for p, q, frame, stamp, kind in cases:
-        got, detail = pi.offer(p, q, frame, stamp, t)
-        assert got == kind, (p, q, frame, got, detail)
-        assert detail
-    assert pi.accepted == 0 and pi.newest() is None
-    assert pi.offer([0.001, 0, 0], [1.005, 0, 0, 0], 'world', t, t)[0] is None  # normalised
-    np.testing.assert_allclose(pi.newest()[2], DOWN)
-    assert pi.offer([0, 0, 0], DOWN, 'world', t - 1, t)[0] == 'time_backwards'
-    assert pi.offer([0.001, 0, 0], DOWN, 'world', 0, t + NS)[0] == 'unstamped'
-    assert pi.newest()[0] == t + NS  # stamped with the receipt time
-    expected = {k: 0 for k in BAD_INPUT_KINDS}
-    expected.update({'non_finite': 2, 'non_unit_quaternion': 1, 'wrong_frame': 1, 'future_stamp': 1,
-                     'jump': 2, 'time_backwards': 1, 'unstamped': 1})
-    assert pi.counts == expected
-    assert set(pi.counts) == set(BAD_INPUT_KINDS)
-
-
-def test_pose_input_flood_keeps_latest_and_one_sample_per_slot():
-    pi = PoseInput(_limits(max_rate_hz=250.0))  # 4 ms slots
-    t0 = 3 * NS
-    for k in range(1000):  # 1 kHz for 1 s
-        pi.offer([0, 0, -1e-6 * k], DOWN, 'world', t0 + k * 1_000_000, t0 + k * 1_000_000)
-    # samples open at k = 0, 4, 8, ...: 250 of them; the other 750 replace the newest sample
-    assert pi.counts['flood'] == 750 and pi.accepted == 1000
-    assert pi.newest()[1][2] == pytest.approx(-1e-6 * 999)  # the latest pose is the one held
-    # the last two samples hold k = 995 (slot opened at 992) and k = 999 (slot 996)
-    assert len(pi._samples) == pi.limits.buffer_length  # bounded: the oldest were dropped
-    p, _ = pi.pose_at(t0 + 997_000_000)
-    assert p[2] == pytest.approx(-997e-6, abs=1e-15)
-
-
-def test_pose_input_stale_and_reset():
-    pi = PoseInput(_limits(stale_after_s=0.5))
-    assert pi.pose_at(NS) is None and not pi.stale(NS) and pi.age_s(NS) is None
-    pi.offer([0, 0, 0], DOWN, 'world', NS, NS)
-    assert not pi.stale(NS + 400_000_000) and pi.stale(NS + 600_000_000)
-    pi.reset(([0.0, 0.0, 0.0], DOWN))
-    assert pi.pose_at(2 * NS) is None
-    assert pi.offer([0.0, 0.0, 0.02], DOWN, 'world', 2 * NS, 2 * NS)[0] == 'jump'
 
 
 # --------------------------------------------------------------------------------------------
