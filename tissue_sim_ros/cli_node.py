@@ -14,10 +14,31 @@ def _drive(args):
 
 
 def _node_bench(args):
+    if args.against is not None:
+        _node_bench_paired(args)
+        return
     from tissue_sim_ros.analysis import node_bench
     node_bench.run(duration_s=args.duration_s, rate_hz=args.rate_hz, scene_file=args.scene_file,
                    out=args.out, threads=args.threads, executor=args.executor, load=args.load,
                    predictions=args.predictions, prediction_s=args.prediction_s, params=args.param)
+
+
+def _node_bench_paired(args):
+    from tissue_sim_ros.analysis import node_bench_paired
+    from tissue_sim_ros.cli import CommandError
+    if args.out is None:
+        raise CommandError('--against needs --out DIR (the runs, the revision and the figures go there)')
+    fixed = [name for name, value in (('--threads', args.threads), ('--executor', args.executor),
+                                      ('--predictions', args.predictions or None), ('--param', args.param or None))
+             if value is not None]
+    if fixed:
+        raise CommandError(f'{" ".join(fixed)}: not with --against (both versions run on the same '
+                           'options, and an earlier one may not have these)')
+    try:
+        node_bench_paired.run(args.against, args.out, pairs=args.pairs, duration_s=args.duration_s,
+                              rate_hz=args.rate_hz, load=args.load, scene_file=args.scene_file)
+    except node_bench_paired.PairedBenchError as exc:
+        raise CommandError(str(exc)) from exc
 
 
 def _node_parameter(text):
@@ -64,4 +85,9 @@ def add_node_commands(commands):
     node_bench.add_argument('--param', action='append', default=[], type=_node_parameter, metavar='NAME:=VALUE',
                             help='another node parameter (repeatable), as ros-args -p takes it, e.g. '
                                  'prediction.max_error:=0.02')
+    node_bench.add_argument('--against', default=None, metavar='REV',
+                            help='also run git revision REV of this checkout, alternating with this one, and '
+                                 'compare the node CPU pair by pair (needs --out; see node_bench_paired)')
+    node_bench.add_argument('--pairs', type=_number(1, inclusive=True, whole=True), default=3, metavar='N',
+                            help='pairs of runs with --against (default 3)')
     node_bench.set_defaults(run=_node_bench)
