@@ -21,6 +21,7 @@ setup(
         ('share/' + package_name + '/msg_examples', glob('msg_examples/*')),
         ('share/' + package_name + '/data/okamura2004_bovine_liver', glob('data/okamura2004_bovine_liver/*')),
     ],
+    python_requires='>=3.12',    # ROS 2 Jazzy's; warnings' skip_file_prefixes, tarfile's filter
     install_requires=['setuptools'],
     extras_require={'test': ['pytest']},  # so that `colcon test` runs pytest, not unittest
     zip_safe=True,

@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tissue_sim_ros.child_env import importing_from
+
 ROOT = Path(__file__).resolve().parents[1]
 
 # compiles one small kernel (about a second): forces.reduce_buffers
@@ -26,7 +28,7 @@ assert (out == 1.0).all()
 def run_python(code, env_changes, *args):
     env = {k: v for k, v in os.environ.items() if k not in ('NUMBA_CACHE_DIR', 'XDG_CACHE_HOME')}
     env.update(env_changes)
-    env['PYTHONPATH'] = os.pathsep.join([str(ROOT)] + [p for p in [os.environ.get('PYTHONPATH')] if p])
+    env = importing_from(ROOT, env)
     result = subprocess.run([sys.executable, '-c', code, *args], env=env, cwd=str(ROOT),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, timeout=600)
     assert result.returncode == 0, result.stderr

@@ -29,6 +29,7 @@ def test_load_mesh_says_once_how_many_elements_it_reoriented_and_which(tmp_path)
         make_mesh(loaded.rest_positions, loaded.tetrahedra)  # re-building a repaired mesh: silent
     said = [w for w in record if issubclass(w.category, MeshOrientationWarning)]
     assert len(said) == 1, [str(w.message) for w in record]
+    assert said[0].filename == __file__      # the caller's line, not the mesh modules'
     text = str(said[0].message)
     assert 'mirrored.vtu' in text and '12 negatively oriented elements' in text
     assert '[0, 4, 8, 12, 16, 20, 24, 28, 32, 36, ...] (12 in all, first 10 shown)' in text

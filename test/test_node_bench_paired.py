@@ -2,7 +2,9 @@
 as git has it, the runs alternated and resumed, and (slow) two real node-bench runs compared."""
 import csv
 import json
+import os
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -37,40 +39,59 @@ def test_the_revision_is_exported_as_git_has_it_and_once(tmp_path):
                           check=True).stdout.strip()
     setup = subprocess.run(['git', '-C', str(ROOT), 'show', 'HEAD:setup.py'], capture_output=True, text=True,
                            check=True).stdout
-    assert paired.export_revision('HEAD', tmp_path / 'rev') == head
+    assert paired.resolve_commit('HEAD') == head and paired.resolve_commit(head[:12]) == head
+    paired.export_revision(head, tmp_path / 'rev')
     assert (tmp_path / 'rev' / 'setup.py').read_text() == setup
     assert (tmp_path / 'rev' / 'tissue_sim_ros' / '__init__.py').is_file()
     (tmp_path / 'rev' / 'setup.py').write_text('changed')     # a second call keeps what is there
-    assert paired.export_revision(head[:12], tmp_path / 'rev') == head
+    paired.export_revision(head, tmp_path / 'rev')
     assert (tmp_path / 'rev' / 'setup.py').read_text() == 'changed'
     # over another revision's export every file is replaced (one HEAD lacks does not stay)
     (tmp_path / 'rev' / 'stray.txt').write_text('')
     (tmp_path / 'rev' / 'COMMIT').write_text('0' * 40 + '\n')
-    assert paired.export_revision('HEAD', tmp_path / 'rev') == head
+    paired.export_revision(head, tmp_path / 'rev')
     assert not (tmp_path / 'rev' / 'stray.txt').exists()
     assert (tmp_path / 'rev' / 'setup.py').read_text() == setup
     with pytest.raises(paired.PairedBenchError, match="'no-such-revision'"):
-        paired.export_revision('no-such-revision', tmp_path / 'other')
+        paired.resolve_commit('no-such-revision')
+
+
+def test_a_child_that_imports_the_package_from_elsewhere_refuses_to_run(tmp_path):
+    """The check each run makes: pointed at a tree without the package, the child finds this
+    checkout's (the editable install) and stops, naming both."""
+    done = subprocess.run([sys.executable, '-c', paired._CHILD, str(tmp_path), 'node-bench', '--help'],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode != 0
+    assert f'not from {tmp_path.resolve()}' in done.stderr and 'imported tissue_sim_ros from' in done.stderr
 
 
 @needs_git
-def test_runs_alternate_which_goes_first_and_a_run_already_there_is_reused(tmp_path, monkeypatch):
+def test_runs_alternate_which_goes_first_resume_and_refuse_another_comparison(tmp_path, monkeypatch):
+    """Each run a fake child that writes its node_bench.json where its --out says (relative to
+    its working directory), with a relative DIR: the runs' order, the environment each version
+    gets, the files written, a resume that runs nothing again, and a changed option refused."""
+    real_run = subprocess.run
     calls = []
 
-    def fake_bench(tree, run_dir, bench_args):
-        result_file = run_dir / 'node_bench.json'
-        if result_file.is_file():
-            return json.loads(result_file.read_text())
-        version = 'before' if tree == tmp_path / 'out' / 'revision' else 'after'
-        calls.append((run_dir.name, version))
+    def fake_run(command, **kw):
+        if command[0] == 'git':
+            return real_run(command, **kw)
+        assert command[:3] == [sys.executable, '-c', paired._CHILD]
+        tree, out = Path(command[3]), Path(kw['cwd']) / command[command.index('--out') + 1]
+        version = 'after' if tree == ROOT else 'before'
+        assert kw['env']['PYTHONPATH'].split(os.pathsep)[0] == str(tree)
+        assert ('XDG_CACHE_HOME' in kw['env'] and kw['env']['XDG_CACHE_HOME'].endswith('cache')) == (
+            version == 'before')
+        assert Path(command[command.index('--scene-file') + 1]).is_file()
+        calls.append((out.name, version))
         cpu = {'before': 90.0, 'after': 45.0}[version] + len(calls)
-        result = {'node_cpu_pct_of_one_core': cpu, 'wrench_rate_hz': 50.0, 'ticks': 100, 'missed_ticks': 0}
-        run_dir.mkdir(parents=True)
-        result_file.write_text(json.dumps(result))
-        return result
+        (out / 'node_bench.json').write_text(json.dumps({'node_cpu_pct_of_one_core': cpu, 'node_exit_code': 0,
+                                                         'wrench_rate_hz': 50.0, 'ticks': 100}))
+        return subprocess.CompletedProcess(command, 0, 'ran\n', '')
 
-    monkeypatch.setattr(paired, '_bench_once', fake_bench)
-    summary = paired.run('HEAD', str(tmp_path / 'out'), pairs=3, duration_s=1.0, stream=lambda *_: None)
+    monkeypatch.setattr(paired.subprocess, 'run', fake_run)
+    monkeypatch.chdir(tmp_path)
+    summary = paired.run('HEAD', 'out', pairs=3, duration_s=1.0, stream=lambda *_: None)
     assert calls == [('pair1_before', 'before'), ('pair1_after', 'after'), ('pair2_after', 'after'),
                      ('pair2_before', 'before'), ('pair3_before', 'before'), ('pair3_after', 'after')]
     # CPUs 91, 47 | 48, 94 | 95, 51 (the call count is added): ratios from those
@@ -84,11 +105,18 @@ def test_runs_alternate_which_goes_first_and_a_run_already_there_is_reused(tmp_p
     assert 'ratio of the means' in (tmp_path / 'out' / 'paired.md').read_text()
     assert (tmp_path / 'out' / 'paired.png').stat().st_size > 10_000
     # resumed: every run is there, none is run again, the figures are the same
-    again = paired.run('HEAD', str(tmp_path / 'out'), pairs=3, duration_s=1.0, stream=lambda *_: None)
+    lines = []
+    again = paired.run('HEAD', 'out', pairs=3, duration_s=1.0, stream=lines.append)
     assert len(calls) == 6 and again['ratios'] == summary['ratios']
-    # but not another comparison in the same directory
+    assert sum('(reused)' in line for line in lines) == 6
+    # not another comparison over those runs
     with pytest.raises(paired.PairedBenchError, match='another bench_args'):
-        paired.run('HEAD', str(tmp_path / 'out'), pairs=3, duration_s=2.0, stream=lambda *_: None)
+        paired.run('HEAD', 'out', pairs=3, duration_s=2.0, stream=lambda *_: None)
+    # a run whose node did not exit cleanly is not taken
+    (tmp_path / 'out' / 'runs' / 'pair1_after' / 'node_bench.json').write_text(
+        json.dumps({'node_cpu_pct_of_one_core': 40.0, 'node_exit_code': -9}))
+    with pytest.raises(paired.PairedBenchError, match='pair1_after'):
+        paired.run('HEAD', 'out', pairs=3, duration_s=1.0, stream=lambda *_: None)
 
 
 @pytest.mark.slow

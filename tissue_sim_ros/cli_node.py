@@ -17,6 +17,9 @@ def _node_bench(args):
     if args.against is not None:
         _node_bench_paired(args)
         return
+    if args.pairs is not None:
+        from tissue_sim_ros.cli import CommandError
+        raise CommandError('--pairs: only with --against REV')
     from tissue_sim_ros.analysis import node_bench
     node_bench.run(duration_s=args.duration_s, rate_hz=args.rate_hz, scene_file=args.scene_file,
                    out=args.out, threads=args.threads, executor=args.executor, load=args.load,
@@ -35,7 +38,7 @@ def _node_bench_paired(args):
         raise CommandError(f'{" ".join(fixed)}: not with --against (both versions run on the same '
                            'options, and an earlier one may not have these)')
     try:
-        node_bench_paired.run(args.against, args.out, pairs=args.pairs, duration_s=args.duration_s,
+        node_bench_paired.run(args.against, args.out, pairs=args.pairs or 3, duration_s=args.duration_s,
                               rate_hz=args.rate_hz, load=args.load, scene_file=args.scene_file)
     except node_bench_paired.PairedBenchError as exc:
         raise CommandError(str(exc)) from exc
@@ -87,7 +90,7 @@ def add_node_commands(commands):
                                  'prediction.max_error:=0.02')
     node_bench.add_argument('--against', default=None, metavar='REV',
                             help='also run git revision REV of this checkout, alternating with this one, and '
-                                 'compare the node CPU pair by pair (needs --out; see node_bench_paired)')
-    node_bench.add_argument('--pairs', type=_number(1, inclusive=True, whole=True), default=3, metavar='N',
+                                 'compare the node CPU pair by pair (needs --out)')
+    node_bench.add_argument('--pairs', type=_number(1, inclusive=True, whole=True), default=None, metavar='N',
                             help='pairs of runs with --against (default 3)')
     node_bench.set_defaults(run=_node_bench)

@@ -35,6 +35,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from tissue_sim_ros.child_env import importing_from
+
 _CHILD = '''
 import sys
 from tissue_sim_ros.engine.scene import Scene
@@ -48,10 +50,9 @@ MODES = ('parallel', 'one-process', 'warm')
 def time_first_step(cache_dir, scene_file=None, parallel=True):
     """Seconds from starting a Python process to the scene's first step, with numba's cache in
     ``cache_dir``; and the compile lines the process printed on stderr."""
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache_dir))
+    env = importing_from(Path(__file__).resolve().parents[2])
+    env['NUMBA_CACHE_DIR'] = str(cache_dir)
     env['TISSUE_SIM_ROS_COMPILE_PROCESSES'] = '1' if parallel else '0'
-    root = str(Path(__file__).resolve().parents[2])
-    env['PYTHONPATH'] = os.pathsep.join([root] + [p for p in [env.get('PYTHONPATH')] if p])
     start = time.perf_counter()
     result = subprocess.run([sys.executable, '-c', _CHILD, str(scene_file or '')], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

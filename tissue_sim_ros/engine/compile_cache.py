@@ -41,6 +41,8 @@ from pathlib import Path
 
 from numba.core import config, event
 
+from tissue_sim_ros.child_env import importing_from
+
 PREFIX = 'tissue_sim_ros:'
 QUIET_ENV = 'TISSUE_SIM_ROS_COMPILE_PROCESS'     # set in the processes started here
 PROCESSES_ENV = 'TISSUE_SIM_ROS_COMPILE_PROCESSES'
@@ -148,10 +150,9 @@ class _Process:
     def __init__(self, what, code):
         self.what = what
         self.started = time.monotonic()
-        env = dict(os.environ)
+        env = importing_from(_PACKAGE_ROOT)
         env[QUIET_ENV] = '1'
         env['NUMBA_NUM_THREADS'] = '1'      # its tiny models need no thread pool spinning beside us
-        env['PYTHONPATH'] = os.pathsep.join([str(_PACKAGE_ROOT)] + [p for p in [env.get('PYTHONPATH')] if p])
         self.log = tempfile.TemporaryFile()
         self.popen = subprocess.Popen([sys.executable, '-c', code], env=env, stdin=subprocess.DEVNULL,
                                       stdout=self.log, stderr=subprocess.STDOUT)

@@ -48,7 +48,6 @@ def _as_positive_scalar(value, field: str, *, allow_zero: bool = False,
     return number
 
 
-
 def _kuhn_template() -> np.ndarray:
     """(6, 4, 3) local corners (0/1 per axis) of the Kuhn split of the unit cube: one element per
     permutation s of the axes, the path (0,0,0) -> e_s0 -> e_s0 + e_s1 -> (1,1,1), with vertices

@@ -12,7 +12,6 @@ __all__ = ['load_mesh', 'save_mesh', 'ELEMENT_TAG_NAMES']
 ELEMENT_TAG_NAMES = ('gmsh:physical', 'medit:ref', 'tag', 'region')
 
 
-
 def _format_family(path: Path, file_format: str | None) -> str:
     """'gmsh', 'medit' or 'other' (the cell-data name used for the tags depends on it)."""
     if file_format is not None:
@@ -38,7 +37,8 @@ def load_mesh(path) -> TetMesh:
     Only 'tetra' cells are used (all such blocks, in file order); other cell types are ignored.
     Element tags come from the first cell data found among ELEMENT_TAG_NAMES, else zeros.
     Nodes used by no tetrahedron are kept, not renumbered. Inverted elements are repaired
-    (make_mesh) with one MeshOrientationWarning naming the file; a file without tetrahedra or with an invalid mesh raises MeshError naming it.
+    (make_mesh) with one MeshOrientationWarning naming the file; a file without tetrahedra or
+    with an invalid mesh raises MeshError naming it.
     """
     import meshio
 
