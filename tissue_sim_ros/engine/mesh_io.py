@@ -31,6 +31,18 @@ def _python_scalars(values: np.ndarray) -> np.ndarray:
     return np.array(np.asarray(values).tolist(), dtype=object)
 
 
+def _rows_per_item(data, field: str, n_rows: int, item: str) -> dict:
+    """{name: array} of ``data`` (None: empty), each array with one row per ``item``."""
+    arrays = {}
+    for name, values in (data or {}).items():
+        values = np.asarray(values)
+        if values.ndim < 1 or values.shape[0] != n_rows:
+            raise MeshError(f'{field}[{name!r}]: shape {values.shape}, expected first '
+                            f'dimension {n_rows} (one row per {item})')
+        arrays[name] = values
+    return arrays
+
+
 def load_mesh(path) -> TetMesh:
     """Read a tetrahedral mesh from any file meshio reads (.vtu, .vtk, .msh, .mesh, ...).
 
@@ -98,23 +110,13 @@ def save_mesh(mesh: TetMesh, path, *, point_data=None, cell_data=None,
     family = _format_family(path, file_format)
     tags = mesh.element_tags
 
-    cells_out = {}
-    for name, values in (cell_data or {}).items():
-        values = np.asarray(values)
-        if values.ndim < 1 or values.shape[0] != mesh.n_elements:
-            raise MeshError(f'cell_data[{name!r}]: shape {values.shape}, expected first '
-                            f'dimension {mesh.n_elements} (one row per element)')
+    cells = _rows_per_item(cell_data, 'cell_data', mesh.n_elements, 'element')
+    for name in cells:
         if name in ELEMENT_TAG_NAMES or name.startswith('gmsh:'):
             raise MeshError(f'cell_data[{name!r}]: the name is reserved for the element tags; '
                             'expected another name (the tags are written from mesh.element_tags)')
-        cells_out[name] = [values]
-    points_out = {}
-    for name, values in (point_data or {}).items():
-        values = np.asarray(values)
-        if values.ndim < 1 or values.shape[0] != mesh.n_nodes:
-            raise MeshError(f'point_data[{name!r}]: shape {values.shape}, expected first '
-                            f'dimension {mesh.n_nodes} (one row per node)')
-        points_out[name] = values
+    cells_out = {name: [values] for name, values in cells.items()}
+    points_out = _rows_per_item(point_data, 'point_data', mesh.n_nodes, 'node')
 
     if family == 'gmsh' and file_format == 'gmsh22':
         # per-element tags: physical = region, elementary entity = region
