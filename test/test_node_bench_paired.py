@@ -112,6 +112,11 @@ def test_runs_alternate_which_goes_first_resume_and_refuse_another_comparison(tm
     # not another comparison over those runs
     with pytest.raises(paired.PairedBenchError, match='another bench_args'):
         paired.run('HEAD', 'out', pairs=3, duration_s=2.0, stream=lambda *_: None)
+    plan = tmp_path / 'out' / 'plan.json'
+    plan.rename(tmp_path / 'plan.json')       # runs whose plan is gone are not taken either
+    with pytest.raises(paired.PairedBenchError, match='no plan.json'):
+        paired.run('HEAD', 'out', pairs=3, duration_s=1.0, stream=lambda *_: None)
+    (tmp_path / 'plan.json').rename(plan)
     # a run whose node did not exit cleanly is not taken
     (tmp_path / 'out' / 'runs' / 'pair1_after' / 'node_bench.json').write_text(
         json.dumps({'node_cpu_pct_of_one_core': 40.0, 'node_exit_code': -9}))

@@ -122,7 +122,10 @@ def _check_plan(out: Path, plan: dict) -> None:
     """Resume only the same comparison: runs already in ``out`` must have been made under this
     plan; without runs the plan is (re)written."""
     path = out / 'plan.json'
-    if path.is_file() and any((out / 'runs').glob('*/node_bench.json')):
+    if any((out / 'runs').glob('*/node_bench.json')):
+        if not path.is_file():
+            raise PairedBenchError(f'{out} holds runs but no plan.json saying what they compare; expected '
+                                   'an empty directory or one this command filled')
         earlier = json.loads(path.read_text())
         changed = [k for k in plan if earlier.get(k) != plan[k]]
         if changed:
