@@ -522,6 +522,25 @@ def test_a_backlog_is_written_as_one_chunk_not_one_per_message(tmp_path):
     assert stats.message_count == 200 and stats.chunk_count <= 3
 
 
+def test_the_writer_thread_wakes_per_batch_not_per_message(tmp_path):
+    """A node writes at 50-100 Hz on several topics; the writer thread takes them in batches at
+    most every 50 ms (chunk_interval_s / 10 when shorter) instead of waking for each message.
+    400 messages 2.5 ms apart (1 s): about 1 s / 0.05 s wakes, every message written, in order."""
+    path = tmp_path / 'batches.mcap'
+    with ml.McapRecorder(path, metadata={}, chunk_interval_s=1.0) as rec:
+        rec.add_topic('needle/wrench', WRENCH, {})
+        start = time.monotonic()
+        for i in range(400):
+            rec.write('needle/wrench', serialize_message(_sample('needle/wrench', i)), T0 + i * PERIOD)
+            time.sleep(max(0.0, start + (i + 1) * 0.0025 - time.monotonic()))
+        elapsed = time.monotonic() - start
+        rec.flush()
+        stats = rec.stats()
+    assert stats.messages_written == 400
+    assert stats.writer_wakeups <= elapsed / 0.05 + 5, (stats.writer_wakeups, elapsed)
+    assert [m.log_time_ns for m in ml.read_log(path)] == [T0 + i * PERIOD for i in range(400)]
+
+
 _CHILD = textwrap.dedent('''
     import sys, time
     from rclpy.serialization import serialize_message
