@@ -84,6 +84,20 @@ def test_diagnostic_figures_read_the_last_message_and_the_kernel_over_the_window
     assert node_bench._diagnostic_figures([])['missed_ticks'] == -1
 
 
+def test_thread_groups_by_os_name_with_the_main_thread_as_the_executor():
+    """CPU seconds of each thread at both ends of a 2 s window: the main thread (tid = pid) is
+    the executor, names pick the engine, recorder and DDS threads, a thread born in the window
+    counts from 0, and the groups add up to the threads' total."""
+    before = {100: ('tissue_sim_node', 1.0), 101: ('ts-engine', 5.0), 102: ('mcap-writer:ti', 0.5),
+              103: ('dds.shm.4711', 0.2), 104: ('tissue_sim_node', 0.0)}
+    after = {100: ('tissue_sim_node', 1.1), 101: ('ts-engine', 5.8), 102: ('mcap-writer:ti', 0.52),
+             103: ('dds.shm.4711', 0.22), 104: ('tissue_sim_node', 0.01), 105: ('dds.ev.0', 0.03)}
+    groups = node_bench.thread_groups_pct(100, before, after, 2.0)
+    assert groups == pytest.approx({'engine': 40.0, 'executor': 5.0, 'recording': 1.0, 'dds': 2.5, 'other': 0.5})
+    used = sum(c for _, c in after.values()) - sum(c for _, c in before.values())
+    assert sum(groups.values()) == pytest.approx(100.0 * used / 2.0)
+
+
 def test_a_node_that_refuses_its_parameters_is_one_error_naming_the_reason(tmp_path):
     pytest.importorskip('rclpy')
     from tissue_sim_ros.ros.node_process import NodeProcess, NodeProcessError
@@ -207,3 +221,7 @@ def test_measure_end_to_end_under_load(tmp_path):
     text = node_bench.report(r)
     assert 'load beside the node 1 busy process' in text and 'listening client     wrench' in text
     assert 'prediction workers warm' in text
+    # per thread: the groups add up to the process (both /proc, 10 ms ticks over a 1 s window)
+    threads = r['thread_cpu_pct']
+    assert threads['engine'] > 0.0 and threads['executor'] > 0.0
+    assert sum(threads.values()) == pytest.approx(r['node_cpu_pct_of_one_core'], abs=6.0)

@@ -15,7 +15,10 @@ Figures:
 - latency from a pose's receipt to the first wrench computed with it: the first wrench whose tick
   time is at or after the receipt (the tick takes the poses received before it), its publish time
   minus the receipt, p50/p99; and end to end, pose sent here to that wrench received here;
-- CPU: the node process's user + system time over the window (/proc), in % of one core;
+- CPU: the node process's user + system time over the window (/proc), in % of one core, and
+  per thread (``thread_cpu_pct``): the engine thread, the executor (the main thread: callbacks
+  and the tick), the recorder's writer, the DDS threads and the rest, by the names the node
+  gives its threads at the OS level (:mod:`tissue_sim_ros.os_thread_name`);
 - overruns: ticks whose work took longer than a period, and missed ticks, from the node's last
   diagnostics; its mean step time, substeps, compute load.
 
@@ -55,6 +58,40 @@ def _cpu_seconds(pid: int) -> float | None:
     except OSError:
         return None
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')  # utime + stime
+
+
+#: the node's threads by their OS names (os_thread_name); the main thread is the executor's
+THREAD_GROUPS = (('engine', 'ts-engine'), ('recording', 'mcap-writer'), ('dds', 'dds.'))
+
+
+def _thread_cpu_seconds(pid: int) -> dict[int, tuple[str, float]]:
+    """Each live thread of ``pid``: tid -> (OS name, user + system CPU seconds)."""
+    threads = {}
+    try:
+        tids = [int(t) for t in os.listdir(f'/proc/{pid}/task')]
+    except OSError:
+        return threads
+    for tid in tids:
+        try:
+            name = Path(f'/proc/{pid}/task/{tid}/comm').read_text().strip()
+            fields = Path(f'/proc/{pid}/task/{tid}/stat').read_text().rsplit(')', 1)[1].split()
+        except OSError:                   # the thread ended meanwhile
+            continue
+        threads[tid] = (name, (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK'))
+    return threads
+
+
+def thread_groups_pct(pid: int, before: dict, after: dict, seconds: float) -> dict[str, float]:
+    """CPU of each group of threads over a window, % of one core: 'engine', 'executor' (the
+    main thread), 'recording', 'dds' and 'other' (numba's, the predictions' intake...); a thread
+    started in the window counts from 0, one that ended in it is not seen."""
+    groups = {'engine': 0.0, 'executor': 0.0, 'recording': 0.0, 'dds': 0.0, 'other': 0.0}
+    for tid, (name, cpu) in after.items():
+        used = cpu - before.get(tid, (name, 0.0))[1]
+        group = 'executor' if tid == pid else next(
+            (group for group, prefix in THREAD_GROUPS if name.startswith(prefix)), 'other')
+        groups[group] += 100.0 * used / seconds
+    return groups
 
 
 def _node_params(log_dir: Path, publish_rate_hz: float, scene_file: str | None,
@@ -140,6 +177,7 @@ class _Window:
     cpu0: float | None
     cpu1: float | None
     sent: list[int] = field(default_factory=list)
+    thread_pct: dict = field(default_factory=dict)   # thread_groups_pct over the window
 
     @property
     def seconds(self) -> float:
@@ -156,10 +194,12 @@ def _drive_window(node, client: _BenchClient, message, times, positions, rate_hz
     """Stream the scripted poses (``message`` moved along them) for ``duration_s``, the node's
     CPU time read at both ends."""
     from tissue_sim_ros.ros.drive import publish_trajectory
-    cpu0, wall0_ns = _cpu_seconds(node.pid), time.time_ns()
+    threads0, cpu0, wall0_ns = _thread_cpu_seconds(node.pid), _cpu_seconds(node.pid), time.time_ns()
     sent = publish_trajectory(client.pose_pub, message, times, positions, time.time_ns,
                               repeat_for_s=duration_s, cycle_s=times[-1] + 1.0 / rate_hz)
-    return _Window(wall0_ns, time.time_ns(), cpu0, _cpu_seconds(node.pid), sent)
+    window = _Window(wall0_ns, time.time_ns(), cpu0, _cpu_seconds(node.pid), sent)
+    window.thread_pct = thread_groups_pct(node.pid, threads0, _thread_cpu_seconds(node.pid), window.seconds)
+    return window
 
 
 def _log_timings(path: Path) -> dict:
@@ -351,6 +391,7 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
         **_rate_and_periods(run['wrench_rx'], log['wrench_tick'], window, publish_rate_hz),
         **_latencies(log, run['wrench_rx'], window),
         'node_cpu_pct_of_one_core': window.cpu_pct(),
+        'thread_cpu_pct': window.thread_pct,
         **_diagnostic_figures(run['diagnostics'], window.wall0_ns),
         'mcap': str(path),
         **run['predictions'],
@@ -392,6 +433,8 @@ def report(r: dict) -> str:
         f'  node CPU             {r["node_cpu_pct_of_one_core"]:.0f} % of one core; the force kernel '
         f'{100 * r["kernel_share_of_node_cpu"]:.0f} % of it ({100 * r["kernel_share_of_engine"]:.0f} % of the '
         f'engine thread\'s work)',
+        '  threads              ' + ', '.join(f'{name} {pct:.1f} %' for name, pct in r.get('thread_cpu_pct', {}).items())
+        + ' of one core',
         f'  engine               budget use {r["budget_use"]:.2f}, lag {1e3 * r["lag_s"]:.1f} ms, '
         f'{r["dropped_time_s"]:.3g} s dropped, ladder level {r["ladder_level"]} ({r["ladder_changes"]} changes); '
         f'{r["missed_ticks"]} missed ticks of {r["ticks"]}',

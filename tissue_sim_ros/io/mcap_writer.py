@@ -40,6 +40,7 @@ from tissue_sim_ros.io.mcap_profile import (DEFAULT_METADATA_NAME, MESSAGE_ENCOD
 from tissue_sim_ros.io.mcap_sink import UnbufferedSink, end_chunk, new_log_path
 from tissue_sim_ros.io.ros_message_definitions import message_definition, schema_name
 from tissue_sim_ros.io.rosbag2_qos import qos_profiles_yaml
+from tissue_sim_ros.os_thread_name import name_os_thread
 
 __all__ = ['ChunkAge', 'McapRecorder', 'RecorderStats']
 
@@ -327,6 +328,7 @@ class McapRecorder:
     def _run(self) -> None:
         """Writer thread: messages from the queue; closes the open chunk when it expires."""
         assert self._queue is not None
+        name_os_thread()
         while True:
             if self._queue.empty():   # let a batch gather: put() wakes nobody while this sleeps
                 time.sleep(self._batch_s)

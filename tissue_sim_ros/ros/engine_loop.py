@@ -31,6 +31,7 @@ from collections import deque
 
 import numpy as np
 
+from tissue_sim_ros.os_thread_name import name_os_thread
 from tissue_sim_ros.ros.engine_pacing import EnginePacing, LadderControl
 from tissue_sim_ros.ros.engine_trace import DROP, LEVEL, RESET, advance_row, event_row
 from tissue_sim_ros.ros.pose_receiver import PoseReceiver
@@ -222,6 +223,7 @@ class EngineLoop:
 
     def _run(self) -> None:
         import numba
+        name_os_thread()
         numba.set_num_threads(self.threads)
         try:
             while not self._stop.is_set():

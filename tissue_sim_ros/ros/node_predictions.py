@@ -46,6 +46,7 @@ from tissue_sim_ros.engine.pose import NeedleInputError, pose_jump
 from tissue_sim_ros.engine.prediction import (check_path, predict_snapshot, prediction_columns,
                                               write_snapshot)
 from tissue_sim_ros.engine.solver import SimulationDiverged
+from tissue_sim_ros.os_thread_name import name_os_thread
 from tissue_sim_ros.process_pools import stop_pool
 from tissue_sim_ros.ros.conversions import header, stamp_to_ns
 from tissue_sim_ros.units import NS_PER_S
@@ -197,6 +198,7 @@ class PredictionService:
         self._received.put(data)
 
     def _intake(self) -> None:
+        name_os_thread()
         while True:
             data = self._received.get()
             if data is None:
