@@ -9,7 +9,6 @@ long-lived threads calls :func:`name_os_thread` first. Linux keeps 15 bytes of a
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import sys
 import threading
 
@@ -31,5 +30,5 @@ def name_os_thread(name: str | None = None) -> None:
     if not sys.platform.startswith('linux'):
         return
     text = os_thread_name(threading.current_thread().name if name is None else name)
-    libc = ctypes.CDLL(ctypes.util.find_library('c'), use_errno=True)
-    libc.prctl(_PR_SET_NAME, ctypes.c_char_p(text.encode('utf-8')), 0, 0, 0)
+    # the process's own symbols, libc's among them (ctypes.util.find_library would run ldconfig)
+    ctypes.CDLL(None).prctl(_PR_SET_NAME, ctypes.c_char_p(text.encode('utf-8')), 0, 0, 0)
