@@ -43,21 +43,41 @@ def test_rate_and_period_figures_of_a_known_tick_train():
     assert window.cpu_pct() == pytest.approx(50.0)  # 0.5 CPU s in 1 s
 
 
-def test_latency_is_receipt_to_the_publish_of_the_next_tick():
-    """Ticks at 0, 20, 40, 60 ms published 3 ms later and received here 2 ms after that; poses
-    received at 10, 40 and 41 ms (stamped 1 ms before): latencies 13, 3 and 22 ms, end to end
-    16, 6 and 25 ms."""
+def _trace_log(ticks, shown, advances, receipts, stamps, publish_delay=3 * MS):
+    """A node log with its engine trace: wrenches ticked at ``ticks`` showing states ``shown``,
+    published ``publish_delay`` later; ``advances``: (state index, node-clock time it went to)."""
+    return {'wrench_tick': ticks, 'wrench_publish': ticks + publish_delay,
+            'trace_tick': ticks, 'trace_shown': np.asarray(shown, dtype=np.int64),
+            'advance_index': np.array([a for a, _ in advances], dtype=np.int64),
+            'advance_clock': np.array([c for _, c in advances], dtype=np.int64),
+            'pose_receipt': np.asarray(receipts, dtype=np.int64), 'pose_stamp': np.asarray(stamps, dtype=np.int64)}
+
+
+def test_latency_is_receipt_to_the_publish_of_the_first_wrench_computed_with_the_pose():
+    """Ticks at 0, 20, 40, 60 ms published 3 ms later and received here 2 ms after that. Poses
+    received at 10, 40 and 41 ms (stamped 1 ms before); the engine goes to 9.5 ms at once
+    (state 1, within the 1 ms step of the first pose), but reaches the second and third poses
+    only in state 3, which the tick at 60 ms is the first to show (the tick at 40 ms still
+    shows state 1): latencies 13, 23 and 22 ms, end to end 16, 26 and 25 ms. Taking the next
+    tick after each receipt would have said 13, 3 and 22."""
     ticks = np.array([0, 20, 40, 60], dtype=np.int64) * MS
-    log = {'wrench_tick': ticks, 'wrench_publish': ticks + 3 * MS,
-           'pose_receipt': np.array([10, 40, 41], dtype=np.int64) * MS,
-           'pose_stamp': np.array([9, 39, 40], dtype=np.int64) * MS}
+    log = _trace_log(ticks, shown=[0, 1, 1, 3], advances=[(1, 9_500_000), (2, 30 * MS), (3, 41 * MS)],
+                     receipts=np.array([10, 40, 41]) * MS, stamps=np.array([9, 39, 40]) * MS)
     rx = np.stack([ticks + 5 * MS, ticks], axis=1)
-    f = node_bench._latencies(log, rx, node_bench._Window(0, 100 * MS, None, None))
-    assert f['latency_ms_p50'] == pytest.approx(13.0)
-    assert f['latency_ms_max'] == pytest.approx(22.0)
-    assert f['latency_ms_p99'] == pytest.approx(np.percentile([13, 3, 22], 99))
-    assert f['end_to_end_ms_p50'] == pytest.approx(16.0)
-    assert f['end_to_end_ms_p99'] == pytest.approx(np.percentile([16, 6, 25], 99))
+    f = node_bench._latencies(log, rx, node_bench._Window(0, 100 * MS, None, None), dt_s=0.001)
+    assert f['latency_ms_p50'] == pytest.approx(22.0)
+    assert f['latency_ms_max'] == pytest.approx(23.0)
+    assert f['latency_ms_p99'] == pytest.approx(np.percentile([13, 23, 22], 99))
+    assert f['end_to_end_ms_p50'] == pytest.approx(25.0)
+    assert f['end_to_end_ms_p99'] == pytest.approx(np.percentile([16, 26, 25], 99))
+    assert f['poses_not_in_a_wrench'] == 0
+    # with no tolerance (a step of 0) a pose stamped 10 ms is reached only by state 2, which the
+    # tick at 40 ms is the first to show; one stamped 44 ms by no advance in the log
+    late = _trace_log(ticks, shown=[0, 1, 2, 2], advances=[(1, 9_500_000), (2, 30 * MS)],
+                      receipts=[10 * MS, 45 * MS], stamps=[10 * MS, 44 * MS])
+    f = node_bench._latencies(late, rx, node_bench._Window(0, 100 * MS, None, None), dt_s=0.0)
+    assert f['latency_ms_max'] == pytest.approx(33.0)       # 10 ms -> the tick at 40 ms, out at 43
+    assert f['poses_not_in_a_wrench'] == 1                  # 44 ms: no advance went there
 
 
 def test_diagnostic_figures_read_the_last_message_and_the_kernel_over_the_window():

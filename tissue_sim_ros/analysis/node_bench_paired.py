@@ -37,7 +37,9 @@ from tissue_sim_ros.child_env import importing_from
 
 __all__ = ['run', 'summarise', 'resolve_commit', 'export_revision', 'PairedBenchError']
 
-#: figures kept per run (node_bench.json keys both versions write; the kernel share only newer ones)
+#: figures kept per run (node_bench.json keys both versions write; the kernel share only newer
+#: ones). Each side measures with its own node-bench: revisions before the latency was read
+#: through the engine's trace took the first tick after each receipt (6-10 ms low at p99).
 COLUMNS = ('node_cpu_pct_of_one_core', 'kernel_share_of_node_cpu', 'wrench_rate_hz',
            'tick_period_dev_ms_p99', 'latency_ms_p99', 'missed_ticks', 'ticks')
 CPU_GOAL_RATIO = 0.6   # issue 19: the node's CPU at most 60 % of what it was
