@@ -261,8 +261,8 @@ def _first_ticks_with(log: dict, stamps: np.ndarray, dt_s: float) -> np.ndarray:
     """For each pose stamp, the tick stamp of the first wrench computed with it (-1: none in the
     log): the first advance that went to within ``dt_s`` of the stamp, then the first tick that
     published that state or a later one (engine trace; both sequences taken as running maxima)."""
-    clocks = np.maximum.accumulate(log['advance_clock']) if log['advance_clock'].size else log['advance_clock']
-    shown = np.maximum.accumulate(log['trace_shown']) if log['trace_shown'].size else log['trace_shown']
+    clocks = np.maximum.accumulate(log['advance_clock'])
+    shown = np.maximum.accumulate(log['trace_shown'])
     advance = np.searchsorted(clocks, stamps - round(dt_s * NS_PER_S), side='left')
     ticks = np.full(stamps.shape, -1, dtype=np.int64)
     reached = advance < clocks.size
