@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tissue_sim_ros.analysis import node_bench
+from tissue_sim_ros.analysis import node_bench, node_bench_figures
 from tissue_sim_ros.analysis.background_load import SPIN, BackgroundLoad
 
 MS = 1_000_000  # ns
@@ -32,8 +32,8 @@ def test_rate_and_period_figures_of_a_known_tick_train():
     ticks = np.arange(0, 1200, 20, dtype=np.int64) * MS
     ticks[25] += 5 * MS
     rx = np.stack([ticks + MS, ticks], axis=1)
-    window = node_bench._Window(0, 1000 * MS, 0.0, 0.5)
-    f = node_bench._rate_and_periods(rx, ticks, window, 50.0)
+    window = node_bench_figures.Window(0, 1000 * MS, 0.0, 0.5)
+    f = node_bench_figures.rate_and_periods(rx, ticks, window, 50.0)
     assert f['wrench_rate_hz'] == pytest.approx(50.0)  # 50 arrivals in 0.98 s
     assert f['wrench_rate_error_pct'] == pytest.approx(0.0, abs=1e-9)
     assert f['tick_period_ms_p50'] == pytest.approx(20.0)
@@ -64,7 +64,7 @@ def test_latency_is_receipt_to_the_publish_of_the_first_wrench_computed_with_the
     log = _trace_log(ticks, shown=[0, 1, 1, 3], advances=[(1, 9_500_000), (2, 30 * MS), (3, 41 * MS)],
                      receipts=np.array([10, 40, 41]) * MS, stamps=np.array([9, 39, 40]) * MS)
     rx = np.stack([ticks + 5 * MS, ticks], axis=1)
-    f = node_bench._latencies(log, rx, node_bench._Window(0, 100 * MS, None, None), dt_s=0.001)
+    f = node_bench_figures.latencies(log, rx, node_bench_figures.Window(0, 100 * MS, None, None), dt_s=0.001)
     assert f['latency_ms_p50'] == pytest.approx(22.0)
     assert f['latency_ms_max'] == pytest.approx(23.0)
     assert f['latency_ms_p99'] == pytest.approx(np.percentile([13, 23, 22], 99))
@@ -75,7 +75,7 @@ def test_latency_is_receipt_to_the_publish_of_the_first_wrench_computed_with_the
     # tick at 40 ms is the first to show; one stamped 44 ms by no advance in the log
     late = _trace_log(ticks, shown=[0, 1, 2, 2], advances=[(1, 9_500_000), (2, 30 * MS)],
                       receipts=[10 * MS, 45 * MS], stamps=[10 * MS, 44 * MS])
-    f = node_bench._latencies(late, rx, node_bench._Window(0, 100 * MS, None, None), dt_s=0.0)
+    f = node_bench_figures.latencies(late, rx, node_bench_figures.Window(0, 100 * MS, None, None), dt_s=0.0)
     assert f['latency_ms_max'] == pytest.approx(33.0)       # 10 ms -> the tick at 40 ms, out at 43
     assert f['poses_not_in_a_wrench'] == 1                  # 44 ms: no advance went there
 
@@ -95,13 +95,13 @@ def test_diagnostic_figures_read_the_last_message_and_the_kernel_over_the_window
         msg = diagnostic_msgs.DiagnosticArray(status=[status, inputs])
         msg.header.stamp = Time(sec=sec)
         return msg
-    f = node_bench._diagnostic_figures([array(10, 7, 1.0), array(11, 7, 1.5), array(20, 3, 4.0)],
+    f = node_bench_figures.diagnostic_figures([array(10, 7, 1.0), array(11, 7, 1.5), array(20, 3, 4.0)],
                                        window_start_ns=11 * 1_000_000_000)
     assert (f['missed_ticks'], f['ticks'], f['budget_use']) == (3, 1000, 0.5)
     assert f['kernel_s_in_window'] == pytest.approx(2.5)   # from the last message before the window
     assert f['node_latency_ms_p99_own'] == 12.5
     assert f['ladder_level'] == -1  # not reported: said so, not invented
-    assert node_bench._diagnostic_figures([])['missed_ticks'] == -1
+    assert node_bench_figures.diagnostic_figures([])['missed_ticks'] == -1
 
 
 def test_thread_groups_by_os_name_with_the_main_thread_as_the_executor():
@@ -112,7 +112,7 @@ def test_thread_groups_by_os_name_with_the_main_thread_as_the_executor():
               103: ('dds.shm.4711', 0.2), 104: ('tissue_sim_node', 0.0)}
     after = {100: ('tissue_sim_node', 1.1), 101: ('ts-engine', 5.8), 102: ('mcap-writer:ti', 0.52),
              103: ('dds.shm.4711', 0.22), 104: ('tissue_sim_node', 0.01), 105: ('dds.ev.0', 0.03)}
-    groups = node_bench.thread_groups_pct(100, before, after, 2.0)
+    groups = node_bench_figures.thread_groups_pct(100, before, after, 2.0)
     assert groups == pytest.approx({'engine': 40.0, 'executor': 5.0, 'recording': 1.0, 'dds': 2.5, 'other': 0.5})
     used = sum(c for _, c in after.values()) - sum(c for _, c in before.values())
     assert sum(groups.values()) == pytest.approx(100.0 * used / 2.0)

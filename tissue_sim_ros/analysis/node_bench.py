@@ -7,7 +7,7 @@ time, and listens to the wrench. Afterwards the node's MCAP log gives the receip
 pose (its log time) and, for each wrench, its tick time (header stamp) and publish time (log
 time), all on the node's clock (the system clock: the node runs without sim time here).
 
-Figures:
+Figures (computed from the record by :mod:`~tissue_sim_ros.analysis.node_bench_figures`):
 
 - wrench rate: messages received here over the measured window / its length;
 - tick period: differences of the wrench stamps (the node's tick times): p50, and p99 and max of
@@ -39,65 +39,21 @@ how fast they were answered.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import tempfile
 import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from tissue_sim_ros.units import NS_PER_S
+from tissue_sim_ros.analysis.node_bench_figures import (Window, cpu_seconds, diagnostic_figures, engine_dt_s,
+                                                        kernel_share, latencies, log_timings, rate_and_periods, status_values,
+                                                        thread_cpu_seconds, thread_groups_pct)
 
 __all__ = ['run', 'measure']
 
 GOALS = {'rate_rel': 0.005, 'period_dev_p99_ms': 4.0, 'latency_p99_ms': 25.0}
-_NS_PER_MS = NS_PER_S // 1000
-_TRACE_TOPIC = '/tissue_sim/engine_trace'     # the node's ~/engine_trace (node name tissue_sim)
-
-
-def _cpu_seconds(pid: int) -> float | None:
-    try:
-        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
-    except OSError:
-        return None
-    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')  # utime + stime
-
-
-#: the node's threads by their OS names (os_thread_name); the main thread is the executor's
-THREAD_GROUPS = (('engine', 'ts-engine'), ('recording', 'mcap-writer'), ('dds', 'dds.'))
-
-
-def _thread_cpu_seconds(pid: int) -> dict[int, tuple[str, float]]:
-    """Each live thread of ``pid``: tid -> (OS name, user + system CPU seconds)."""
-    threads = {}
-    try:
-        tids = [int(t) for t in os.listdir(f'/proc/{pid}/task')]
-    except OSError:
-        return threads
-    for tid in tids:
-        try:
-            name = Path(f'/proc/{pid}/task/{tid}/comm').read_text().strip()
-            fields = Path(f'/proc/{pid}/task/{tid}/stat').read_text().rsplit(')', 1)[1].split()
-        except OSError:                   # the thread ended meanwhile
-            continue
-        threads[tid] = (name, (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK'))
-    return threads
-
-
-def thread_groups_pct(pid: int, before: dict, after: dict, seconds: float) -> dict[str, float]:
-    """CPU of each group of threads over a window, % of one core: 'engine', 'executor' (the
-    main thread), 'recording', 'dds' and 'other' (numba's, the predictions' intake...); a thread
-    started in the window counts from 0, one that ended in it is not seen."""
-    groups = {'engine': 0.0, 'executor': 0.0, 'recording': 0.0, 'dds': 0.0, 'other': 0.0}
-    for tid, (name, cpu) in after.items():
-        used = cpu - before.get(tid, (name, 0.0))[1]
-        group = 'executor' if tid == pid else next(
-            (group for group, prefix in THREAD_GROUPS if name.startswith(prefix)), 'other')
-        groups[group] += 100.0 * used / seconds
-    return groups
 
 
 def _node_params(log_dir: Path, publish_rate_hz: float, scene_file: str | None,
@@ -158,7 +114,7 @@ class _BenchClient:
         diagnostics came yet to tell."""
         if not self.diagnostics:
             return True
-        return _status_values(self.diagnostics[-1], 'predictions').get('workers_state') == 'starting'
+        return status_values(self.diagnostics[-1], 'predictions').get('workers_state') == 'starting'
 
     def await_next_diagnostics(self, timeout_s: float = 3.0) -> None:
         """Wait for one more diagnostics message (the counters at the end of the window)."""
@@ -173,177 +129,17 @@ class _BenchClient:
         self.node.destroy_node()
 
 
-@dataclass
-class _Window:
-    """The measured window: its ends on the system clock, the node's CPU seconds at each, the
-    stamps of the poses sent in it."""
-
-    wall0_ns: int
-    wall1_ns: int
-    cpu0: float | None
-    cpu1: float | None
-    sent: list[int] = field(default_factory=list)
-    thread_pct: dict = field(default_factory=dict)   # thread_groups_pct over the window
-
-    @property
-    def seconds(self) -> float:
-        return (self.wall1_ns - self.wall0_ns) / NS_PER_S
-
-    def cpu_pct(self) -> float | None:
-        if self.cpu0 is None or self.cpu1 is None:
-            return None
-        return 100.0 * (self.cpu1 - self.cpu0) / self.seconds
-
-
 def _drive_window(node, client: _BenchClient, message, times, positions, rate_hz: float,
-                  duration_s: float) -> _Window:
+                  duration_s: float) -> Window:
     """Stream the scripted poses (``message`` moved along them) for ``duration_s``, the node's
     CPU time read at both ends."""
     from tissue_sim_ros.ros.drive import publish_trajectory
-    threads0, cpu0, wall0_ns = _thread_cpu_seconds(node.pid), _cpu_seconds(node.pid), time.time_ns()
+    threads0, cpu0, wall0_ns = thread_cpu_seconds(node.pid), cpu_seconds(node.pid), time.time_ns()
     sent = publish_trajectory(client.pose_pub, message, times, positions, time.time_ns,
                               repeat_for_s=duration_s, cycle_s=times[-1] + 1.0 / rate_hz)
-    window = _Window(wall0_ns, time.time_ns(), cpu0, _cpu_seconds(node.pid), sent)
-    window.thread_pct = thread_groups_pct(node.pid, threads0, _thread_cpu_seconds(node.pid), window.seconds)
+    window = Window(wall0_ns, time.time_ns(), cpu0, cpu_seconds(node.pid), sent)
+    window.thread_pct = thread_groups_pct(node.pid, threads0, thread_cpu_seconds(node.pid), window.seconds)
     return window
-
-
-def _log_timings(path: Path) -> dict:
-    """From the node's log: each pose's receipt (log time) and stamp, each wrench's tick (stamp)
-    and publish time (log time), and from the engine's trace each advance (its state index, the
-    node-clock time it went to) and each tick's published state; ns on the node's clock."""
-    from tissue_sim_ros.io import mcap_log as ml
-    from tissue_sim_ros.ros import engine_trace
-    from tissue_sim_ros.ros.conversions import stamp_to_ns
-    columns = {name: [] for name in ('pose_receipt', 'pose_stamp', 'wrench_tick', 'wrench_publish',
-                                     'advance_index', 'advance_clock', 'trace_tick', 'trace_shown')}
-    for m in ml.read_log(path, topics=['/needle/pose', '/needle/wrench', _TRACE_TOPIC]):
-        if m.topic == '/needle/pose':
-            columns['pose_receipt'].append(m.log_time_ns)
-            columns['pose_stamp'].append(stamp_to_ns(m.message.header.stamp))
-        elif m.topic == '/needle/wrench':
-            columns['wrench_tick'].append(stamp_to_ns(m.message.header.stamp))
-            columns['wrench_publish'].append(m.log_time_ns)
-        else:
-            trace = engine_trace.decode(m.message.data)
-            columns['trace_tick'].append(trace.stamp_ns)
-            columns['trace_shown'].append(trace.published_index)
-            advances = trace.rows[:, 0] == engine_trace.ADVANCE
-            columns['advance_index'].extend(trace.rows[advances, 1].astype(np.int64).tolist())
-            columns['advance_clock'].extend(trace.clock_ns()[advances].tolist())
-    return {name: np.array(values, dtype=np.int64) for name, values in columns.items()}
-
-
-def _rate_and_periods(wrench_rx: np.ndarray, ticks: np.ndarray, window: _Window,
-                      publish_rate_hz: float) -> dict:
-    """Wrench rate at this receiver and tick period figures over the window."""
-    period_ms = 1e3 / publish_rate_hz
-    rx = wrench_rx[(wrench_rx[:, 0] >= window.wall0_ns) & (wrench_rx[:, 0] <= window.wall1_ns)]
-    if len(rx) < 2:
-        raise RuntimeError(f'{len(rx)} wrenches arrived in the {window.seconds:.1f} s window; '
-                           'expected a steady stream (is the node running?)')
-    rate = (len(rx) - 1) / ((rx[-1, 0] - rx[0, 0]) / NS_PER_S)
-    ticks_w = ticks[(ticks >= window.wall0_ns) & (ticks <= window.wall1_ns)]
-    periods = np.diff(ticks_w) / _NS_PER_MS
-    deviation = np.abs(periods - period_ms)
-    rx_periods = np.diff(rx[:, 0]) / _NS_PER_MS
-    return {
-        'wrench_rate_hz': rate,
-        'wrench_rate_error_pct': 100.0 * (rate - publish_rate_hz) / publish_rate_hz,
-        'tick_period_ms_p50': float(np.percentile(periods, 50)),
-        'tick_period_dev_ms_p99': float(np.percentile(deviation, 99)),
-        'tick_period_dev_ms_max': float(deviation.max()),
-        'receive_period_dev_ms_p99': float(np.percentile(np.abs(rx_periods - period_ms), 99)),
-    }
-
-
-def _first_ticks_with(log: dict, stamps: np.ndarray, dt_s: float) -> np.ndarray:
-    """For each pose stamp, the tick stamp of the first wrench computed with it (-1: none in the
-    log): the first advance that went to within ``dt_s`` of the stamp, then the first tick that
-    published that state or a later one (engine trace; both sequences taken as running maxima)."""
-    clocks = np.maximum.accumulate(log['advance_clock'])
-    shown = np.maximum.accumulate(log['trace_shown'])
-    advance = np.searchsorted(clocks, stamps - round(dt_s * NS_PER_S), side='left')
-    ticks = np.full(stamps.shape, -1, dtype=np.int64)
-    reached = advance < clocks.size
-    tick = np.searchsorted(shown, log['advance_index'][advance[reached]], side='left')
-    published = tick < shown.size
-    ticks[np.flatnonzero(reached)[published]] = log['trace_tick'][tick[published]]
-    return ticks
-
-
-def _latencies(log: dict, wrench_rx: np.ndarray, window: _Window, dt_s: float) -> dict:
-    """Pose receipt -> the publish of the first wrench computed with it (:func:`_first_ticks_with`,
-    ``dt_s`` the engine's step), and end to end: pose sent here -> that wrench received here
-    (matched by its tick stamp). Poses no published state reached are left out (counted)."""
-    in_window = (log['pose_receipt'] >= window.wall0_ns) & (log['pose_receipt'] <= window.wall1_ns)
-    receipts, stamps = log['pose_receipt'][in_window], log['pose_stamp'][in_window]
-    ticks = _first_ticks_with(log, stamps, dt_s)
-    publish_of = dict(zip(log['wrench_tick'].tolist(), log['wrench_publish'].tolist()))
-    received_of = dict(zip(wrench_rx[:, 1].tolist(), wrench_rx[:, 0].tolist()))
-    latency, e2e = [], []
-    for receipt, stamp, tick in zip(receipts.tolist(), stamps.tolist(), ticks.tolist()):
-        if tick in publish_of:
-            latency.append((publish_of[tick] - receipt) / _NS_PER_MS)
-        if tick in received_of:
-            e2e.append((received_of[tick] - stamp) / _NS_PER_MS)
-    if not latency:
-        raise RuntimeError(f'none of the {receipts.size} poses of the window reached a published wrench '
-                           '(no engine trace in the log?)')
-    latency, e2e = np.array(latency), np.array(e2e)
-    nan = float('nan')
-    return {
-        'poses_not_in_a_wrench': int(receipts.size - latency.size),
-        'latency_ms_p50': float(np.percentile(latency, 50)),
-        'latency_ms_p99': float(np.percentile(latency, 99)),
-        'latency_ms_max': float(latency.max()),
-        'end_to_end_ms_p50': float(np.percentile(e2e, 50)) if e2e.size else nan,
-        'end_to_end_ms_p99': float(np.percentile(e2e, 99)) if e2e.size else nan,
-    }
-
-
-def _status_values(message, name_part) -> dict:
-    for status in (message.status if message is not None else ()):
-        if name_part in status.name:
-            return {kv.key: kv.value for kv in status.values}
-    return {}
-
-
-def _engine_dt_s(diagnostics: list) -> float:
-    """The engine's time step [s] from the node's last diagnostics (0 when it did not say)."""
-    engine = _status_values(diagnostics[-1] if diagnostics else None, 'engine')
-    dt = float(engine.get('engine_dt_s', 'nan'))
-    return dt if dt > 0.0 else 0.0
-
-
-def _diagnostic_figures(diagnostics: list, window_start_ns: int | None = None) -> dict:
-    """Counters from the node's last diagnostics (engine and input status), and the engine's
-    kernel seconds over the window (from the last message before it starts: its cumulative
-    ``kernel_s_total``). -1 or NaN where the node did not report a figure."""
-    from tissue_sim_ros.ros.conversions import stamp_to_ns
-    last = diagnostics[-1] if diagnostics else None
-    engine, inputs = _status_values(last, 'engine'), _status_values(last, 'input')
-    predictions = _status_values(last, 'predictions')
-    before = [m for m in diagnostics if window_start_ns is not None
-              and stamp_to_ns(m.header.stamp) <= window_start_ns]
-    engine0 = _status_values(before[-1] if before else None, 'engine')
-    kernel = float(engine.get('kernel_s_total', 'nan')) - float(engine0.get('kernel_s_total', 'nan'))
-    return {
-        'missed_ticks': int(engine.get('missed_ticks', -1)),
-        'ticks': int(engine.get('ticks', -1)),
-        'budget_use': float(engine.get('budget_use', 'nan')),
-        'lag_s': float(engine.get('lag_s', 'nan')),
-        'dropped_time_s': float(engine.get('dropped_time_s', 'nan')),
-        'ladder_level': int(engine.get('ladder_level', -1)),
-        'ladder_changes': int(engine.get('ladder_changes', -1)),
-        'engine_threads': int(engine.get('engine_threads', -1)),
-        'kernel_share_of_engine': float(engine.get('kernel_share_of_engine', 'nan')),
-        'kernel_s_in_window': kernel,
-        'node_latency_ms_p99_own': float(inputs.get('latency_ms_p99', 'nan')),
-        'prediction_real_time_factor': float(predictions.get('real_time_factor_median', 'nan')),
-        'prediction_workers': int(predictions.get('workers', -1)),
-        'prediction_workers_state': predictions.get('workers_state', ''),
-    }
 
 
 def _new_log(log_dir: Path, earlier: set) -> Path:
@@ -415,7 +211,7 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
     run = _run_node(log_dir, _node_params(log_dir, publish_rate_hz, scene_file, threads, executor) + list(params),
                     domain_id, start, times, positions, rate_hz, duration_s, load, predictions, prediction_s)
     path = _new_log(log_dir, earlier_logs)
-    log, window = _log_timings(path), run['window']
+    log, window = log_timings(path), run['window']
     result = {
         'scene': scene_file or 'default (config/liver_sample.yaml)',
         'engine_threads_asked': threads if threads is not None else 'default',
@@ -431,28 +227,19 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
         'startup_s': run['startup_s'],
         'prediction_warm_up_s': run['warm_up_s'],
         'node_exit_code': run['exit_code'],
-        **_rate_and_periods(run['wrench_rx'], log['wrench_tick'], window, publish_rate_hz),
-        **_latencies(log, run['wrench_rx'], window, _engine_dt_s(run['diagnostics'])),
+        **rate_and_periods(run['wrench_rx'], log['wrench_tick'], window, publish_rate_hz),
+        **latencies(log, run['wrench_rx'], window, engine_dt_s(run['diagnostics'])),
         'node_cpu_pct_of_one_core': window.cpu_pct(),
         'thread_cpu_pct': window.thread_pct,
-        **_diagnostic_figures(run['diagnostics'], window.wall0_ns),
+        **diagnostic_figures(run['diagnostics'], window.wall0_ns),
         'mcap': str(path),
         **run['predictions'],
     }
-    result['kernel_share_of_node_cpu'] = _kernel_share(result, window)
+    result['kernel_share_of_node_cpu'] = kernel_share(result, window)
     if own_dir:
         shutil.rmtree(log_dir, ignore_errors=True)
         result['mcap'] = '(deleted)'
     return result
-
-
-def _kernel_share(r: dict, window: _Window) -> float:
-    """The force kernel's CPU over the node's: the engine thread's CPU seconds in the kernel
-    over the window, times the engine's threads (each busy in the kernel's parallel loops: an
-    estimate above one thread), over the node process's CPU seconds."""
-    if window.cpu0 is None or window.cpu1 is None or window.cpu1 <= window.cpu0:
-        return float('nan')
-    return r['kernel_s_in_window'] * max(r['engine_threads'], 1) / (window.cpu1 - window.cpu0)
 
 
 def report(r: dict) -> str:
