@@ -324,37 +324,3 @@ def test_qos_to_dict_from_rclpy_profile():
     assert d['durability'] == 'transient_local' and d['reliability'] == 'reliable'
     assert d['history'] == 'keep_last' and d['depth'] == 1
     assert d['deadline_ns'] == 2_000_000_005
-
-
-def test_marker_bytes_decode_to_the_marker_message_at_each_stamp_and_state():
-    """SurfaceMarkerBytes writes corners and stamp into bytes serialized once: decoded, they are
-    the message surface_marker_msg builds object by object (serialized and decoded the same way:
-    CDR padding bytes are unspecified, so the comparison is of messages)."""
-    from tissue_sim_ros.engine.mesh_generators import box_mesh
-    rng = np.random.default_rng(5)
-    mesh = box_mesh((0.02, 0.03, 0.01), (4, 5, 3))
-    triangles = mesh.surface_triangles()
-    marker = cv.SurfaceMarkerBytes(triangles, mesh.n_nodes, 'world', 40, serialize_message)
-    for stamp in (0, 1_700_000_000_123_456_789, 42):
-        positions = mesh.rest_positions + 1e-3 * rng.normal(size=mesh.rest_positions.shape)
-        got = deserialize_message(bytes(marker.serialized(positions, stamp)), Marker)
-        want = deserialize_message(serialize_message(cv.surface_marker_msg(
-            positions, triangles, 'world', stamp, max_triangles=40)), Marker)
-        assert got == want and len(got.points) == 3 * len(triangles[::cv.decimation_stride(len(triangles), 40)])
-    with pytest.raises(ValueError, match='not finite'):
-        marker.serialized(np.full_like(mesh.rest_positions, np.nan), 0)
-
-
-def test_cloud_buffer_gives_the_cloud_message_in_place_and_refuses_what_is_not_finite():
-    rng = np.random.default_rng(6)
-    buffer = cv.PointCloudBuffer(50, 'world')
-    for stamp in (7, 1_700_000_000_000_000_001):
-        positions, displacement = rng.normal(size=(50, 3)), 1e-3 * rng.normal(size=(50, 3))
-        got = deserialize_message(serialize_message(buffer.message(positions, displacement, stamp)), PointCloud2)
-        want = deserialize_message(serialize_message(cv.point_cloud_msg(positions, displacement, 'world', stamp)),
-                                   PointCloud2)
-        assert got == want
-    assert buffer.message(positions, displacement, 0) is buffer.msg    # the same message, reused
-    displacement[17, 1] = 1e39                                         # inf in float32
-    with pytest.raises(ValueError, match='rows \\[17\\]'):
-        buffer.message(positions, displacement, 0)

@@ -251,6 +251,7 @@ def _write_mcap(path: Path, run: NodeRun, result: ReplayResult, scene) -> None:
 
     from tissue_sim_ros.io.mcap_writer import McapRecorder
     from tissue_sim_ros.ros import conversions as cv
+    from tissue_sim_ros.ros.message_bytes import CloudBytes, WrenchBytes
     from tissue_sim_ros.ros.topics import DIAGNOSTICS_QOS, NODES_QOS, WRENCH_QOS
     p = run.parameters
     frame_id = p.get('frame_id') or scene.mesh_frame_id
@@ -262,16 +263,16 @@ def _write_mcap(path: Path, run: NodeRun, result: ReplayResult, scene) -> None:
         rec.add_topic(topics['wrench'], _WRENCH, cv.qos_to_dict(WRENCH_QOS))
         rec.add_topic(topics['nodes'], 'sensor_msgs/msg/PointCloud2', cv.qos_to_dict(NODES_QOS))
         rec.add_topic(topics['diagnostics'], 'diagnostic_msgs/msg/DiagnosticArray', cv.qos_to_dict(DIAGNOSTICS_QOS))
-        cloud = cv.PointCloudBuffer(len(scene.rest_positions), frame_id)
+        cloud = CloudBytes(len(scene.rest_positions), frame_id, serialize_message)
+        wrench = WrenchBytes(wrench_frame_id, serialize_message)
         last_diag = None
         for k, stamp in enumerate(result.stamps_ns):
             stamp = int(stamp)
-            rec.write(topics['wrench'], serialize_message(cv.wrench_msg(
-                result.wrench[k, :3], result.wrench[k, 3:], wrench_frame_id, stamp)), stamp)
+            rec.write(topics['wrench'], wrench.serialized(result.wrench[k, :3], result.wrench[k, 3:], stamp), stamp)
             if k in result.clouds:
                 displacement = result.clouds[k]
-                rec.write(topics['nodes'], serialize_message(cloud.message(
-                    scene.rest_positions + displacement, displacement, stamp)), stamp)
+                rec.write(topics['nodes'], cloud.serialized(scene.rest_positions + displacement, displacement, stamp),
+                          stamp)
             if last_diag is None or stamp - last_diag >= NS_PER_S:
                 last_diag = stamp
                 difference = float(np.abs(result.wrench[k] - result.recorded[k]).max())

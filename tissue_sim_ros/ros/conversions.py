@@ -19,7 +19,6 @@ nanoseconds, or anything with ``to_msg()`` (``rclpy.time.Time``).
 from __future__ import annotations
 
 import array
-import struct
 import sys
 from collections.abc import Iterable, Mapping, Sequence
 
@@ -35,8 +34,6 @@ from visualization_msgs.msg import Marker
 __all__ = [
     'DIAGNOSTIC_LEVELS',
     'POINT_CLOUD_FIELDS',
-    'PointCloudBuffer',
-    'SurfaceMarkerBytes',
     'decimation_stride',
     'diagnostic_array_msg',
     'header',
@@ -270,43 +267,6 @@ def point_cloud_msg(positions, displacement, frame_id: str, stamp) -> PointCloud
     return msg
 
 
-class PointCloudBuffer:
-    """The node's cloud message, built in place every tick: one PointCloud2 whose data buffer
-    (24 bytes a vertex) is written through a float32 view, so a tick allocates no cloud. The
-    message is valid until the next :meth:`message` call (publish or serialize it before)."""
-
-    def __init__(self, n_points: int, frame_id: str):
-        self._data = array.array('B', bytes(24 * int(n_points)))
-        self._view = np.frombuffer(self._data, dtype=np.float32).reshape(int(n_points), 6)
-        self.msg = PointCloud2(header=header(frame_id, 0))
-        self.msg.height, self.msg.width = 1, int(n_points)
-        self.msg.fields = _point_fields()
-        self.msg.is_bigendian = sys.byteorder == 'big'
-        self.msg.point_step, self.msg.row_step = 24, 24 * int(n_points)
-        self.msg.is_dense = True
-        if _FAST_CLOUD_DATA:
-            self.msg._data = self._data
-        else:
-            self.msg.data = self._data
-
-    def message(self, positions, displacement, stamp) -> PointCloud2:
-        """The cloud of ``positions`` and ``displacement`` ((n, 3) float64, rounded to float32),
-        stamped; refuses values that are not finite in float32 like :func:`point_cloud_msg`."""
-        view = self._view
-        with np.errstate(over='ignore', invalid='ignore'):
-            for j in range(3):
-                view[:, j] = positions[:, j]
-                view[:, 3 + j] = displacement[:, j]
-            total = float(np.sum(view, dtype=np.float64))
-        if not np.isfinite(total):               # which rows: the full check names them
-            point_cloud_msg(positions, displacement, self.msg.header.frame_id, stamp)
-            raise ValueError('positions, displacement: not finite in float32')   # (sum overflow)
-        self.msg.header.stamp = _as_stamp(stamp)
-        if not _FAST_CLOUD_DATA:
-            self.msg.data = self._data
-        return self.msg
-
-
 def point_cloud_arrays(msg) -> tuple[np.ndarray, np.ndarray]:
     """(positions (n, 3), displacement (n, 3)) float64 from a PointCloud2 with x..uz fields.
 
@@ -412,40 +372,6 @@ def surface_marker_msg(
     msg.color = ColorRGBA(r=r, g=g, b=b, a=a)
     msg.points = _point_list(corners)
     return msg
-
-
-class SurfaceMarkerBytes:
-    """The surface marker as CDR bytes, built without a Python object per point: the marker of
-    :func:`surface_marker_msg` is serialized once per topology with sentinel corners, and each
-    :meth:`serialized` call writes the corners (float64, the TRIANGLE_LIST order) and the stamp
-    into those bytes. 5.7 ms per marker of 3366 points (build 1.8, serialize 3.9) becomes a
-    numpy gather. ``serialize``: rclpy's serialize_message (passed in)."""
-
-    _SENTINEL = 1.2345678901234567e-301
-
-    def __init__(self, triangles, n_vertices: int, frame_id: str, max_triangles: int, serialize):
-        tri = _triangles('triangles', triangles, n_vertices)
-        self.corners = np.ascontiguousarray(tri[::decimation_stride(tri.shape[0], int(max_triangles))]
-                                            .reshape(-1), dtype=np.int64)
-        sentinel = np.full((max(n_vertices, 1), 3), self._SENTINEL)
-        data = bytearray(serialize(surface_marker_msg(sentinel, triangles, frame_id, 0, max_triangles)))
-        start = data.find(np.float64(self._SENTINEL).tobytes())
-        count = len(self.corners)
-        if data[:2] != b'\x00\x01' or start < 4 or \
-                int.from_bytes(data[start - 4:start], 'little') != count:
-            raise ValueError('unexpected Marker serialization (not little-endian CDR)')
-        self._data = data
-        self._points = np.frombuffer(data, dtype=np.float64, count=3 * count, offset=start).reshape(count, 3)
-
-    def serialized(self, positions, stamp) -> bytearray:
-        """The marker's bytes with ``positions`` (n, 3) and ``stamp`` (valid until the next call)."""
-        corners = np.take(positions, self.corners, axis=0)
-        if not np.isfinite(corners).all():
-            raise ValueError('positions: surface vertices are not finite; refusing to publish')
-        self._points[:] = corners
-        t = _as_stamp(stamp)
-        self._data[4:12] = struct.pack('<iI', t.sec, t.nanosec)
-        return self._data
 
 
 # --------------------------------------------------------------------------------------------

@@ -5,20 +5,20 @@ published and recorded) goes to one MCAP file per run, named by the start time
 (:class:`tissue_sim_ros.io.mcap_log.McapRecorder`, which writes on its own thread: a write here
 is a queue append, never a wait on the disk). The metadata record holds the scene, the
 parameters and where they came from. The engine's trace (:mod:`~tissue_sim_ros.ros.engine_trace`,
-``~/engine_trace``, recorded only, not published) makes the run replayable. ``tissue/nodes``, most of a log's bytes, is recorded at
+``~/engine_trace``, recorded only, not published; its bytes are written by
+:class:`~tissue_sim_ros.ros.message_bytes.TraceBytes`) makes the run replayable. ``tissue/nodes``, most of a log's bytes, is recorded at
 ``recording.nodes_rate_hz`` (every k-th tick) while it is still published every tick.
 """
 from __future__ import annotations
 
 import datetime as _dt
 
-from tissue_sim_ros.ros.engine_trace import COLUMNS, HEADER_SIZE, TRACE_TYPE, encode
+from tissue_sim_ros.ros.engine_trace import TRACE_TYPE
 from tissue_sim_ros.ros.parameters import parameters_yaml
 from tissue_sim_ros.ros.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODE_TOPIC_TYPES, NODES_QOS, PLAN_QOS,
                                       SERVICE_EVENT_QOS, SURFACE_QOS, WRENCH_QOS)
 
-__all__ = ['node_log_topics', 'open_node_log', 'every_kth_tick', 'record_service_call',
-           'record_trace']
+__all__ = ['node_log_topics', 'open_node_log', 'every_kth_tick', 'record_service_call']
 
 def every_kth_tick(publish_rate_hz: float, rate_hz: float) -> int:
     """k such that every k-th tick gives ``rate_hz`` (0: never, for a rate of 0)."""
@@ -94,15 +94,3 @@ def record_service_call(recorder, topic, srv_type, request, response, now_ns, se
         event.info.sequence_number = sequence
         event.request, event.response = requests, responses
         recorder.write(topic, serialize(event), now_ns)
-
-
-def record_trace(recorder, topic, stamp_ns, published_index, rows, serialize) -> None:
-    """Record one tick's engine trace (:mod:`~tissue_sim_ros.ros.engine_trace`) as a
-    std_msgs/Float64MultiArray whose layout names the columns."""
-    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
-    msg = Float64MultiArray()
-    msg.layout.data_offset = HEADER_SIZE
-    msg.layout.dim = [MultiArrayDimension(label='rows', size=len(rows), stride=len(rows) * len(COLUMNS)),
-                      MultiArrayDimension(label=','.join(COLUMNS), size=len(COLUMNS), stride=len(COLUMNS))]
-    msg.data = encode(stamp_ns, published_index, rows)
-    recorder.write(topic, serialize(msg), stamp_ns)
