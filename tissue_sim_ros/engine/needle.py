@@ -354,6 +354,7 @@ class NeedleTissue(MembraneContact):
         """after_step inside the tissue, not touching a membrane: the same kernels in the same
         order as the general path, in one compiled call (engine.needle_step)."""
         sim, geometry, faces = self.simulation, self.geometry, self._faces
+        sparse = sim.integrator == 'explicit'
         (self.friction_force, self.cutting_force, self.n_tip, self.n_applied, work, apex, travel_along, deepest,
          speed_along) = inserted_step(
             self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.tetrahedra,
@@ -367,8 +368,10 @@ class NeedleTissue(MembraneContact):
             self.sharp and self.tip_contact.cutting, faces.engaged, faces.new, faces.nodes, faces.weights,
             faces.params, faces.forces, faces.points, faces.total, self.applied_forces, self._applied_points,
             self._applied_point_forces, self.wrench_force, self.wrench_torque, self.apex_element,
-            self._apex_weights, self._apex_rest)
-        self._forces_applied = self.n_applied > 0
+            self._apex_weights, self._apex_rest, self._forces_applied, sparse)
+        # with ``sparse`` the call zeroed what it applied (the implicit integrators' after_step
+        # needs the forces after it: the work over the needle's own moves)
+        self._forces_applied = self.n_applied > 0 and not sparse
         sim.input_work += work
         if travel_along < 0.0 and deepest > self._release_beyond:
             self._release_passed_points()
