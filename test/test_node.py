@@ -743,6 +743,41 @@ def test_the_cloud_is_recorded_at_its_own_rate(harness, tmp_path):
     assert recorded == -(-ticks // 5)  # ticks 0, 5, 10, ...
 
 
+def test_the_cloud_is_built_only_for_a_subscriber_or_the_log(harness, tmp_path):
+    """Without a subscriber to tissue/nodes the node builds the cloud only on the ticks its log
+    records it (every 5th here); a subscriber that comes back gets it every tick again."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+    h = harness(**{'recording.directory': str(tmp_path), 'recording.nodes_rate_hz': 10.0})
+    built, cloud = [], h.node._cloud
+    serialized = cloud.serialized
+    cloud.serialized = lambda *a: built.append(h.node.ticks) or serialized(*a)
+    h.wait_for('nodes', 10)
+
+    def subscribers_become(n):
+        deadline = time.monotonic() + 10
+        while h.node._nodes_subscribers != n:
+            assert time.monotonic() < deadline, f'tissue/nodes: {h.node._nodes_subscribers} subscribers'
+            time.sleep(0.01)
+    h.client.destroy_subscription(next(s for s in h.client.subscriptions if s.topic_name == '/tissue/nodes'))
+    subscribers_become(0)
+    time.sleep(0.1)
+    built.clear()
+    first = h.node.ticks
+    time.sleep(1.0)
+    ticks = range(first + 1, h.node.ticks - 1)       # whole ticks inside the window
+    assert len(ticks) >= 40
+    assert all(t % 5 == 0 for t in built)
+    assert set(built) >= {t for t in ticks if t % 5 == 0}
+    h.client.create_subscription(PointCloud2, 'tissue/nodes', h._keeper('nodes'),
+                                 QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    subscribers_become(1)
+    time.sleep(0.1)
+    before, first = len(h.get('nodes')), h.node.ticks
+    time.sleep(1.0)
+    assert len(h.get('nodes')) - before >= h.node.ticks - first - 2
+
+
 def test_tissue_sim_replay_reproduces_a_node_log_and_drives_another_model(harness, tmp_path):
     """`tissue-sim replay LOG`: with the log's own scene (from its metadata: the scene given to
     the node in code here, not a file) every recorded wrench again, same stamps, to 1e-9 N; the

@@ -199,6 +199,32 @@ def test_background_load_spins_listens_and_stops_whatever_happens():
     assert '2 busy processes + 1 listening client' in load.describe()
 
 
+def test_listen_alone_starts_the_listener_without_busy_processes():
+    """--listen: the listening client hears the stand-in's wrench and cloud; no spinner runs."""
+    rclpy = pytest.importorskip('rclpy')
+    from geometry_msgs.msg import WrenchStamped
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+    from tissue_sim_ros.ros.node_process import client_context, private_domain_id, private_ros_env
+    domain = private_domain_id()
+    reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+    with client_context(domain) as context:
+        stand_in = rclpy.create_node('tissue_sim', context=context)
+        wrench = stand_in.create_publisher(WrenchStamped, 'needle/wrench', reliable)
+        cloud = stand_in.create_publisher(PointCloud2, 'tissue/nodes', reliable)
+        assert BackgroundLoad(0, {}).describe().startswith('none')
+        with BackgroundLoad(0, private_ros_env(domain), listen=True) as load:
+            assert load.spinners == [] and load.listener_process is not None and _my_spinners() == []
+            for _ in range(5):
+                wrench.publish(WrenchStamped())
+                cloud.publish(PointCloud2())
+                time.sleep(0.02)
+            time.sleep(0.5)
+        stand_in.destroy_node()
+    assert load.listener['wrench']['count'] == 5 and load.listener['cloud']['count'] == 5
+    assert load.describe() == 'no busy process + 1 listening client (needle/wrench, tissue/nodes)'
+
+
 def _my_spinners():
     """Pids of running spinner processes this test process started."""
     found = []

@@ -23,7 +23,8 @@ def _node_bench(args):
     from tissue_sim_ros.analysis import node_bench
     node_bench.run(duration_s=args.duration_s, rate_hz=args.rate_hz, scene_file=args.scene_file,
                    out=args.out, threads=args.threads, executor=args.executor, load=args.load,
-                   predictions=args.predictions, prediction_s=args.prediction_s, params=args.param)
+                   predictions=args.predictions, prediction_s=args.prediction_s, params=args.param,
+                   listen=args.listen)
 
 
 def _node_bench_paired(args):
@@ -32,7 +33,8 @@ def _node_bench_paired(args):
     if args.out is None:
         raise CommandError('--against needs --out DIR (the runs, the revision and the figures go there)')
     fixed = [name for name, value in (('--threads', args.threads), ('--executor', args.executor),
-                                      ('--predictions', args.predictions or None), ('--param', args.param or None))
+                                      ('--predictions', args.predictions or None), ('--param', args.param or None),
+                                      ('--listen', args.listen or None))
              if value is not None]
     if fixed:
         raise CommandError(f'{" ".join(fixed)}: not with --against (both versions run on the same '
@@ -80,6 +82,9 @@ def add_node_commands(commands):
     node_bench.add_argument('--load', type=_number(0, inclusive=True, whole=True), default=0, metavar='N',
                             help='run N busy processes and one listening ROS client (wrench, cloud) '
                                  'beside the node (default 0: none)')
+    node_bench.add_argument('--listen', action='store_true',
+                            help='run the listening ROS client (wrench, cloud) beside the node without busy '
+                                 'processes: the node builds its cloud only for a subscriber')
     node_bench.add_argument('--predictions', type=_number(0, inclusive=True, whole=True), default=0, metavar='N',
                             help='send N candidate paths on plan/candidate at once, 1 s into the window, '
                                  'and report how fast they are answered (default 0: none)')

@@ -3,8 +3,10 @@
 A node's rate on a quiet machine says little about a lab PC that also runs a controller, RViz and
 a logger. ``BackgroundLoad(n, env)`` starts ``n`` processes that only spin the CPU and one ROS
 client (:mod:`tissue_sim_ros.ros.listener`) subscribed to the wrench and the point cloud, so the
-rate under load is a figure anyone can reproduce. Leaving the block stops them all, whatever
-happened; a spinner also ends by itself when its parent is gone (checked every few ms).
+rate under load is a figure anyone can reproduce. ``listen`` runs the client without busy
+processes too (``node-bench --listen``: the node's cost with a subscriber to its cloud, which it
+builds only then). Leaving the block stops them all, whatever happened; a spinner also ends by
+itself when its parent is gone (checked every few ms).
 """
 from __future__ import annotations
 
@@ -26,13 +28,15 @@ SPIN = ('import os, sys\n'
 
 
 class BackgroundLoad:
-    """``n_busy`` CPU spinners plus, when ``n_busy`` > 0, one listener on the node's graph
-    (``env`` holds its ROS domain). ``listener`` afterwards: what it received per topic."""
+    """``n_busy`` CPU spinners plus, when ``n_busy`` > 0 or ``listen``, one listener on the
+    node's graph (``env`` holds its ROS domain). ``listener`` afterwards: what it received per
+    topic."""
 
-    def __init__(self, n_busy: int, env: dict, ready_timeout_s: float = 60.0):
+    def __init__(self, n_busy: int, env: dict, ready_timeout_s: float = 60.0, listen: bool = False):
         if int(n_busy) != n_busy or n_busy < 0:
             raise ValueError(f'load: {n_busy!r}; expected a whole number of busy processes >= 0')
         self.n_busy = int(n_busy)
+        self.listen = bool(listen) or self.n_busy > 0
         self.env = env
         self.ready_timeout_s = ready_timeout_s
         self.spinners: list[subprocess.Popen] = []
@@ -40,15 +44,15 @@ class BackgroundLoad:
         self.listener: dict = {}
 
     def describe(self) -> str:
-        if not self.n_busy:
+        if not self.listen:
             return 'none (no busy process, no extra listener)'
-        return (f'{self.n_busy} busy process{"es" if self.n_busy > 1 else ""} + 1 listening client '
-                '(needle/wrench, tissue/nodes)')
+        busy = f'{self.n_busy} busy process{"es" if self.n_busy > 1 else ""}' if self.n_busy else 'no busy process'
+        return f'{busy} + 1 listening client (needle/wrench, tissue/nodes)'
 
     def start(self) -> BackgroundLoad:
         """Start the listener, wait until it hears both topics, then the spinners; on any
         failure, stop what was started."""
-        if not self.n_busy:
+        if not self.listen:
             return self
         try:
             self.listener_process = subprocess.Popen(

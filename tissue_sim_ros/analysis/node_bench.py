@@ -31,7 +31,8 @@ The numbers are figures of this machine at the time of the run (other load shows
 report gives the load average before the run); the issue's goals are printed beside them, not
 enforced. ``load`` > 0 runs that many busy processes and one listening ROS client (wrench and
 point cloud) beside the node during the window (:mod:`tissue_sim_ros.analysis.background_load`),
-so that a figure under load can be reproduced. ``predictions`` > 0 sends that many candidate paths
+so that a figure under load can be reproduced; ``listen`` runs that client alone (the node builds
+and sends its cloud only for a subscriber, so without one its CPU is the wrench-only case). ``predictions`` > 0 sends that many candidate paths
 on ``plan/candidate`` at once, 1 s into the window (:mod:`tissue_sim_ros.analysis.prediction_burst`):
 the live figures then show what a burst of planner requests costs the loop, and the report adds
 how fast they were answered.
@@ -151,7 +152,7 @@ def _new_log(log_dir: Path, earlier: set) -> Path:
 
 def _run_node(log_dir: Path, params: list[str], domain_id: int | None, start, times, positions,
               rate_hz: float, duration_s: float, load: int, predictions: int = 0,
-              prediction_s: float = 10.0) -> dict:
+              prediction_s: float = 10.0, listen: bool = False) -> dict:
     """Start the node (and the load), wait until it is up, stream poses for the window (a burst
     of ``predictions`` 1 s into it), stop it; what was seen here, as a dict."""
     from tissue_sim_ros.analysis.background_load import BackgroundLoad, machine_load
@@ -172,7 +173,7 @@ def _run_node(log_dir: Path, params: list[str], domain_id: int | None, start, ti
             # several seconds): the window starts after, so the node is measured, not its start
             warm_up_s = node.wait_until(lambda: not client.predictions_starting(), 300.0,
                                         'start its prediction workers') - startup_s
-            with BackgroundLoad(load, node.env) as background:
+            with BackgroundLoad(load, node.env, listen=listen) as background:
                 time.sleep(1.0)  # let the first ticks (caches, page faults) pass
                 if burst is not None:
                     p = message.pose.position
@@ -195,11 +196,11 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
             log_dir: str | Path | None = None, speed_mm_s: float = 5.0, depth_mm: float = 15.0,
             domain_id: int | None = None, publish_rate_hz: float = 50.0,
             threads: int | None = None, executor: str | None = None, load: int = 0,
-            predictions: int = 0, prediction_s: float = 10.0, params=()) -> dict:
+            predictions: int = 0, prediction_s: float = 10.0, params=(), listen: bool = False) -> dict:
     """Run the node and the scripted driver for ``duration_s`` (with ``load`` busy processes and
-    a listening client beside them when ``load`` > 0, a burst of ``predictions`` candidate paths
-    of ``prediction_s`` seconds; ``params``: more node parameters, ``name:=value``); the figures
-    as a dict."""
+    a listening client beside them when ``load`` > 0, the client alone with ``listen``, a burst of
+    ``predictions`` candidate paths of ``prediction_s`` seconds; ``params``: more node parameters,
+    ``name:=value``); the figures as a dict."""
     from tissue_sim_ros.ros.drive import insertion_trajectory, scene_start
     start = scene_start(scene_file)
     times, positions = insertion_trajectory(start, speed_mm_s * 1e-3, depth_mm * 1e-3, 0.5,
@@ -209,7 +210,8 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
     log_dir.mkdir(parents=True, exist_ok=True)
     earlier_logs = set(log_dir.glob('*.mcap'))
     run = _run_node(log_dir, _node_params(log_dir, publish_rate_hz, scene_file, threads, executor) + list(params),
-                    domain_id, start, times, positions, rate_hz, duration_s, load, predictions, prediction_s)
+                    domain_id, start, times, positions, rate_hz, duration_s, load, predictions, prediction_s,
+                    listen)
     path = _new_log(log_dir, earlier_logs)
     log, window = log_timings(path), run['window']
     result = {
@@ -288,11 +290,12 @@ def report(r: dict) -> str:
 
 def run(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | None = None,
         out: str | None = None, threads: int | None = None, executor: str | None = None,
-        load: int = 0, predictions: int = 0, prediction_s: float = 10.0, params=()) -> dict:
+        load: int = 0, predictions: int = 0, prediction_s: float = 10.0, params=(),
+        listen: bool = False) -> dict:
     """Measure and print; with ``out``, keep the MCAP log there and write node_bench.json."""
     result = measure(duration_s=duration_s, rate_hz=rate_hz, scene_file=scene_file, log_dir=out,
                      threads=threads, executor=executor, load=load, predictions=predictions,
-                     prediction_s=prediction_s, params=params)
+                     prediction_s=prediction_s, params=params, listen=listen)
     print(report(result))
     if out:
         (Path(out) / 'node_bench.json').write_text(json.dumps(result, indent=2))

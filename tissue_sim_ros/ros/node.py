@@ -31,6 +31,10 @@ PoseStamped); each kind logged once and counted in diagnostics. Input work is bo
 poses are queued as bytes and the engine decodes at most ``MAX_POSES_PER_CYCLE`` of the newest
 per cycle (the rest counted as backlog), so no rate of input can hold up a tick.
 
+The mesh state (``tissue/nodes``, 70 kB a tick on the default scene) is built and published
+only while the topic has a subscriber (counted by the publisher's matched events) and, at its
+own rate, for the log.
+
 Recording: see :mod:`~tissue_sim_ros.ros.node_recording`. The file is closed with its summary on a
 normal exit, SIGINT and SIGTERM; after SIGKILL only the last chunk is lost.
 """
@@ -45,6 +49,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, PoseStamped, WrenchStamped
 from nav_msgs.msg import Path
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.parameter import Parameter
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message, serialize_message
@@ -140,7 +145,10 @@ class TissueSimNode(Node):
         self.wrench_pub = self.wrench_pubs[0]
         self._wrench_frames = [cfg.wrench_frame_id if len(self.wrench_pubs) == 1 or cfg.wrench_frame == 'world'
                                else f'{cfg.wrench_frame_id}_{name}' for name in self.scene.needle_names]
-        self.nodes_pub = self.create_publisher(PointCloud2, 'tissue/nodes', NODES_QOS)
+        self._nodes_subscribers = 0        # kept by the publisher's matched events
+        self.nodes_pub = self.create_publisher(
+            PointCloud2, 'tissue/nodes', NODES_QOS,
+            event_callbacks=PublisherEventCallbacks(matched=self._on_nodes_matched))
         self.surface_pub = self.create_publisher(Mesh, 'tissue/surface', SURFACE_QOS)
         self.marker_pub = (self.create_publisher(Marker, 'tissue/marker', MARKER_QOS)
                            if cfg.marker_rate_hz > 0 else None)
@@ -261,6 +269,9 @@ class TissueSimNode(Node):
             record_service_call(self._recorder, self._event_topic(service), srv_type, request,
                                 response, self._now_ns(), self._service_calls, serialize_message)
 
+    def _on_nodes_matched(self, info) -> None:
+        self._nodes_subscribers = info.current_count
+
     def _ros_now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
 
@@ -310,13 +321,22 @@ class TissueSimNode(Node):
             self._publish(publisher, self._wrench_bytes[k].serialized(snap.forces[k], snap.torques[k], now_ns))
         publish_ns = self._now_ns()
         if not snap.held:
-            np.add(self.scene.rest_positions, snap.displacement, out=self._positions)
-            record = bool(self._record_nodes_every) and self.ticks % self._record_nodes_every == 0
-            self._publish(self.nodes_pub, self._cloud.serialized(self._positions, snap.displacement, now_ns),
-                          publish_ns, record=record)
+            # the cloud is built only for a subscriber or the log: unsubscribed, it was a third
+            # of the tick's work (the publish alone about 100 us of thread time, 70 kB a tick)
+            record = self._recorder is not None and bool(self._record_nodes_every) and \
+                self.ticks % self._record_nodes_every == 0
+            marker = bool(self._marker_every) and self.ticks % self._marker_every == 0
+            if record or marker or self._nodes_subscribers:
+                np.add(self.scene.rest_positions, snap.displacement, out=self._positions)
+            if record or self._nodes_subscribers:
+                data = self._cloud.serialized(self._positions, snap.displacement, now_ns)
+                if self._nodes_subscribers:
+                    self.nodes_pub.publish(data)
+                if record:
+                    self._recorder.write(self.nodes_pub.topic_name, data, publish_ns)
             if snap.topology_version != self._topology_version:
                 self._publish_surface(publish_ns)
-            if self._marker_every and self.ticks % self._marker_every == 0:
+            if marker:
                 self._publish_marker(now_ns)
             if len(self._target_positions):
                 targets = self.scene.targets

@@ -7,7 +7,8 @@ is a queue append, never a wait on the disk). The metadata record holds the scen
 parameters and where they came from. The engine's trace (:mod:`~tissue_sim_ros.ros.engine_trace`,
 ``~/engine_trace``, recorded only, not published; its bytes are written by
 :class:`~tissue_sim_ros.ros.message_bytes.TraceBytes`) makes the run replayable. ``tissue/nodes``, most of a log's bytes, is recorded at
-``recording.nodes_rate_hz`` (every k-th tick) while it is still published every tick.
+``recording.nodes_rate_hz`` (every k-th tick) while it is still published every tick (to its
+subscribers: with none, only the recorded ticks build it).
 """
 from __future__ import annotations
 
