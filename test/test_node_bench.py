@@ -1,10 +1,12 @@
 """node-bench's parts: the figures from timings whose answers are known by construction, the node
 launched as a process (a refusal reaches the user with the node's reason), and the background load
 (busy processes and a listening client that hears every message, all stopped whatever happens)."""
+import contextlib
 import os
 import subprocess
 import sys
 import time
+import types
 from pathlib import Path
 
 import numpy as np
@@ -153,19 +155,9 @@ def _cpu_seconds(pid):
 def test_background_load_spins_listens_and_stops_whatever_happens():
     """A stand-in node publishes 25 wrenches and 10 clouds at up to 50 Hz: the listener hears
     every one, at the rate they were sent; the two spinners use CPU; an error inside the block still stops them all."""
-    rclpy = pytest.importorskip('rclpy')
-    from geometry_msgs.msg import WrenchStamped
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import PointCloud2
-    from tissue_sim_ros.ros.node_process import client_context, private_domain_id, private_ros_env
-    domain = private_domain_id()
-    # the stand-in keeps all it sends (a starved listener acknowledges late)
-    reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-    with client_context(domain) as context:
-        stand_in = rclpy.create_node('tissue_sim', context=context)
-        wrench = stand_in.create_publisher(WrenchStamped, 'needle/wrench', reliable)
-        cloud = stand_in.create_publisher(PointCloud2, 'tissue/nodes', reliable)
-        load = BackgroundLoad(2, private_ros_env(domain))
+    with _stand_in_node() as stand_in:
+        wrench, cloud = stand_in.wrench, stand_in.cloud
+        load = BackgroundLoad(2, stand_in.env)
         with pytest.raises(KeyboardInterrupt):
             with load:
                 pids = [s.pid for s in load.spinners] + [load.listener_process.pid]
@@ -180,15 +172,14 @@ def test_background_load_spins_listens_and_stops_whatever_happens():
                     time.sleep(0.02)
                 sent_at = []
                 for k in range(25):
-                    wrench.publish(WrenchStamped())
+                    wrench.publish(stand_in.Wrench())
                     sent_at.append(time.monotonic())
                     if k % 5 < 2:
-                        cloud.publish(PointCloud2())
+                        cloud.publish(stand_in.Cloud())
                     time.sleep(0.02)
                 time.sleep(0.5)
                 assert all(_cpu_seconds(pid) - c > 0.05 for pid, c in zip(pids, cpu0))
                 raise KeyboardInterrupt  # e.g. the user stops the bench
-        stand_in.destroy_node()
     assert not any(_alive(pid) for pid in pids) and _my_spinners() == []
     assert load.listener['wrench']['count'] == 25 and load.listener['cloud']['count'] == 10
     sent_rate = 24 / (sent_at[-1] - sent_at[0])  # about 50 Hz; less on a loaded machine
@@ -201,6 +192,28 @@ def test_background_load_spins_listens_and_stops_whatever_happens():
 
 def test_listen_alone_starts_the_listener_without_busy_processes():
     """--listen: the listening client hears the stand-in's wrench and cloud; no spinner runs."""
+    assert BackgroundLoad(0, {}).describe().startswith('none')
+    with _stand_in_node() as stand_in:
+        with BackgroundLoad(0, stand_in.env, listen=True) as load:
+            assert load.spinners == [] and load.listener_process is not None and _my_spinners() == []
+            deadline = time.monotonic() + 30
+            while not (stand_in.wrench.get_subscription_count() and stand_in.cloud.get_subscription_count()):
+                assert time.monotonic() < deadline
+                time.sleep(0.02)
+            for _ in range(5):
+                stand_in.wrench.publish(stand_in.Wrench())
+                stand_in.cloud.publish(stand_in.Cloud())
+                time.sleep(0.02)
+            time.sleep(0.5)
+    assert load.listener['wrench']['count'] == 5 and load.listener['cloud']['count'] == 5
+    assert load.describe() == 'no busy process + 1 listening client (needle/wrench, tissue/nodes)'
+
+
+@contextlib.contextmanager
+def _stand_in_node():
+    """A stand-in for the node on a private domain: ``env`` (its ROS environment for children),
+    ``wrench`` and ``cloud`` (its publishers, keeping all they send: a starved listener
+    acknowledges late) and the message types ``Wrench``, ``Cloud``."""
     rclpy = pytest.importorskip('rclpy')
     from geometry_msgs.msg import WrenchStamped
     from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -209,20 +222,14 @@ def test_listen_alone_starts_the_listener_without_busy_processes():
     domain = private_domain_id()
     reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
     with client_context(domain) as context:
-        stand_in = rclpy.create_node('tissue_sim', context=context)
-        wrench = stand_in.create_publisher(WrenchStamped, 'needle/wrench', reliable)
-        cloud = stand_in.create_publisher(PointCloud2, 'tissue/nodes', reliable)
-        assert BackgroundLoad(0, {}).describe().startswith('none')
-        with BackgroundLoad(0, private_ros_env(domain), listen=True) as load:
-            assert load.spinners == [] and load.listener_process is not None and _my_spinners() == []
-            for _ in range(5):
-                wrench.publish(WrenchStamped())
-                cloud.publish(PointCloud2())
-                time.sleep(0.02)
-            time.sleep(0.5)
-        stand_in.destroy_node()
-    assert load.listener['wrench']['count'] == 5 and load.listener['cloud']['count'] == 5
-    assert load.describe() == 'no busy process + 1 listening client (needle/wrench, tissue/nodes)'
+        node = rclpy.create_node('tissue_sim', context=context)
+        try:
+            yield types.SimpleNamespace(
+                env=private_ros_env(domain), Wrench=WrenchStamped, Cloud=PointCloud2,
+                wrench=node.create_publisher(WrenchStamped, 'needle/wrench', reliable),
+                cloud=node.create_publisher(PointCloud2, 'tissue/nodes', reliable))
+        finally:
+            node.destroy_node()
 
 
 def _my_spinners():
