@@ -32,10 +32,10 @@ report gives the load average before the run); the issue's goals are printed bes
 enforced. ``load`` > 0 runs that many busy processes and one listening ROS client (wrench and
 point cloud) beside the node during the window (:mod:`tissue_sim_ros.analysis.background_load`),
 so that a figure under load can be reproduced; ``listen`` runs that client alone (the node builds
-and sends its cloud only for a subscriber, so without one its CPU is the wrench-only case). ``predictions`` > 0 sends that many candidate paths
-on ``plan/candidate`` at once, 1 s into the window (:mod:`tissue_sim_ros.analysis.prediction_burst`):
-the live figures then show what a burst of planner requests costs the loop, and the report adds
-how fast they were answered.
+and sends its cloud only for a subscriber, so without one its CPU is the wrench-only case).
+``predictions`` > 0 sends that many candidate paths on ``plan/candidate`` at once, 1 s into the
+window (:mod:`tissue_sim_ros.analysis.prediction_burst`): the live figures then show what a burst
+of planner requests costs the loop, and the report adds how fast they were answered.
 """
 from __future__ import annotations
 

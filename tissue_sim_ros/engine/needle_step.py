@@ -40,9 +40,10 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
     points, cutting samples, and with ``faces_cut`` a sharp tip's contact); ``applied_forces``
     is filled (cleared first with ``clear_first``, else it must hold zeros). With ``sparse`` the
     work is summed over the nodes the needle pushed, which are then zeroed again (the array
-    holds zeros after the call: no pass over the whole mesh, 5 us a step on the default scene);
-    without, it keeps the forces and the work is a dot product over the whole array. The tip's apex is walked to from element ``apex_start`` (< 0: not
-    walked), its weights in ``apex_weights`` and its rest coordinates in ``apex_rest``. Returns
+    holds zeros after the call: no pass over the whole mesh, 3 us a step on the default scene);
+    without, it keeps the forces and the work is a dot product over the whole array. The tip's
+    apex is walked to from element ``apex_start`` (< 0: not walked), its weights in
+    ``apex_weights`` and its rest coordinates in ``apex_rest``. Returns
     (friction force, cutting force, cutting samples found, points of action written, work of the
     needle's forces over the step [J], the apex's element (locate_walk: -1 outside, -2 not
     found), the tip's travel along the axis [m], the deepest shaft point's axial coordinate [m],

@@ -347,8 +347,8 @@ class TissueSimNode(Node):
         for receipt in self.engine.take_receipts(snap.index):
             self._stats.rings['latency_s'].add((publish_ns - receipt) / NS_PER_S)
         if self._recorder is not None:
-            self._recorder.write(self.trace_topic,
-                                 self._trace_bytes.serialized(now_ns, snap.index, self.engine.take_trace()), now_ns)
+            trace = self._trace_bytes.serialized(now_ns, snap.index, self.engine.take_trace())
+            self._recorder.write(self.trace_topic, trace, now_ns)
         else:
             self.engine.take_trace()
         self._stats.tick_done(time.perf_counter() - wall0)
