@@ -41,6 +41,8 @@ def test_wrench_bytes_refuse_what_is_not_finite_naming_the_field():
         writer.serialized([0.0, 1.0, 2.0], [0.0, math.nan, 0.0], 5)
     with pytest.raises(ValueError, match='force'):
         writer.serialized([math.inf, 1.0, 2.0], [0.0, 0.0, 0.0], 5)
+    with pytest.raises(ValueError, match='force'):           # 2 + 4 values are not 3 + 3
+        writer.serialized([0.0, 1.0], [0.0, 0.0, 0.0, 0.0], 5)
 
 
 @pytest.mark.parametrize('n', [0, 1, 50, 2916])
@@ -79,19 +81,20 @@ def _trace_message(stamp_ns, index, rows) -> Float64MultiArray:
     return msg
 
 
-@pytest.mark.parametrize('n_rows', [0, 1, 4])
-def test_trace_bytes_decode_to_the_trace_message(n_rows):
+def test_trace_bytes_decode_to_the_trace_message():
+    """One writer, ticks of 4, 0 and 1 advances (the prefix rewritten each call)."""
     writer = TraceBytes(serialize_message)
-    stamp = 5_000_000_007
-    rows = [advance_row(i + 1, 0.0125, np.array([0.1, 0.2, -0.3 * i]), np.array([0.0, 0.0, 0.0, 1.0]), 10 + i,
-                        stamp - 1000 * i) for i in range(n_rows)] + [event_row(RESET, n_rows + 1)]
-    for _ in range(2):                           # the second call rewrites the same prefix
-        got = deserialize_message(writer.serialized(stamp, 3, rows), Float64MultiArray)
-        want = _trace_message(stamp, 3, rows)
+    for k, n_rows in enumerate([4, 0, 1]):
+        stamp = 5_000_000_007 + k * 20_000_000
+        rows = [advance_row(i + 1, 0.0125, np.array([0.1, 0.2, -0.3 * i]), np.array([0.0, 0.0, 0.0, 1.0]),
+                            10 + i, stamp - 1000 * i) for i in range(n_rows)] + [event_row(RESET, n_rows + 1)]
+        got = deserialize_message(writer.serialized(stamp, 3 + k, rows), Float64MultiArray)
+        want = _trace_message(stamp, 3 + k, rows)
         assert got.layout == want.layout
         assert np.array_equal(np.array(got.data), np.array(want.data), equal_nan=True)
-    trace = decode(got.data)
-    assert trace.stamp_ns == stamp and trace.published_index == 3 and trace.rows.shape == (n_rows + 1, len(COLUMNS))
+        trace = decode(got.data)
+        assert trace.stamp_ns == stamp and trace.published_index == 3 + k
+        assert trace.rows.shape == (n_rows + 1, len(COLUMNS))
 
 
 def test_marker_bytes_decode_to_the_marker_message_at_each_stamp_and_state():

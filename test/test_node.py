@@ -508,6 +508,11 @@ def test_use_sim_time_ticks_on_the_clock_topic(harness, executor):
     assert stamps.min() >= t0 and stamps.max() <= t0 + NS // 2
     np.testing.assert_allclose(np.diff(stamps), 20_000_000, atol=5_000_001)
     assert h.scene.time == pytest.approx(len(stamps) * 0.02, abs=h.scene.dt)
+    # read at start: turning it off at run time is refused, naming the value (the node stays on /clock)
+    refused, = h.node.set_parameters([Parameter('use_sim_time', value=False)])
+    assert not refused.successful and 'use_sim_time = False' in refused.reason
+    kept, = h.node.set_parameters([Parameter('use_sim_time', value=True)])
+    assert kept.successful and h.node.get_clock().ros_time_is_active
 
 
 def test_surface_is_latched_and_follows_topology(harness):
@@ -766,7 +771,7 @@ def test_the_cloud_is_built_only_for_a_subscriber_or_the_log(harness, tmp_path):
     first = h.node.ticks
     time.sleep(1.0)
     ticks = range(first + 1, h.node.ticks - 1)       # whole ticks inside the window
-    assert len(ticks) >= 40
+    assert len(ticks) >= 25
     assert all(t % 5 == 0 for t in built)
     assert set(built) >= {t for t in ticks if t % 5 == 0}
     h.client.create_subscription(PointCloud2, 'tissue/nodes', h._keeper('nodes'),

@@ -32,8 +32,9 @@ poses are queued as bytes and the engine decodes at most ``MAX_POSES_PER_CYCLE``
 per cycle (the rest counted as backlog), so no rate of input can hold up a tick.
 
 The mesh state (``tissue/nodes``, 70 kB a tick on the default scene) is built and published
-only while the topic has a subscriber (counted by the publisher's matched events) and, at its
-own rate, for the log.
+only while the topic has a subscriber (counted by the publisher's matched events, and once a
+second with the diagnostics) and, at its own rate, for the log. ``use_sim_time`` is read at
+start; a change at run time is refused.
 
 Recording: see :mod:`~tissue_sim_ros.ros.node_recording`. The file is closed with its summary on a
 normal exit, SIGINT and SIGTERM; after SIGKILL only the last chunk is lost.
@@ -48,8 +49,8 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, PoseStamped, WrenchStamped
 from nav_msgs.msg import Path
-from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.event_handler import PublisherEventCallbacks
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.event_handler import PublisherEventCallbacks, UnsupportedEventTypeError
 from rclpy.parameter import Parameter
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message, serialize_message
@@ -129,6 +130,7 @@ class TissueSimNode(Node):
         # clock is the system clock (CLOCK_REALTIME), read here directly (0.1 us against 2.5 us
         # through Clock.now's Time object); use_sim_time is read once, at start, as the engine does
         self._now_ns = self._ros_now_ns if self._sim_time else time.time_ns
+        self.add_on_set_parameters_callback(self._keep_use_sim_time)
         self._logged_kinds: set[str] = set()
         self.engine = EngineLoop(
             self.driver, self.input, period_s=cfg.period_s, now_ns=self._now_ns,
@@ -145,10 +147,15 @@ class TissueSimNode(Node):
         self.wrench_pub = self.wrench_pubs[0]
         self._wrench_frames = [cfg.wrench_frame_id if len(self.wrench_pubs) == 1 or cfg.wrench_frame == 'world'
                                else f'{cfg.wrench_frame_id}_{name}' for name in self.scene.needle_names]
-        self._nodes_subscribers = 0        # kept by the publisher's matched events
-        self.nodes_pub = self.create_publisher(
-            PointCloud2, 'tissue/nodes', NODES_QOS,
-            event_callbacks=PublisherEventCallbacks(matched=self._on_nodes_matched))
+        # tissue/nodes' subscribers: kept by the publisher's matched events, and read again with
+        # the diagnostics (1 Hz) where a middleware gives no such events
+        self._nodes_subscribers = 0
+        try:
+            self.nodes_pub = self.create_publisher(
+                PointCloud2, 'tissue/nodes', NODES_QOS,
+                event_callbacks=PublisherEventCallbacks(matched=self._on_nodes_matched))
+        except UnsupportedEventTypeError:
+            self.nodes_pub = self.create_publisher(PointCloud2, 'tissue/nodes', NODES_QOS)
         self.surface_pub = self.create_publisher(Mesh, 'tissue/surface', SURFACE_QOS)
         self.marker_pub = (self.create_publisher(Marker, 'tissue/marker', MARKER_QOS)
                            if cfg.marker_rate_hz > 0 else None)
@@ -271,6 +278,16 @@ class TissueSimNode(Node):
 
     def _on_nodes_matched(self, info) -> None:
         self._nodes_subscribers = info.current_count
+
+    def _keep_use_sim_time(self, parameters) -> SetParametersResult:
+        """use_sim_time is read at start (the engine's pacing and the node clock are chosen
+        then): a change at run time is refused, naming the value."""
+        for parameter in parameters:
+            if parameter.name == 'use_sim_time' and parameter.value != self._sim_time:
+                return SetParametersResult(
+                    successful=False, reason=f'use_sim_time = {parameter.value!r}: read at start '
+                    f'(now {self._sim_time}); restart the node to change it')
+        return SetParametersResult(successful=True)
 
     def _ros_now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
@@ -399,6 +416,7 @@ class TissueSimNode(Node):
             ([] if self.predictions is None else [self.predictions.status(self.get_name())])
 
     def publish_diagnostics(self) -> None:
+        self._nodes_subscribers = self.nodes_pub.get_subscription_count()
         now_ns = self._now_ns()
         self._publish(self.diagnostics_pub,
                       cv.diagnostic_array_msg(now_ns, self.diagnostics_statuses(now_ns)), now_ns)

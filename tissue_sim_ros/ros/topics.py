@@ -9,7 +9,8 @@ Topics (relative names; remap with ``--ros-args -r``), all reliable:
                                                       exerts on the needle [N, N m], about
                                                       the needle base origin, expressed in
                                                       ``wrench.frame_id``
-``tissue/nodes``     sensor_msgs/msg/PointCloud2      out, every tick: every vertex, fields
+``tissue/nodes``     sensor_msgs/msg/PointCloud2      out, every tick while it has a
+                                                      subscriber: every vertex, fields
                                                       x y z (deformed) ux uy uz (displacement)
 ``tissue/surface``   shape_msgs/msg/Mesh              out, transient local: rest vertices (same
                                                       order as the cloud) and the surface
