@@ -26,6 +26,7 @@ __all__ = ['CloudBytes', 'SurfaceMarkerBytes', 'TraceBytes', 'WrenchBytes']
 
 _STAMP = struct.Struct('<iI')
 _UINT32 = struct.Struct('<I')
+_SIX_DOUBLES = struct.Struct('<6d')
 _SENTINEL = 1.2345678901234567e-301
 
 
@@ -41,8 +42,9 @@ def _find_once(data: bytes, pattern: bytes, what: str) -> int:
     return at
 
 
-def _stamp(stamp_ns: int) -> tuple[int, int]:
-    t = cv.ns_to_stamp(stamp_ns)
+def _stamp(stamp) -> tuple[int, int]:
+    """(sec, nanosec) of a stamp in any form conversions takes (ns, Time, rclpy Time)."""
+    t = cv._as_stamp(stamp)
     return t.sec, t.nanosec
 
 
@@ -55,9 +57,8 @@ class WrenchBytes:
         values = [_SENTINEL * (1 + k) for k in range(6)]
         data = serialize(cv.wrench_msg(values[:3], values[3:], frame_id, 0))
         _little_endian(data, 'WrenchStamped')
-        self._values_at = _find_once(data, struct.pack('<6d', *values), 'WrenchStamped')
+        self._values_at = _find_once(data, _SIX_DOUBLES.pack(*values), 'WrenchStamped')
         self._data = bytearray(data)
-        self._pack = struct.Struct('<6d')
 
     def serialized(self, force, torque, stamp_ns: int) -> bytes:
         """The message of :func:`conversions.wrench_msg` (force [N], torque [N m]), serialized;
@@ -71,7 +72,7 @@ class WrenchBytes:
             cv.wrench_msg(force, torque, self.frame_id, stamp_ns)      # raises, naming the field
             raise ValueError(f'force {force!r}, torque {torque!r}: expected 3 finite values each')
         _STAMP.pack_into(self._data, 4, *_stamp(stamp_ns))
-        self._pack.pack_into(self._data, self._values_at, *values)
+        _SIX_DOUBLES.pack_into(self._data, self._values_at, *values)
         return bytes(self._data)
 
 
@@ -172,6 +173,5 @@ class SurfaceMarkerBytes:
         if not np.isfinite(corners).all():
             raise ValueError('positions: surface vertices are not finite; refusing to publish')
         self._points[:] = corners
-        t = cv._as_stamp(stamp)
-        _STAMP.pack_into(self._data, 4, t.sec, t.nanosec)
+        _STAMP.pack_into(self._data, 4, *_stamp(stamp))
         return self._data
