@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.child_env import importing_from
+from tissue_sim_ros.user_cache import sources_key
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,7 +48,9 @@ def test_cache_goes_to_the_user_cache_directory_and_a_first_start_says_so(tmp_pa
 
     first = run_python(SMALL_KERNEL, {'XDG_CACHE_HOME': str(xdg)})
     user_cache = xdg / 'tissue_sim_ros' / 'numba'
-    assert any(name.startswith('forces.reduce_buffers') for name in cached_kernels(user_cache))
+    # under the directory of this version of the engine's sources
+    keyed = user_cache / sources_key(str(ROOT / 'tissue_sim_ros' / 'engine'))
+    assert any(name.startswith('forces.reduce_buffers') for name in cached_kernels(keyed))
     after = {p: p.stat().st_mtime_ns for p in package_cache.glob('*.nbi')} if package_cache.exists() else {}
     assert after == before, 'numba wrote its cache beside the installed sources'
     assert f'cached in {user_cache}' in first.stderr
@@ -56,6 +59,25 @@ def test_cache_goes_to_the_user_cache_directory_and_a_first_start_says_so(tmp_pa
 
     again = run_python(SMALL_KERNEL, {'XDG_CACHE_HOME': str(xdg)})
     assert 'tissue_sim_ros:' not in again.stderr       # loaded from the cache: nothing to say
+
+
+def test_the_cache_key_changes_with_any_engine_source_and_only_with_them(tmp_path):
+    """A kernel's helpers in another file (forces.py's pass, simd_lanes.py's gather) change the
+    key, so their kernels are compiled afresh; a file that is not Python source does not."""
+    engine = tmp_path / 'engine'
+    engine.mkdir()
+    for source in (ROOT / 'tissue_sim_ros' / 'engine').glob('*.py'):
+        (engine / source.name).write_bytes(source.read_bytes())
+    key = sources_key(str(engine))
+    assert key == sources_key(str(ROOT / 'tissue_sim_ros' / 'engine'))
+    (engine / 'notes.txt').write_text('not a source')
+    assert sources_key(str(engine)) == key
+    helper = engine / 'simd_lanes.py'
+    helper.write_text(helper.read_text() + '# changed\n')
+    changed = sources_key(str(engine))
+    assert changed != key and changed.startswith('engine-') and len(changed) == len(key)
+    helper.rename(engine / 'simd_lanes_renamed.py')
+    assert sources_key(str(engine)) not in (key, changed)
 
 
 def test_numba_cache_dir_of_the_user_moves_the_cache(tmp_path):

@@ -21,7 +21,11 @@ pick on a machine that is always oversubscribed).
 
 numba's cache of compiled kernels goes to a per-user directory, $XDG_CACHE_HOME/tissue_sim_ros/numba
 (default ~/.cache/tissue_sim_ros/numba), one known place instead of __pycache__ beside the installed
-sources, which may be read-only on a ROS install. A user's own NUMBA_CACHE_DIR keeps its meaning.
+sources, which may be read-only on a ROS install. Under it, one directory per version of the engine's
+sources (user_cache.sources_key): numba checks only the stamp of the file that defines a kernel, so
+a kernel whose helpers live in another file (forces.py's element pass and simd_lanes.py) would load
+its old machine code after a change to that file alone. A user's own NUMBA_CACHE_DIR keeps its
+meaning, and that check only.
 The variable is process-wide: other numba code in the same process caches there too (under its own
 source directory's name, as numba always does).
 """
@@ -39,7 +43,8 @@ if 'NUMBA_CPU_FEATURES' not in os.environ and 'NUMBA_CPU_NAME' not in os.environ
         os.environ['NUMBA_CPU_FEATURES'] = _features.flatten() + ',-prefer-256-bit'
 
 
-from tissue_sim_ros.user_cache import user_cache_dir  # noqa: E402 (stdlib only, no numba)
+from tissue_sim_ros.user_cache import sources_key, user_cache_dir  # noqa: E402 (stdlib only, no numba)
 
 if 'NUMBA_CACHE_DIR' not in os.environ and user_cache_dir('numba') is not None:
-    os.environ['NUMBA_CACHE_DIR'] = user_cache_dir('numba')
+    os.environ['NUMBA_CACHE_DIR'] = os.path.join(
+        user_cache_dir('numba'), sources_key(os.path.join(os.path.dirname(os.path.abspath(__file__)), 'engine')))

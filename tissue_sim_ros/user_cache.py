@@ -5,7 +5,7 @@ package's directory, which may be read-only on a ROS install. Standard library o
 before numba is first imported."""
 import os
 
-__all__ = ['user_cache_dir', 'scene_cache_entry', 'write_whole']
+__all__ = ['user_cache_dir', 'sources_key', 'scene_cache_entry', 'write_whole']
 
 
 def user_cache_dir(name: str) -> str | None:
@@ -14,6 +14,17 @@ def user_cache_dir(name: str) -> str | None:
     if not os.path.isabs(base):
         base = os.path.join(os.path.expanduser('~'), '.cache')
     return os.path.join(base, 'tissue_sim_ros', name) if os.path.isabs(base) else None
+
+
+def sources_key(directory: str) -> str:
+    """'engine-' and the first 16 hex digits of the sha256 of the .py files in ``directory`` (their
+    names and contents, in name order): changes when any of them does."""
+    import hashlib
+    digest = hashlib.sha256()
+    for name in sorted(n for n in os.listdir(directory) if n.endswith('.py')):
+        with open(os.path.join(directory, name), 'rb') as source:
+            digest.update(name.encode() + b'\0' + source.read() + b'\0')
+    return 'engine-' + digest.hexdigest()[:16]
 
 
 def scene_cache_entry(name: str, text: str):
