@@ -29,8 +29,9 @@ import numpy as np
 from numba import njit, prange
 from numba.extending import register_jitable
 
-from tissue_sim_ros.engine import compile_cache  # noqa: F401  (reports compiles on a first start)
+from tissue_sim_ros.engine import compile_cache, simd_lanes  # noqa: F401  (compile_cache reports compiles)
 from tissue_sim_ros.engine.inversion_safeguard import STRETCH_CLAMP, safeguarded_piola  # noqa: F401
+from tissue_sim_ros.engine.simd_lanes import gather_difference_lanes, pack_node_state, scatter_force_lanes
 
 # Floating-point contraction and reassociation are fine here; NaN and inf must stay detectable
 # (the watchdog looks for them), so no 'nnan' / 'ninf'.
@@ -202,14 +203,17 @@ def _shape_gradients(shape_gradients, e):
 
 # ----------------------------------------------------------------------------------------------
 # The element pass in SIMD blocks. BLOCK consecutive elements are one block, an element per
-# lane: a scalar loop gathers each element's node differences into the chunk's row of a small
-# work array, loops over the lanes do all the arithmetic on fixed offsets of that one row
-# (straight-line, branch-free code with no possible aliasing, which LLVM vectorizes: AVX2 does 4
-# lanes an instruction), and a scalar loop scatters the nodal forces. Field k of lane j sits at
+# lane: each element's node differences are gathered into the chunk's row of a small work array
+# (simd_lanes: vector loads and a transpose), loops over the lanes do all the arithmetic on fixed
+# offsets of that one row (straight-line, branch-free code with no possible aliasing, which LLVM
+# vectorizes: AVX-512 does 8 lanes an instruction; lane loops reading the element constants in
+# place, not from a copy in the row, measured 2.5x slower, presumably as LLVM cannot tell the two
+# arrays apart), and the nodal forces are scattered back (simd_lanes). Field k of lane j sits at
 # k * BLOCK + j (_at). Measured on a first cut (St Venant-Kirchhoff without the safeguard, 98304
 # tetrahedra, 2 threads): 1.58 ms per force evaluation element by element, 0.96 ms in blocks of 8
 # (4: no gain; 16: 1.48 ms; 32: 1.30 ms).
 BLOCK = 8
+assert BLOCK == simd_lanes.LANES, 'the gather and scatter transpose 8 lanes'
 # per-element constants, stored block by block (pack_element_blocks) and copied into the work row
 SHAPE = 0                      # 9: a_1, a_2, a_3 (x, y, z each)
 LAMBDA, MU = 9, 10             # V lambda, V mu
@@ -310,8 +314,10 @@ def _gather_differences(work, row, field, j, values, i0, i1, i2, i3):
 def _classify_lanes(work, row, threshold_squared, physical, undistorted_cube):
     """Displacement gradient H of every lane, and whether it takes the non-linear path
     (|H|_F^2 >= threshold^2); with the physical law also det F and tr(F^T F G), and whether the
-    law's corrections can be non-zero. Returns the count of non-linear lanes (of all BLOCK)."""
+    law's corrections can be non-zero. Returns the counts of non-linear lanes and of lanes that need
+    the law (of all BLOCK): the scalar lane loops after it run only when there is work for them."""
     count = 0
+    count_law = 0
     for j in range(BLOCK):
         h00, h01, h02, h10, h11, h12, h20, h21, h22 = _lane_gradient(work, row, _DU, j)
         _set9(work, row, _H, j, h00, h01, h02, h10, h11, h12, h20, h21, h22)
@@ -333,6 +339,7 @@ def _classify_lanes(work, row, threshold_squared, physical, undistorted_cube):
             # without the cube root; most deformed elements of a needle dent do not distort
             distorted = scale * scale * scale * det_f * det_f < undistorted_cube * tr_cg * tr_cg * tr_cg
             work[row, _at(_NEEDS_LAW, j)] = ONE if (nonlinear & distorted) else ZERO
+            count_law += nonlinear & distorted
             work[row, _at(_DET, j)] = det_f
             work[row, _at(_TR_CG, j)] = tr_cg
             work[row, _at(_STRAIN, j)] = e00
@@ -343,7 +350,7 @@ def _classify_lanes(work, row, threshold_squared, physical, undistorted_cube):
             work[row, _at(_STRAIN + 5, j)] = e12
             work[row, _at(_LAMBDA_C, j)] = work[row, _at(LAMBDA, j)]
             work[row, _at(_MU_C, j)] = work[row, _at(MU, j)]
-    return count
+    return count, count_law
 
 
 @njit(cache=True, inline='always')
@@ -366,7 +373,8 @@ def _stress_lanes(work, row, gradient_stored, small_strain, finite_strain, physi
     (finite_strain), or both and each lane takes the one its _NONLINEAR flag says; Kelvin-Voigt
     added. With the safeguard, non-linear lanes whose smallest principal stretch is below the
     clamp or that are inverted are flagged _SLOW: smallest stretch above the clamp <=> C - clamp^2 I
-    positive definite (Sylvester's criterion, exact, no eigenvalues)."""
+    positive definite (Sylvester's criterion, exact, no eigenvalues). Returns the count of _SLOW lanes."""
+    count_slow = 0
     for j in range(BLOCK):
         if gradient_stored:
             h00, h01, h02, h10, h11, h12, h20, h21, h22 = _get9(work, row, _H, j)
@@ -448,11 +456,14 @@ def _stress_lanes(work, row, gradient_stored, small_strain, finite_strain, physi
                       + m02 * (m01 * m12 - m11 * m02))
             # bitwise, not short-circuit: no branches in the lane loop
             inside = (m00 > ZERO) & (minor2 > ZERO) & (minor3 > ZERO) & (det_f > ZERO)
-            work[row, _at(_SLOW, j)] = ONE if (safeguard & nonlinear & (not inside)) else ZERO
+            slow = safeguard & nonlinear & (not inside)
+            work[row, _at(_SLOW, j)] = ONE if slow else ZERO
+            count_slow += slow
         a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z = _get9(work, row, SHAPE, j)
         f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z = _piola_forces(
             p00, p01, p02, p10, p11, p12, p20, p21, p22, a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
         _set9(work, row, _FORCE, j, f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z)
+    return count_slow
 
 
 def model_name(geometric, physical, viscous):
@@ -469,7 +480,7 @@ def element_kernel(geometric, physical, viscous):
     Call it as ``kernel(tetrahedra, element_blocks, displacement, velocity, threshold_squared,
     law_kind, law_params, chunk_bounds, work, buffers, nonlinear_counts, safeguard,
     safeguard_counts, slow_elements, corrected_lambda, corrected_mu, shape_gradients,
-    volume_lambda, volume_mu, viscous_lambda, viscous_mu, safeguard_scratch)``.
+    volume_lambda, volume_mu, viscous_lambda, viscous_mu, safeguard_scratch, node_state)``.
 
     The parallel loop only calls each thread's pass (``_thread_pass_of``). Written inside the
     prange loop, the pass went through numba's parallel passes, which copy and rewrite the whole
@@ -483,7 +494,7 @@ def element_kernel(geometric, physical, viscous):
     def kernel(tetrahedra, element_blocks, displacement, velocity, threshold_squared, law_kind,
                law_params, chunk_bounds, work, buffers, nonlinear_counts, safeguard, safeguard_counts,
                slow_elements, corrected_lambda, corrected_mu, shape_gradients, volume_lambda,
-               volume_mu, viscous_lambda, viscous_mu, safeguard_scratch):
+               volume_mu, viscous_lambda, viscous_mu, safeguard_scratch, node_state):
         """Accumulate the internal elastic (+ viscous) forces into the per-chunk ``buffers``.
 
         The node forces are the sum over chunks (``reduce_buffers``, or fused into the solver's
@@ -491,7 +502,9 @@ def element_kernel(geometric, physical, viscous):
 
         element_blocks: pack_element_blocks of the element arrays; chunk_bounds: multiples of
         BLOCK (chunk_layout). Worker t of n_workers = len(buffers) takes chunks t, t + n_workers,
-        ... into buffers[t]; work (n_workers, >= N_WORK * BLOCK): its scratch row.
+        ... into buffers[t] (n_workers, n, 4: rows padded for simd_lanes); work (n_workers,
+        >= N_WORK * BLOCK): its scratch row. node_state (n, 8): filled here from displacement and
+        velocity (simd_lanes.pack_node_state), the rows whole blocks gather from.
         nonlinear_counts (n_chunks,): elements that took the non-linear path, per chunk.
         safeguard: apply the inversion safeguard on the St Venant-Kirchhoff path to elements whose
         smallest principal stretch is below STRETCH_CLAMP or whose det F <= 0; those are set aside
@@ -500,6 +513,7 @@ def element_kernel(geometric, physical, viscous):
         (shape_gradients (m, 3, 3), V lambda, V mu, V lambda_v, V mu_v). safeguard_scratch
         (n_workers, 6, 3, 3); safeguard_counts (n_chunks,) how many elements it changed.
         """
+        pack_node_state(displacement, velocity, viscous, node_state)
         for t in prange(buffers.shape[0]):
             # _thread_pass: this model's pass (bound below). The thread index as the outlined
             # body types it (unsigned), so the pass has one signature and no index wraparound.
@@ -507,7 +521,7 @@ def element_kernel(geometric, physical, viscous):
                          displacement, velocity, threshold_squared, law_kind, law_params, chunk_bounds,
                          work, buffers, nonlinear_counts, safeguard, safeguard_counts, slow_elements,
                          corrected_lambda, corrected_mu, shape_gradients, volume_lambda, volume_mu,
-                         viscous_lambda, viscous_mu, safeguard_scratch)
+                         viscous_lambda, viscous_mu, safeguard_scratch, node_state)
 
     # The pass is a global of this kernel's own: a closure holding the pass's dispatcher would
     # change numba's cache key in every process (it hashes what a closure holds, and a dispatcher
@@ -537,7 +551,7 @@ def _thread_pass_of(geometric, physical, viscous):
                     velocity, threshold_squared, law_kind, law_params, chunk_bounds, work, buffers,
                     nonlinear_counts, safeguard, safeguard_counts, slow_elements, corrected_lambda,
                     corrected_mu, shape_gradients, volume_lambda, volume_mu, viscous_lambda, viscous_mu,
-                    safeguard_scratch):
+                    safeguard_scratch, node_state):
         # the pass's scalars in the work array's precision (float32 arithmetic stays float32)
         real = work.dtype.type
         clamp_squared = real(STRETCH_CLAMP * STRETCH_CLAMP)
@@ -558,42 +572,57 @@ def _thread_pass_of(geometric, physical, viscous):
                 block = base // BLOCK
                 for k in range(n_constants * BLOCK):
                     work[t, k] = element_blocks[block, k]
-                for j in range(n):
-                    i0, i1, i2, i3 = _element_nodes(tetrahedra, base + j)
-                    _gather_differences(work, t, _DU, j, displacement, i0, i1, i2, i3)
-                    if viscous:
-                        _gather_differences(work, t, _DV, j, velocity, i0, i1, i2, i3)
-                for j in range(n, BLOCK):
-                    for k in range(9):
-                        work[t, _at(_DU + k, j)] = 0.0
-                        work[t, _at(_DV + k, j)] = 0.0
+                if n == BLOCK:   # a whole block: vector loads and transposes (simd_lanes)
+                    gather_difference_lanes(work, t, _DU, _DV, node_state, tetrahedra, base, viscous)
+                else:            # the last, partial one: lane by lane, zeros past its elements
+                    for j in range(n):
+                        i0, i1, i2, i3 = _element_nodes(tetrahedra, base + j)
+                        _gather_differences(work, t, _DU, j, displacement, i0, i1, i2, i3)
+                        if viscous:
+                            _gather_differences(work, t, _DV, j, velocity, i0, i1, i2, i3)
+                    for j in range(n, BLOCK):
+                        for k in range(9):
+                            work[t, _at(_DU + k, j)] = 0.0
+                            work[t, _at(_DV + k, j)] = 0.0
                 lanes_nonlinear = 0
                 if nonlinear_model:
-                    lanes_nonlinear = _classify_lanes(work, t, nonlinear_from, physical, undistorted_cube)
-                    for j in range(n):
-                        n_nonlinear += work[t, _at(_NONLINEAR, j)] > 0.0
-                    if physical and lanes_nonlinear > 0:
+                    lanes_nonlinear, lanes_law = _classify_lanes(work, t, nonlinear_from, physical, undistorted_cube)
+                    if n == BLOCK:
+                        n_nonlinear += lanes_nonlinear
+                    else:   # lanes past the last element have zero gradients, but count only real ones
+                        for j in range(n):
+                            n_nonlinear += work[t, _at(_NONLINEAR, j)] > 0.0
+                    if physical and lanes_law > 0:
                         _apply_law(work, t, law_kind, law_params)
                 # each lane loop holds only the stress it needs (the flags are constants)
                 if geometric and lanes_nonlinear == BLOCK:
-                    _stress_lanes(work, t, True, False, True, physical, viscous, safeguard, clamp_squared)
+                    lanes_slow = _stress_lanes(work, t, True, False, True, physical, viscous,
+                                               safeguard, clamp_squared)
                 elif geometric and lanes_nonlinear > 0:
-                    _stress_lanes(work, t, True, True, True, physical, viscous, safeguard, clamp_squared)
+                    lanes_slow = _stress_lanes(work, t, True, True, True, physical, viscous,
+                                               safeguard, clamp_squared)
                 else:
-                    _stress_lanes(work, t, nonlinear_model, True, False, physical, viscous, safeguard,
-                                  clamp_squared)
-                for j in range(n):
-                    e = base + j
-                    if geometric and lanes_nonlinear > 0 and work[t, _at(_SLOW, j)] > 0.0:
-                        slow_elements[lo + n_slow] = e
-                        n_slow += 1
-                        if physical:
-                            corrected_lambda[e] = work[t, _at(_LAMBDA_C, j)]
-                            corrected_mu[e] = work[t, _at(_MU_C, j)]
-                        continue
-                    i0, i1, i2, i3 = _element_nodes(tetrahedra, e)
-                    f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z = _get9(work, t, _FORCE, j)
-                    _scatter_forces(buf, i0, i1, i2, i3, f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z)
+                    lanes_slow = _stress_lanes(work, t, nonlinear_model, True, False, physical,
+                                               viscous, safeguard, clamp_squared)
+                # lane by lane only for elements set aside, and for the last, partial block
+                if lanes_slow > 0 or n < BLOCK:
+                    for j in range(n):
+                        e = base + j
+                        if geometric and lanes_slow > 0 and work[t, _at(_SLOW, j)] > 0.0:
+                            slow_elements[lo + n_slow] = e
+                            n_slow += 1
+                            if physical:
+                                corrected_lambda[e] = work[t, _at(_LAMBDA_C, j)]
+                                corrected_mu[e] = work[t, _at(_MU_C, j)]
+                            # set aside: its lane adds zeros below, the safeguard its forces later
+                            for k in range(9):
+                                work[t, _at(_FORCE + k, j)] = ZERO
+                        elif n < BLOCK:
+                            i0, i1, i2, i3 = _element_nodes(tetrahedra, e)
+                            f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z = _get9(work, t, _FORCE, j)
+                            _scatter_forces(buf, i0, i1, i2, i3, f1x, f1y, f1z, f2x, f2y, f2z, f3x, f3y, f3z)
+                if n == BLOCK:
+                    scatter_force_lanes(buf, work, t, _FORCE, tetrahedra, base)
             nonlinear_counts[c] = n_nonlinear
             n_safeguarded = 0
             if geometric:

@@ -9,7 +9,7 @@ import numpy as np
 import scipy.sparse
 from numba import njit, prange
 
-from tissue_sim_ros.engine import compile_cache, critical_step, edge_form, forces
+from tissue_sim_ros.engine import compile_cache, critical_step, edge_form, forces, simd_lanes
 from tissue_sim_ros.engine.material import Material, MaterialError, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.mesh import TetMesh, make_mesh, mean_ratio
 from tissue_sim_ros.engine.relaxation import relaxation_for
@@ -195,7 +195,9 @@ class TensorMassModel:
         self.chunk_bounds, self.chunk_node_lo, self.chunk_node_hi, n_workers = forces.chunk_layout(
             self.tetrahedra, n, n_workers)
         n_chunks = len(self.chunk_bounds) - 1
-        self._buffers = np.zeros((n_workers, n, 3))
+        # rows padded to 4 and the node state's to 8: the element pass moves them as vectors (simd_lanes)
+        self._buffers = np.zeros((n_workers, n, simd_lanes.BUFFER_WIDTH))
+        self._node_state = np.zeros((n, simd_lanes.STATE_WIDTH), dtype=self.precision)
         self._nonlinear_counts = np.zeros(n_chunks, dtype=np.int64)
         self._safeguard_counts = np.zeros(n_chunks, dtype=np.int64)
         self._safeguard_scratch = np.zeros((n_workers, 6, 3, 3))
@@ -379,7 +381,7 @@ class TensorMassModel:
                 self.law_kind, self.law_params, self.chunk_bounds, self._work, self._buffers,
                 self._nonlinear_counts, safeguard, self._safeguard_counts, self._slow_elements,
                 self._corrected_lambda, self._corrected_mu, self.shape_gradients, self.volume_lambda,
-                self.volume_mu, self.viscous_lambda, self.viscous_mu, self._safeguard_scratch)
+                self.volume_mu, self.viscous_lambda, self.viscous_mu, self._safeguard_scratch, self._node_state)
         if (kernel, self.precision) in compile_cache.LOADED:
             kernel(*args)
         else:     # first use in this process: the cached code, compiled apart if need be
