@@ -149,3 +149,12 @@ def _element_by_element(model, u, v):
         out[nodes[1:]] += forces_k
         out[nodes[0]] -= forces_k.sum(axis=0)
     return out
+
+
+def test_the_pass_refuses_buffers_without_the_padded_rows():
+    """The vector code writes whole padded rows: a (workers, n, 3) buffer is refused, not overrun."""
+    mesh = box_mesh(size=(0.01, 0.01, 0.01), divisions=(2, 2, 2))
+    model = TensorMassModel(mesh, Material(young_modulus=5e3, poisson_ratio=0.45, density=1060.0))
+    model._buffers = np.zeros(model._buffers.shape[:2] + (3,))
+    with pytest.raises(ValueError, match=r'buffers \(workers, n, 4\)'):
+        model.accumulate_forces(np.zeros((mesh.n_nodes, 3)))

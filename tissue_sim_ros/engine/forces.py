@@ -513,6 +513,10 @@ def element_kernel(geometric, physical, viscous):
         (shape_gradients (m, 3, 3), V lambda, V mu, V lambda_v, V mu_v). safeguard_scratch
         (n_workers, 6, 3, 3); safeguard_counts (n_chunks,) how many elements it changed.
         """
+        # the vector gather and scatter read and write whole rows of these, unchecked
+        if (node_state.shape[0] < displacement.shape[0] or node_state.shape[1] != simd_lanes.STATE_WIDTH
+                or buffers.shape[1] < displacement.shape[0] or buffers.shape[2] != simd_lanes.BUFFER_WIDTH):
+            raise ValueError('element pass: node_state must be (n, 8) and buffers (workers, n, 4)')
         pack_node_state(displacement, velocity, viscous, node_state)
         for t in prange(buffers.shape[0]):
             # _thread_pass: this model's pass (bound below). The thread index as the outlined
