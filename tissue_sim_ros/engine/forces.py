@@ -578,12 +578,12 @@ def _thread_pass_of(geometric, physical, viscous):
                     work[t, k] = element_blocks[block, k]
                 if n == BLOCK:   # a whole block: vector loads and transposes (simd_lanes)
                     gather_difference_lanes(work, t, _DU, _DV, node_state, tetrahedra, base, viscous)
-                else:            # the last, partial one: lane by lane, zeros past its elements
+                else:            # the last, partial one: lane by lane from the same rows, zeros past its elements
                     for j in range(n):
                         i0, i1, i2, i3 = _element_nodes(tetrahedra, base + j)
-                        _gather_differences(work, t, _DU, j, displacement, i0, i1, i2, i3)
+                        _gather_differences(work, t, _DU, j, node_state[:, 0:3], i0, i1, i2, i3)
                         if viscous:
-                            _gather_differences(work, t, _DV, j, velocity, i0, i1, i2, i3)
+                            _gather_differences(work, t, _DV, j, node_state[:, 4:7], i0, i1, i2, i3)
                     for j in range(n, BLOCK):
                         for k in range(9):
                             work[t, _at(_DU + k, j)] = 0.0

@@ -145,12 +145,11 @@ def gather_difference_lanes(typingctx, work, row, field_u, field_v, node_state, 
                     d = builder.fptrunc(d, out_type)
                 differences.append(d)
             columns = _transpose8(builder, differences)
-            for component in range(3):
-                for field_start, column in ((field_starts[0], component), (field_starts[1], 4 + component)):
-                    if column >= 4 and not velocity:
-                        continue
+            # u's components are columns 0..2, v's 4..6
+            for field_start, first_column in [(field_starts[0], 0)] + ([(field_starts[1], 4)] if velocity else []):
+                for component in range(3):
                     pointer = _field_pointer(builder, work_array, field_start, 3 * (corner - 1) + component, out_type)
-                    builder.store(columns[column], pointer, align=work_type.dtype.bitwidth // 8)
+                    builder.store(columns[first_column + component], pointer, align=work_type.dtype.bitwidth // 8)
         return context.get_dummy_value()
     return sig, codegen
 
