@@ -14,6 +14,7 @@ uses, one rule:
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 __all__ = ['RegionSelectors']
 
@@ -24,6 +25,11 @@ class RegionSelectors:
     def __init__(self, regions, element_tags=None):
         self.selects = [region['select'] for region in regions]
         self.element_tags = None if element_tags is None else np.asarray(element_tags)
+        encoded = [_encoded(select) for select in self.selects]
+        self.kinds = np.array([kind for kind, _ in encoded], dtype=np.int64)
+        self.params = np.array([params for _, params in encoded], dtype=np.float64).reshape(-1, 6)
+        self.tags = (np.zeros(0, dtype=np.int64) if self.element_tags is None
+                     else self.element_tags.astype(np.int64))
 
     @staticmethod
     def _inside(select, points, tags) -> np.ndarray:
@@ -55,25 +61,53 @@ class RegionSelectors:
         return self.regions_of(centroids, self.element_tags)
 
     def region_at(self, rest_point, element: int) -> int:
-        """The region of one material point (rest coordinates) lying in ``element`` (plain
-        arithmetic: the needle asks this every step)."""
-        x, y, z = float(rest_point[0]), float(rest_point[1]), float(rest_point[2])
-        found = -1
-        for k, select in enumerate(self.selects):
-            if select == 'all':
-                inside = True
-            elif 'tag' in select:
-                inside = self.element_tags is not None and int(self.element_tags[element]) == select['tag']
-            elif 'box_m' in select:
-                (x0, y0, z0), (x1, y1, z1) = select['box_m']
-                inside = x0 <= x <= x1 and y0 <= y <= y1 and z0 <= z <= z1
-            elif 'sphere_m' in select:
-                cx, cy, cz, radius = select['sphere_m']
-                inside = (x - cx) ** 2 + (y - cy) ** 2 + (z - cz) ** 2 <= radius * radius
-            elif 'above_z_m' in select:
-                inside = z >= select['above_z_m']
-            else:
-                inside = z <= select['below_z_m']
-            if inside:
-                found = k
-        return found
+        """The region of one material point (rest coordinates) lying in ``element``: the compiled
+        :func:`region_of_point` on the selectors as arrays (the needle asks this every step, also
+        from inside its compiled substep)."""
+        return int(region_of_point(self.kinds, self.params, self.tags, float(rest_point[0]),
+                                   float(rest_point[1]), float(rest_point[2]), int(element)))
+
+
+ALL, TAG, BOX, SPHERE, ABOVE_Z, BELOW_Z = range(6)
+
+
+def _encoded(select):
+    """(kind, six parameters) of one selector, for :func:`region_of_point`."""
+    if select == 'all':
+        return ALL, [0.0] * 6
+    if 'tag' in select:
+        return TAG, [float(select['tag'])] + [0.0] * 5
+    if 'box_m' in select:
+        return BOX, [float(v) for v in (*select['box_m'][0], *select['box_m'][1])]
+    if 'sphere_m' in select:
+        return SPHERE, [float(v) for v in select['sphere_m'][:4]] + [0.0, 0.0]
+    if 'above_z_m' in select:
+        return ABOVE_Z, [float(select['above_z_m'])] + [0.0] * 5
+    return BELOW_Z, [float(select['below_z_m'])] + [0.0] * 5
+
+
+@njit(cache=True)
+def region_of_point(kinds, params, tags, x, y, z, element):
+    """The last selector (later ones override) whose volume holds the rest point (x, y, z) in
+    ``element``, -1 for none: ``kinds`` (k,) and ``params`` (k, 6) as :func:`_encoded` writes them
+    (a box's corners, a sphere's centre and radius, a plane's z), ``tags`` each element's tag
+    ((0,): the mesh has none, a tag selector holds nothing)."""
+    found = -1
+    for k in range(kinds.shape[0]):
+        kind = kinds[k]
+        p = params[k]
+        if kind == ALL:
+            inside = True
+        elif kind == TAG:
+            inside = tags.shape[0] > 0 and tags[element] == p[0]
+        elif kind == BOX:
+            inside = p[0] <= x <= p[3] and p[1] <= y <= p[4] and p[2] <= z <= p[5]
+        elif kind == SPHERE:
+            inside = (x - p[0]) ** 2 + (y - p[1]) ** 2 + (z - p[2]) ** 2 <= p[3] * p[3]
+        elif kind == ABOVE_Z:
+            inside = z >= p[0]
+        else:
+            inside = z <= p[0]
+        if inside:
+            found = k
+    return found
