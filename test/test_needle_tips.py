@@ -154,3 +154,35 @@ def test_engaging_samples_finds_the_hits_a_ray_test_of_every_triangle_finds(seed
             assert list(nodes[s, :3]) == list(triangles[hit])
             np.testing.assert_allclose(weights[s, :3], [w0, w1, w2], atol=1e-12)   # origin's round-off
     assert count == expected and count > 10 and new.sum() == count
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2, 3])
+def test_the_near_surface_test_finds_what_testing_every_triangle_finds(seed):
+    """near_surface_hit skips triangles whose rest box, grown by the largest displacement, misses
+    the segment: on a dented, jittered box, rays from above (hits and misses, some along edges)
+    give the same triangle, t and weights as first_surface_hit over every triangle."""
+    from tissue_sim_ros.engine.mesh import surface_triangles
+    from tissue_sim_ros.engine.mesh_generators import box_mesh
+    from tissue_sim_ros.engine.needle_kernels import first_surface_hit, near_surface_hit, surface_boxes
+    rng = np.random.default_rng(seed)
+    mesh = box_mesh(size=(0.04, 0.04, 0.02), divisions=(10, 10, 5))
+    rest = mesh.rest_positions
+    triangles = np.ascontiguousarray(surface_triangles(mesh.tetrahedra, rest), dtype=np.int64)
+    boxes, nodes = surface_boxes(rest, triangles), np.unique(triangles)
+    displacement = rng.normal(scale=3e-4, size=rest.shape)
+    distance = np.linalg.norm(rest[:, :2] - 0.02, axis=1)
+    displacement[:, 2] -= 0.004 * np.exp(-(distance / 0.006) ** 2)
+    hits = 0
+    for k in range(400):
+        tilt = rng.uniform(-0.5, 0.5, size=2)
+        direction = np.array([tilt[0], tilt[1], -1.0]) / np.linalg.norm([tilt[0], tilt[1], -1.0])
+        origin = np.array([*rng.uniform(-0.005, 0.045, size=2), rng.uniform(0.012, 0.03)])
+        if k % 10 == 0:                  # over a deformed surface node: rays along edges and corners
+            node = rng.choice(nodes)
+            origin[:2] = rest[node, :2] + displacement[node, :2]
+        reach = rng.uniform(0.002, 0.03)
+        every = first_surface_hit(rest, displacement, triangles, origin, direction, 0.0, reach)
+        near = near_surface_hit(rest, displacement, triangles, boxes, nodes, origin, direction, 0.0, reach)
+        assert every == near
+        hits += every[0] >= 0
+    assert 40 < hits < 360

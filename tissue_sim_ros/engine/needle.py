@@ -65,7 +65,7 @@ from tissue_sim_ros.engine.mesh import element_neighbours, face_elements
 from tissue_sim_ros.engine.needle_contact import disc_offsets
 from tissue_sim_ros.engine.needle_kernels import (first_surface_hit, follow_rigid_samples, locate_point,
                                                   locate_walk, needle_kinematics, put_axis_points,
-                                                  put_rigid_points, put_rows, shaft_solve, wrench_about)
+                                                  put_rigid_points, put_rows, shaft_solve, surface_boxes, wrench_about)
 from tissue_sim_ros.engine.needle_membrane import MembraneContact
 from tissue_sim_ros.engine.needle_parameters import (Friction, Membrane, NeedleGeometry, RegionInteraction,
                                                      TipShape)
@@ -166,6 +166,7 @@ class NeedleTissue(MembraneContact):
         triangles = self.mesh.surface_triangles()
         self.surface_triangles = np.ascontiguousarray(triangles, dtype=np.int64)
         self.surface_nodes = np.unique(self.surface_triangles)
+        self.surface_boxes = surface_boxes(self.rest, self.surface_triangles)
         self.surface_owner = face_elements(self.tetrahedra, triangles, self.mesh.n_nodes)
         self._neighbours = element_neighbours(self.tetrahedra, self.mesh.n_nodes)
 

@@ -11,7 +11,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ['first_surface_hit', 'locate_point', 'locate_walk', 'cells_near', 'follow_rigid_samples', 'patch_solve', 'patch_apply', 'needle_kinematics',
+__all__ = ['first_surface_hit', 'near_surface_hit', 'approach_hit', 'surface_boxes', 'locate_point', 'locate_walk', 'cells_near', 'follow_rigid_samples', 'patch_solve', 'patch_apply', 'needle_kinematics',
            'put_rigid_points', 'put_axis_points', 'put_rows', 'wrench_about', 'length_shares', 'shaft_solve']
 
 
@@ -22,37 +22,102 @@ def first_surface_hit(rest, displacement, triangles, origin, direction, t_min, t
     deformed surface triangles (Moller-Trumbore). Returns (triangle, t, w0, w1, w2) or -1."""
     best, best_t, b0, b1, b2 = -1, np.inf, 0.0, 0.0, 0.0
     for k in range(triangles.shape[0]):
-        ia, ib, ic = triangles[k, 0], triangles[k, 1], triangles[k, 2]
-        ax = rest[ia, 0] + displacement[ia, 0]
-        ay = rest[ia, 1] + displacement[ia, 1]
-        az = rest[ia, 2] + displacement[ia, 2]
-        e1x = rest[ib, 0] + displacement[ib, 0] - ax
-        e1y = rest[ib, 1] + displacement[ib, 1] - ay
-        e1z = rest[ib, 2] + displacement[ib, 2] - az
-        e2x = rest[ic, 0] + displacement[ic, 0] - ax
-        e2y = rest[ic, 1] + displacement[ic, 1] - ay
-        e2z = rest[ic, 2] + displacement[ic, 2] - az
-        px = direction[1] * e2z - direction[2] * e2y
-        py = direction[2] * e2x - direction[0] * e2z
-        pz = direction[0] * e2y - direction[1] * e2x
-        det = e1x * px + e1y * py + e1z * pz
-        if abs(det) < 1e-30:
-            continue
-        inv = 1.0 / det
-        tx, ty, tz = origin[0] - ax, origin[1] - ay, origin[2] - az
-        u = (tx * px + ty * py + tz * pz) * inv
-        if u < 0.0 or u > 1.0:
-            continue
-        qx = ty * e1z - tz * e1y
-        qy = tz * e1x - tx * e1z
-        qz = tx * e1y - ty * e1x
-        v = (direction[0] * qx + direction[1] * qy + direction[2] * qz) * inv
-        if v < 0.0 or u + v > 1.0:
-            continue
-        t = (e2x * qx + e2y * qy + e2z * qz) * inv
+        t, u, v = _triangle_crossing(rest, displacement, triangles[k, 0], triangles[k, 1], triangles[k, 2],
+                                     origin, direction)
         if t_min <= t <= t_max and t < best_t:
             best, best_t, b0, b1, b2 = k, t, 1.0 - u - v, u, v
     return best, best_t, b0, b1, b2
+
+
+@njit(cache=True)
+def surface_boxes(rest, triangles):
+    """(k, 6) each triangle's bounding box in the rest configuration: x, y, z lows then highs
+    (:func:`near_surface_hit`)."""
+    boxes = np.empty((triangles.shape[0], 6))
+    for k in range(triangles.shape[0]):
+        for r in range(3):
+            a, b, c = rest[triangles[k, 0], r], rest[triangles[k, 1], r], rest[triangles[k, 2], r]
+            boxes[k, r] = min(a, b, c)
+            boxes[k, 3 + r] = max(a, b, c)
+    return boxes
+
+
+@njit(cache=True)
+def near_surface_hit(rest, displacement, triangles, boxes, surface_nodes, origin, direction, t_min, t_max):
+    """:func:`first_surface_hit`, the same result, testing only the triangles whose rest box
+    (``surface_boxes``) grown by the surface's largest displacement component (over
+    ``surface_nodes``) meets the segment's box: a deformed triangle lies inside its grown box.
+    The needle's test for the surface every step of its approach: on the default scene (2244
+    triangles) 37 us a step tested whole, the step's largest cost outside the force kernel."""
+    grown = 0.0
+    for i in surface_nodes:
+        for r in range(3):
+            grown = max(grown, abs(displacement[i, r]))
+    grown += 1e-12          # far above the rounding of an accepted crossing (1e-17 m)
+    low = np.empty(3)
+    high = np.empty(3)
+    for r in range(3):
+        a, b = origin[r] + t_min * direction[r], origin[r] + t_max * direction[r]
+        low[r], high[r] = min(a, b) - grown, max(a, b) + grown
+    best, best_t, b0, b1, b2 = -1, np.inf, 0.0, 0.0, 0.0
+    for k in range(triangles.shape[0]):
+        if (boxes[k, 0] > high[0] or boxes[k, 3] < low[0] or boxes[k, 1] > high[1] or boxes[k, 4] < low[1]
+                or boxes[k, 2] > high[2] or boxes[k, 5] < low[2]):
+            continue
+        t, u, v = _triangle_crossing(rest, displacement, triangles[k, 0], triangles[k, 1], triangles[k, 2],
+                                     origin, direction)
+        if t_min <= t <= t_max and t < best_t:
+            best, best_t, b0, b1, b2 = k, t, 1.0 - u - v, u, v
+    return best, best_t, b0, b1, b2
+
+
+@njit(cache=True)
+def approach_hit(rest, displacement, triangles, boxes, surface_nodes, tip, travel, axis, diameter, ray_origin):
+    """Where the tip's last step crossed the deformed surface: (triangle, t, w0, w1, w2, back)
+    of :func:`near_surface_hit` on the ray from ``back`` = |travel| + ``diameter`` behind the tip
+    along ``axis`` (written to ``ray_origin``), triangle -1 for none or while the tip goes back
+    (``travel`` against ``axis``: the tip coming up through the surface it left is no contact)."""
+    if travel[0] * axis[0] + travel[1] * axis[1] + travel[2] * axis[2] < 0.0:
+        return -1, 0.0, 0.0, 0.0, 0.0, 0.0
+    back = math.sqrt(travel[0] * travel[0] + travel[1] * travel[1] + travel[2] * travel[2]) + diameter
+    for r in range(3):
+        ray_origin[r] = axis[r] * -back + tip[r]
+    hit, t, w0, w1, w2 = near_surface_hit(rest, displacement, triangles, boxes, surface_nodes, ray_origin, axis,
+                                          0.0, back)
+    return hit, t, w0, w1, w2, back
+
+
+@njit(cache=True, inline='always')
+def _triangle_crossing(rest, displacement, ia, ib, ic, origin, direction):
+    """(t, u, v) where the ray origin + t direction crosses the deformed triangle (ia, ib, ic)
+    at barycentric (1 - u - v, u, v); t = inf where it does not (Moller-Trumbore)."""
+    ax = rest[ia, 0] + displacement[ia, 0]
+    ay = rest[ia, 1] + displacement[ia, 1]
+    az = rest[ia, 2] + displacement[ia, 2]
+    e1x = rest[ib, 0] + displacement[ib, 0] - ax
+    e1y = rest[ib, 1] + displacement[ib, 1] - ay
+    e1z = rest[ib, 2] + displacement[ib, 2] - az
+    e2x = rest[ic, 0] + displacement[ic, 0] - ax
+    e2y = rest[ic, 1] + displacement[ic, 1] - ay
+    e2z = rest[ic, 2] + displacement[ic, 2] - az
+    px = direction[1] * e2z - direction[2] * e2y
+    py = direction[2] * e2x - direction[0] * e2z
+    pz = direction[0] * e2y - direction[1] * e2x
+    det = e1x * px + e1y * py + e1z * pz
+    if abs(det) < 1e-30:
+        return np.inf, 0.0, 0.0
+    inv = 1.0 / det
+    tx, ty, tz = origin[0] - ax, origin[1] - ay, origin[2] - az
+    u = (tx * px + ty * py + tz * pz) * inv
+    if u < 0.0 or u > 1.0:
+        return np.inf, 0.0, 0.0
+    qx = ty * e1z - tz * e1y
+    qy = tz * e1x - tx * e1z
+    qz = tx * e1y - ty * e1x
+    v = (direction[0] * qx + direction[1] * qy + direction[2] * qz) * inv
+    if v < 0.0 or u + v > 1.0:
+        return np.inf, 0.0, 0.0
+    return (e2x * qx + e2y * qy + e2z * qz) * inv, u, v
 
 
 @njit(cache=True)

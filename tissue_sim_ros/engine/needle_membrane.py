@@ -34,7 +34,7 @@ import math
 import numpy as np
 
 from tissue_sim_ros.engine.needle_contact import ContactPatch, end_samples
-from tissue_sim_ros.engine.needle_kernels import first_surface_hit, locate_point, put_rows
+from tissue_sim_ros.engine.needle_kernels import approach_hit, locate_point, put_rows
 
 __all__ = ['MembraneContact']
 
@@ -46,18 +46,14 @@ class MembraneContact:
         """Start a contact when the tip has crossed the deformed surface (not while the needle
         goes back: the tip coming up through the surface it left is not a new contact; a bevel
         gripped the surface there and ruptured it again, at 2.4 N, on its way out)."""
-        if float(self._travel @ self.axis) < 0.0:
-            return
         # the tip is past the surface if the surface lies within the last step's travel or one
         # diameter behind the tip (the surface may have come up to a needle at rest)
-        back = math.sqrt(float(self._travel @ self._travel)) + self.geometry.diameter_m
-        disp = self.simulation.displacement
-        np.multiply(self.axis, -back, out=self._ray_origin)
-        self._ray_origin += self._tip
-        hit, t, w0, w1, w2 = first_surface_hit(self.rest, disp, self.surface_triangles, self._ray_origin,
-                                               self.axis, 0.0, back)
+        hit, t, w0, w1, w2, back = approach_hit(self.rest, self.simulation.displacement, self.surface_triangles,
+                                                self.surface_boxes, self.surface_nodes, self._tip, self._travel,
+                                                self.axis, self.geometry.diameter_m, self._ray_origin)
         if hit < 0:
             return
+        disp = self.simulation.displacement
         self.surface_point = self.tip - (back - t) * self.axis
         owner = int(self.surface_owner[hit])
         region = self._region_of(self.rest[self.surface_triangles[hit]].T @ np.array([w0, w1, w2]), owner)
