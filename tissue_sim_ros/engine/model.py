@@ -376,16 +376,34 @@ class TensorMassModel:
             self.relaxation.reset()
 
     def _run_kernel(self, geometric, physical, viscous, displacement, velocity, threshold_squared, safeguard):
-        kernel = forces.element_kernel(geometric, physical, viscous)
-        args = (self.tetrahedra, self._element_blocks, displacement, velocity, threshold_squared,
-                self.law_kind, self.law_params, self.chunk_bounds, self._work, self._buffers,
-                self._nonlinear_counts, safeguard, self._safeguard_counts, self._slow_elements,
-                self._corrected_lambda, self._corrected_mu, self.shape_gradients, self.volume_lambda,
-                self.volume_mu, self.viscous_lambda, self.viscous_mu, self._safeguard_scratch, self._node_state)
+        kernel, args = self._kernel_call(geometric, physical, viscous, displacement, velocity, threshold_squared,
+                                         safeguard)
         if (kernel, self.precision) in compile_cache.LOADED:
             kernel(*args)
         else:     # first use in this process: the cached code, compiled apart if need be
             compile_cache.call_compiled_apart(kernel, args, (geometric, physical, viscous), self.precision)
+
+    def _kernel_call(self, geometric, physical, viscous, displacement, velocity, threshold_squared, safeguard):
+        kernel = forces.element_kernel(geometric, physical, viscous)
+        return kernel, (self.tetrahedra, self._element_blocks, displacement, velocity, threshold_squared,
+                        self.law_kind, self.law_params, self.chunk_bounds, self._work, self._buffers,
+                        self._nonlinear_counts, safeguard, self._safeguard_counts, self._slow_elements,
+                        self._corrected_lambda, self._corrected_mu, self.shape_gradients, self.volume_lambda,
+                        self.volume_mu, self.viscous_lambda, self.viscous_mu, self._safeguard_scratch,
+                        self._node_state)
+
+    def force_pass_call(self, displacement, velocity):
+        """(kernel, arguments) of the pass ``accumulate_forces(displacement, velocity)`` runs, for
+        a caller that repeats it (a slice of substeps, engine.compiled_substep); None until this
+        process has run that pass once (its code loaded), or with relaxation (its update is not
+        in the pass). Valid until the elements change (``topology_version``)."""
+        viscous = self.viscous and velocity is not None
+        kernel, args = self._kernel_call(self.geometric, self.physical, viscous, displacement,
+                                         velocity if viscous else self._zero_velocity, self.threshold_squared,
+                                         self.inversion_safeguard and self.geometric)
+        if self.relaxation is not None or (kernel, self.precision) not in compile_cache.LOADED:
+            return None
+        return kernel, args
 
     @property
     def safeguarded_count(self):

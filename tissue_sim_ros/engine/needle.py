@@ -4,7 +4,9 @@ The needle is a straight rigid cylinder given by the pose of its base frame (pos
 quaternion x y z w); its axis is the frame's +z and the tip is at +z * length (DESIGN.md). The
 tissue is a :class:`~tissue_sim_ros.engine.solver.Simulation`. Each time step the scene moves the needle
 (:meth:`NeedleTissue.set_pose`), calls ``Simulation.step`` and then
-:meth:`NeedleTissue.after_step`, which applies the needle's constraints and forces as follows.
+:meth:`NeedleTissue.after_step`, which applies the needle's constraints and forces as follows
+(or, in the common cases, runs the same kernels in one compiled call after the force kernel:
+:mod:`~tissue_sim_ros.engine.compiled_substep`).
 
 Material points. The needle acts on *material points* of the tissue: a point inside an element
 (barycentric weights over its 4 nodes) or on a surface triangle (3 nodes), located once in the
@@ -296,7 +298,6 @@ class NeedleTissue(MembraneContact):
         sim.input_work = work
 
     def _after_step(self, dt):
-        sim = self.simulation
         self.contact_force[:] = 0.0
         inverse_mass = self._inverse_mass()
         if self.compiled_inside and self.n_points and not self._touching():
@@ -309,6 +310,13 @@ class NeedleTissue(MembraneContact):
         self.n_applied = 0
         needle_kinematics(self.position, self.axis, self._previous_position, self._previous_axis,
                            self.geometry.length_m, dt, self._tip, self._travel, self._base_velocity, self._axis_rate)
+        self.after_kinematics(inverse_mass, dt)
+
+    def after_kinematics(self, inverse_mass, dt):
+        """The general step after the needle's kinematics (``after_step`` but the inside step's
+        path): contact, the shaft and cutting, the phase, the wrench. Also where a compiled
+        approach step (engine.compiled_substep) goes on when the tip has met the surface."""
+        sim = self.simulation
         if self.phase == 'approach':
             self._detect_surface_contact(inverse_mass)
         if self.patch is not None:
@@ -354,26 +362,36 @@ class NeedleTissue(MembraneContact):
     def _inserted_step(self, inverse_mass, dt):
         """after_step inside the tissue, not touching a membrane: the same kernels in the same
         order as the general path, in one compiled call (engine.needle_step)."""
-        sim, geometry, faces = self.simulation, self.geometry, self._faces
-        sparse = sim.integrator == 'explicit'
         (self.friction_force, self.cutting_force, self.n_tip, self.n_applied, work, apex, travel_along, deepest,
-         speed_along) = inserted_step(
-            self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.tetrahedra,
-            self._neighbours, self.position, self.axis, self._previous_position, self._previous_axis,
-            self.rotation, geometry.length_m, dt, self._tip, self._travel, self._base_velocity, self._axis_rate,
-            self.point_nodes, self.point_weights, self.n_points, self._friction_laws[self.region],
-            self._free_beyond, self._closing_m, self.point_offsets, self.point_forces, self.point_depths,
-            self.point_shares, self.disc_offsets, self.tip_elements, self.tip_offsets, self.tip_nodes,
-            self.tip_weights, self._weights, self._candidates, self.regions[self.region].cutting_force_n,
-            self._cutting_law, self.tip_forces, self.tip_depths, self._unit_shares, self._no_offsets,
-            self.sharp and self.tip_contact.cutting, faces.engaged, faces.new, faces.nodes, faces.weights,
-            faces.params, faces.forces, faces.points, faces.total, self.applied_forces, self._applied_points,
-            self._applied_point_forces, self.wrench_force, self.wrench_torque, self.apex_element,
-            self._apex_weights, self._apex_rest, self._forces_applied, sparse)
-        # with ``sparse`` the call zeroed what it applied (the implicit integrators' after_step
-        # needs the forces after it: the work over the needle's own moves)
-        self._forces_applied = self.n_applied > 0 and not sparse
-        sim.input_work += work
+         speed_along) = inserted_step(*self.inserted_arguments(inverse_mass, dt), self.apex_element,
+                                      self._forces_applied)
+        self.simulation.input_work += work
+        self.after_inserted_step(inverse_mass, dt, apex, travel_along, deepest, speed_along)
+
+    def inserted_arguments(self, inverse_mass, dt):
+        """The arguments of ``needle_step.inserted_step`` but the last two (the apex's element to
+        walk from, whether to clear the applied forces first), as a tuple; valid until the needle's
+        state changes outside that call (the compiled substep keeps it over a slice)."""
+        sim, geometry, faces = self.simulation, self.geometry, self._faces
+        return (self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.tetrahedra,
+                self._neighbours, self.position, self.axis, self._previous_position, self._previous_axis,
+                self.rotation, geometry.length_m, dt, self._tip, self._travel, self._base_velocity, self._axis_rate,
+                self.point_nodes, self.point_weights, self.n_points, self._friction_laws[self.region],
+                self._free_beyond, self._closing_m, self.point_offsets, self.point_forces, self.point_depths,
+                self.point_shares, self.disc_offsets, self.tip_elements, self.tip_offsets, self.tip_nodes,
+                self.tip_weights, self._weights, self._candidates, self.regions[self.region].cutting_force_n,
+                self._cutting_law, self.tip_forces, self.tip_depths, self._unit_shares, self._no_offsets,
+                self.sharp and self.tip_contact.cutting, faces.engaged, faces.new, faces.nodes, faces.weights,
+                faces.params, faces.forces, faces.points, faces.total, self.applied_forces, self._applied_points,
+                self._applied_point_forces, self.wrench_force, self.wrench_torque, self._apex_weights,
+                self._apex_rest, sim.integrator == 'explicit')
+
+    def after_inserted_step(self, inverse_mass, dt, apex, travel_along, deepest, speed_along):
+        """What the Python decides after the compiled inside step, from the floats it returned:
+        points released behind a retracting tip, the apex's layer and a new shaft point, the phase.
+        (With ``sparse`` the step zeroed what it applied: the implicit integrators' after_step
+        needs the forces after it, the work over the needle's own moves.)"""
+        self._forces_applied = self.n_applied > 0 and self.simulation.integrator != 'explicit'
         if travel_along < 0.0 and deepest > self._release_beyond:
             self._release_passed_points()
             deepest = None

@@ -35,7 +35,7 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
                   faces_cut, engaged, new, face_nodes, face_weights, face_params, face_forces, face_points,
                   face_total,
                   applied_forces, applied_points, applied_point_forces, wrench_force, wrench_torque,
-                  apex_start, apex_weights, apex_rest, clear_first, sparse):
+                  apex_weights, apex_rest, sparse, apex_start, clear_first):
     """One step of the inserted needle (module docstring). The arrays are NeedleTissue's (shaft
     points, cutting samples, and with ``faces_cut`` a sharp tip's contact); ``applied_forces``
     is filled (cleared first with ``clear_first``, else it must hold zeros). With ``sparse`` the
@@ -43,7 +43,8 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
     holds zeros after the call: no pass over the whole mesh, 3 us a step on the default scene);
     without, it keeps the forces and the work is a dot product over the whole array. The tip's
     apex is walked to from element ``apex_start`` (< 0: not walked), its weights in
-    ``apex_weights`` and its rest coordinates in ``apex_rest``. Returns
+    ``apex_weights`` and its rest coordinates in ``apex_rest``. (The two arguments that change
+    from step to step come last: the rest are :meth:`.needle.NeedleTissue.inserted_arguments`.) Returns
     (friction force, cutting force, cutting samples found, points of action written, work of the
     needle's forces over the step [J], the apex's element (locate_walk: -1 outside, -2 not
     found), the tip's travel along the axis [m], the deepest shaft point's axial coordinate [m],

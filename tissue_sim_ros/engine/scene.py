@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from tissue_sim_ros.engine.compiled_substep import CompiledSubsteps
 from tissue_sim_ros.engine.material import Material, MaterialError, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.mesh import make_mesh
 from tissue_sim_ros.engine.mesh_generators import box_mesh, graded_box_mesh
@@ -235,6 +236,9 @@ class Scene:
         except ValueError as exc:        # MaterialError, MeshError, NeedleInputError...
             raise SceneError(str(exc)) from exc
         self._target_time = 0.0
+        #: run the substeps of a needle inside as the force kernel and one compiled call
+        #: (engine.compiled_substep; False: the Python calls, the same arithmetic)
+        self.compiled_substeps = True
         self.element_region = element_region
         self.region_names = [r['name'] for r in s['regions']]
         from tissue_sim_ros.engine.warm_up import warm_up
@@ -312,6 +316,11 @@ class Scene:
         self._target_time = end_t
         steps = 0
         step_wall = 0.0
+        # one needle translating, explicit, nothing prescribed: a needle inside runs its substeps
+        # as the force kernel and one compiled call (engine.compiled_substep); the same arithmetic
+        inside = (CompiledSubsteps(self, moves[0][1], moves[0][3]) if self.compiled_substeps
+                  and len(moves) == 1 and not moves[0][7] and sim.integrator == 'explicit'
+                  and not sim.has_prescribed else None)
         while sim.time + sim.dt <= end_t + 1e-9 * sim.dt:
             if max_steps is not None and steps >= max_steps:
                 return steps
@@ -320,13 +329,18 @@ class Scene:
                 if now + step_wall > deadline:
                     return steps
             s = min(1.0, (sim.time + sim.dt - start_t) / (end_t - start_t))
-            for needle, start_p, _, move, position, start_q, q, turning in moves:
-                np.multiply(move, s, out=position)     # start + s * move, no array made a step
-                position += start_p
-                needle.set_pose(position, slerp(start_q, q, s) if turning else None)
-            sim.step(1)
-            for needle in self.needles:
-                needle.after_step(sim.dt)
+            if inside is not None and inside.ready():
+                inside.step(s)
+            else:
+                for needle, start_p, _, move, position, start_q, q, turning in moves:
+                    np.multiply(move, s, out=position)     # start + s * move, no array made a step
+                    position += start_p
+                    needle.set_pose(position, slerp(start_q, q, s) if turning else None)
+                sim.step(1)
+                for needle in self.needles:
+                    needle.after_step(sim.dt)
+                if inside is not None:
+                    inside.invalidate()
             steps += 1
             if deadline is not None:
                 step_wall = time.perf_counter() - now

@@ -245,6 +245,11 @@ class Simulation:
         self.dt *= math.sqrt(ratio)
         self._critical = None
 
+    @property
+    def has_prescribed(self):
+        """Whether any DOF is driven (``prescribe``)."""
+        return bool(self._prescribed)
+
     def constraint_compliance(self):
         """(inverse mass (n, 3) of each DOF, 0 for held ones; force scale (n,)): how a constraint
         applied after a step (the needle's) moves a DOF and what force that takes, f = scale dx /
@@ -334,19 +339,27 @@ class Simulation:
             self.kinetic_energy = kinetic
             self.time = t_next
             self.step_count += 1
-            if bad:
-                self._diverged(f'{bad} displacement or velocity components became NaN or infinite, '
-                               f'or a displacement passed {self.displacement_limit:.3g} m (100 body sizes)')
             if check:
+                self.watch(bad, None)
                 self._check_energy(strain, inverted)
-            elif not free_kinetic <= self._energy_limit():
-                # every step, the free DOFs' kinetic energy alone (the step computes it anyway): an
-                # unstable step's energy is half kinetic, so it is caught within a step or two of
-                # crossing. Not the prescribed DOFs': a driver's motion is not the tissue's energy
-                # (a driven relaxation cycle gives back its work while its nodes still move)
-                self._diverged(f'energy grew without input: kinetic energy {free_kinetic:.4g} J above the '
-                               f'{self._energy_limit():.4g} J a stable run can hold (initial energy '
-                               f'{self.reference_energy:.4g} J plus work put in {self.input_work:.4g} J)')
+            else:
+                self.watch(bad, free_kinetic)
+
+    def watch(self, bad, free_kinetic):
+        """The watchdog after a step: raise SimulationDiverged for ``bad`` components (not
+        finite, or past the displacement limit) or, unless None, free DOFs' kinetic energy above
+        the limit (``_energy_limit``; a compiled substep, engine.compiled_substep, tests the same)."""
+        if bad:
+            self._diverged(f'{bad} displacement or velocity components became NaN or infinite, '
+                           f'or a displacement passed {self.displacement_limit:.3g} m (100 body sizes)')
+        if free_kinetic is not None and not free_kinetic <= self._energy_limit():
+            # every step, the free DOFs' kinetic energy alone (the step computes it anyway): an
+            # unstable step's energy is half kinetic, so it is caught within a step or two of
+            # crossing. Not the prescribed DOFs': a driver's motion is not the tissue's energy
+            # (a driven relaxation cycle gives back its work while its nodes still move)
+            self._diverged(f'energy grew without input: kinetic energy {free_kinetic:.4g} J above the '
+                           f'{self._energy_limit():.4g} J a stable run can hold (initial energy '
+                           f'{self.reference_energy:.4g} J plus work put in {self.input_work:.4g} J)')
 
     def _check_energy(self, strain, inverted):
         """Energy (kinetic at t_n + strain at u_n) against the initial energy plus the work put in.
@@ -370,8 +383,13 @@ class Simulation:
         plus the work put in, widened by the discrete swing (the implicit integrators dissipate:
         none), plus a floor."""
         budget = self.reference_energy + max(self.input_work, 0.0)
+        return self.energy_limit_factor() * budget + self.energy_floor
+
+    def energy_limit_factor(self):
+        """The growth factor times the discrete swing: the energy limit is this times (initial
+        energy plus work put in) plus ``energy_floor``."""
         swing = 1.0 if self._implicit is not None else 1.0 / max(1.0 - (self.dt / self.critical_time_step()) ** 2, 0.05)
-        return self.energy_growth_factor * swing * budget + self.energy_floor
+        return self.energy_growth_factor * swing
 
     def _diverged(self, reason):
         raise SimulationDiverged(reason, self.step_count, self.time, self.dt, self.critical_time_step())

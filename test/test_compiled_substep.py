@@ -1,0 +1,118 @@
+"""A substep as the force kernel and one compiled call (engine.compiled_substep) is the general
+substep bit for bit, in every phase it covers and at the steps it hands back; the watchdog trips
+at the same step with the same message, at the same limit."""
+import numpy as np
+import pytest
+
+from test_needle_tips import COARSE_FAR
+from tissue_sim_ros.analysis.insertion import run_insertion
+from tissue_sim_ros.engine import compiled_substep
+from tissue_sim_ros.engine.scene import Scene
+from tissue_sim_ros.engine.solver import SimulationDiverged
+
+#: a capsule, then a second layer with its own membrane under a plane (the apex's layer decided
+#: in the compiled call) and a box region with other laws below it
+LAYERS = {'regions': [
+    {'name': 'capsule', 'young_modulus_pa': 20000.0, 'poisson_ratio': 0.45, 'cutting_force_n': 0.05,
+     'membrane': {'criterion': 'force', 'rupture_force_n': 0.4}},
+    {'name': 'deeper', 'select': {'below_z_m': -0.006}, 'young_modulus_pa': 30000.0, 'poisson_ratio': 0.45,
+     'cutting_force_n': 0.08, 'membrane': {'criterion': 'force', 'rupture_force_n': 0.3}},
+    {'name': 'core', 'select': {'box_m': [[-0.01, -0.01, -0.04], [0.01, 0.01, -0.009]]},
+     'young_modulus_pa': 25000.0, 'poisson_ratio': 0.45, 'cutting_force_n': 0.03}]}
+
+
+def _counting(monkeypatch):
+    """Count the compiled calls by outcome and mode."""
+    counts = {}
+    for name in ('after_approach_step', 'after_inside_step'):
+        compiled = getattr(compiled_substep, name)
+
+        def counted(*args, compiled=compiled, name=name):
+            result = compiled(*args)
+            outcome = result if isinstance(result, int) else result[0]
+            counts[(name, outcome)] = counts.get((name, outcome), 0) + 1
+            return result
+        monkeypatch.setattr(compiled_substep, name, counted)
+    return counts
+
+
+def _run(sets, compiled, overrides=None, speed=0.005, depth=0.014):
+    scene = Scene.from_file(sets=COARSE_FAR + sets, **(overrides or {}))
+    scene.compiled_substeps = compiled
+    result = run_insertion(scene, speed, scene.start_gap_m + depth, hold_s=0.1, tick=0.02)
+    return scene, result
+
+
+@pytest.mark.parametrize('tip, overrides', [('bevel', None), ('flat', None), ('conical', LAYERS)],
+                         ids=['bevel', 'flat', 'conical-layers'])
+def test_compiled_substeps_are_the_general_substeps_bit_for_bit(tip, overrides, monkeypatch):
+    """Approach, puncture(s), insertion, hold, retraction and out again: the wrench at every tick,
+    the phases, the punctures, the tissue state and the work put in are the same to the last bit
+    with the compiled substeps and without; the compiled calls ran on most steps, outside and
+    inside, and handed steps back (the surface met, new shaft points, layers, released points)."""
+    counts = _counting(monkeypatch)
+    sets = [f'needle.tip.shape={tip}']
+    compiled, fast = _run(sets, True, overrides)
+    general, slow = _run(sets, False, overrides)
+    assert np.array_equal(fast.force, slow.force) and np.array_equal(fast.torque, slow.torque)
+    assert fast.phase == slow.phase and {'approach', 'contact', 'inserted', 'retracting'} <= set(fast.phase)
+    assert compiled.puncture_events == general.puncture_events and len(compiled.puncture_events) >= 1
+    for name in ('displacement', 'velocity', 'internal_force'):
+        assert np.array_equal(getattr(compiled.simulation, name), getattr(general.simulation, name)), name
+    assert compiled.simulation.input_work == general.simulation.input_work
+    assert compiled.simulation.step_count == general.simulation.step_count == fast.steps
+    assert compiled.simulation.time == general.simulation.time
+    done = counts.get(('after_approach_step', 0), 0) + counts.get(('after_inside_step', 0), 0)
+    assert done > 0.6 * fast.steps, counts
+    assert counts.get(('after_approach_step', 1), 0) >= 1 and counts.get(('after_inside_step', 1), 0) >= 3
+    if overrides is not None:
+        assert [e['region'] for e in compiled.puncture_events] == ['capsule', 'deeper']
+
+
+@pytest.mark.parametrize('phase_depth', [0.0, 0.012], ids=['outside', 'inside'])
+def test_the_watchdog_trips_at_the_same_step_either_way(phase_depth):
+    """A step far past the critical one diverges: the compiled substep stops at the same step, with
+    the same message and the same state as Simulation.step (needle outside and inside)."""
+    outcomes = []
+    for compiled in (True, False):
+        scene = Scene.from_file(sets=COARSE_FAR)
+        scene.compiled_substeps = compiled
+        p, q = scene.needle_pose
+        axis = scene.needle.axis
+        depth = scene.start_gap_m + phase_depth
+        for k in range(1, 41):
+            scene.advance(0.02, p + axis * depth * min(1.0, k / 30), q)
+        assert scene.phase == ('approach' if phase_depth == 0.0 else 'inserted')
+        sim = scene.simulation
+        sim.dt *= 2.5
+        with pytest.raises(SimulationDiverged) as caught:
+            for _ in range(200):
+                scene.advance(0.02, p + axis * depth, q)
+        outcomes.append((sim.step_count, str(caught.value), sim.displacement.copy(), sim.input_work,
+                         scene.needle.position.copy()))
+    (steps, message, u, work, position), (steps2, message2, u2, work2, position2) = outcomes
+    assert steps == steps2 and message == message2 and 'energy grew without input' in message
+    assert np.array_equal(u, u2, equal_nan=True) and work == work2 and np.array_equal(position, position2)
+
+
+def test_the_compiled_watchdog_limit_is_the_simulations():
+    """The compiled substep's energy limit is Simulation._energy_limit: a kinetic energy 1e-12
+    below it passes, 1e-12 above it trips, for work put in below and above zero."""
+    scene = Scene.from_file(sets=COARSE_FAR)
+    sim = scene.simulation
+    scene.advance(0.01, *scene.needle_pose)
+    needle = scene.needle
+    for work_in, step_work in ((-2e-3, 1e-4), (0.0, 0.0), (3e-2, -1e-3), (5.0, 2e-3)):
+        sim.input_work = work_in + step_work
+        limit = sim._energy_limit()
+        watch = np.array([sim.energy_limit_factor(), sim.reference_energy, sim.energy_floor])
+        for kinetic, passes in ((limit * (1 - 1e-12), True), (limit * (1 + 1e-12), False)):
+            energy = np.array([work_in])
+            moved = [a.copy() for a in (needle.position, needle.axis, needle.position, needle.axis, needle.tip)]
+            assert compiled_substep._move_and_watch(0.5, step_work, kinetic, 0, needle.position, np.zeros(3), energy,
+                                                    watch, moved[0], moved[1], moved[2], moved[3],
+                                                    needle.geometry.length_m, moved[4]) == passes
+            assert energy[0] == sim.input_work
+        assert not compiled_substep._move_and_watch(0.5, step_work, 0.0, 1, needle.position, np.zeros(3),
+                                                    np.array([work_in]), watch, *moved[:4],
+                                                    needle.geometry.length_m, moved[4])
