@@ -20,13 +20,7 @@ __all__ = ['first_surface_hit', 'near_surface_hit', 'approach_hit', 'surface_box
 def first_surface_hit(rest, displacement, triangles, origin, direction, t_min, t_max):
     """Nearest-to-t_min crossing of the ray origin + t direction (t in [t_min, t_max]) with the
     deformed surface triangles (Moller-Trumbore). Returns (triangle, t, w0, w1, w2) or -1."""
-    best, best_t, b0, b1, b2 = -1, np.inf, 0.0, 0.0, 0.0
-    for k in range(triangles.shape[0]):
-        t, u, v = _triangle_crossing(rest, displacement, triangles[k, 0], triangles[k, 1], triangles[k, 2],
-                                     origin, direction)
-        if t_min <= t <= t_max and t < best_t:
-            best, best_t, b0, b1, b2 = k, t, 1.0 - u - v, u, v
-    return best, best_t, b0, b1, b2
+    return _nearest_crossing(rest, displacement, triangles, _NO_BOXES, 0.0, origin, direction, t_min, t_max)
 
 
 @njit(cache=True)
@@ -54,21 +48,33 @@ def near_surface_hit(rest, displacement, triangles, boxes, surface_nodes, origin
         for r in range(3):
             grown = max(grown, abs(displacement[i, r]))
     grown += 1e-12          # far above the rounding of an accepted crossing (1e-17 m)
-    low = np.empty(3)
-    high = np.empty(3)
-    for r in range(3):
-        a, b = origin[r] + t_min * direction[r], origin[r] + t_max * direction[r]
-        low[r], high[r] = min(a, b) - grown, max(a, b) + grown
-    best, best_t, b0, b1, b2 = -1, np.inf, 0.0, 0.0, 0.0
+    return _nearest_crossing(rest, displacement, triangles, boxes, grown, origin, direction, t_min, t_max)
+
+
+_NO_BOXES = np.zeros((0, 6))
+
+
+@njit(cache=True, inline='always')
+def _nearest_crossing(rest, displacement, triangles, boxes, grown, origin, direction, t_min, t_max):
+    """The ray test of the two functions above: every triangle (``boxes`` without rows), or those
+    whose box grown by ``grown`` meets the segment's box."""
+    filtered = boxes.shape[0] > 0
+    a0, b0 = origin[0] + t_min * direction[0], origin[0] + t_max * direction[0]
+    a1, b1 = origin[1] + t_min * direction[1], origin[1] + t_max * direction[1]
+    a2, b2 = origin[2] + t_min * direction[2], origin[2] + t_max * direction[2]
+    low0, high0 = min(a0, b0) - grown, max(a0, b0) + grown
+    low1, high1 = min(a1, b1) - grown, max(a1, b1) + grown
+    low2, high2 = min(a2, b2) - grown, max(a2, b2) + grown
+    best, best_t, w0, w1, w2 = -1, np.inf, 0.0, 0.0, 0.0
     for k in range(triangles.shape[0]):
-        if (boxes[k, 0] > high[0] or boxes[k, 3] < low[0] or boxes[k, 1] > high[1] or boxes[k, 4] < low[1]
-                or boxes[k, 2] > high[2] or boxes[k, 5] < low[2]):
+        if filtered and (boxes[k, 0] > high0 or boxes[k, 3] < low0 or boxes[k, 1] > high1 or boxes[k, 4] < low1
+                         or boxes[k, 2] > high2 or boxes[k, 5] < low2):
             continue
         t, u, v = _triangle_crossing(rest, displacement, triangles[k, 0], triangles[k, 1], triangles[k, 2],
                                      origin, direction)
         if t_min <= t <= t_max and t < best_t:
-            best, best_t, b0, b1, b2 = k, t, 1.0 - u - v, u, v
-    return best, best_t, b0, b1, b2
+            best, best_t, w0, w1, w2 = k, t, 1.0 - u - v, u, v
+    return best, best_t, w0, w1, w2
 
 
 @njit(cache=True)
