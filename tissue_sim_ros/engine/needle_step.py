@@ -11,7 +11,9 @@ a step on the default scene (the kernels about 42 us of it, the calls and the Py
 them the rest), 30 % of a coarse calibration run (issue 19 item 3, issue 16); here it is one
 call to the same kernels in the same order, so the forces are the same to the last bit. What
 the Python after it decides on the outcome (shaft points released behind the tip, the layer of
-the apex's material point, a new membrane met, a new shaft point) reads the floats returned.
+the apex's material point, a new membrane met, a new shaft point) reads the floats returned;
+:mod:`~.compiled_substep` calls it from compiled code and decides the common outcome (nothing
+to do) there, handing the other steps to that Python.
 """
 import numpy as np
 from numba import njit
