@@ -1,10 +1,10 @@
 """A scene's substep as the force kernel and one compiled call, while the needle is outside or inside.
 
 A substep of :meth:`.scene.Scene.advance` is the needle's pose for the step, the force kernel (the
-element pass, then the node update), the watchdog, and the needle's step after the tissue's. As
-Python around the compiled calls (``NeedleTissue.set_pose``, ``Simulation.step``,
-``NeedleTissue.after_step``) that costs 15-25 us a substep outside compiled code on the default
-scene (issue 19 item 3: one call into compiled code per slice, the needle's bookkeeping inside
+element pass, then the node update), the watchdog, and the needle's step after the tissue's,
+as Python around compiled calls (``NeedleTissue.set_pose``, ``Simulation.step``,
+``NeedleTissue.after_step``): Python that runs cold, after an element pass has been through the
+caches (issue 19 item 3: one call into compiled code per slice, the needle's bookkeeping inside
 it). Here the force kernel runs as before and is timed as before (``Simulation.kernel_s``), and
 the rest of the substep is one compiled call:
 
@@ -17,7 +17,10 @@ the rest of the substep is one compiled call:
   add, none to release); a step that needs more goes on in ``NeedleTissue.after_inserted_step``.
 
 Both calls release the GIL, as the force kernel does: the node's executor thread publishes while
-the needle's step runs (about 35 us of the inside substep on the default scene).
+the needle's step runs (about 35 us of the inside substep on the default scene). On node-bench's
+insertions (default scene, in-process, 100 advances a second) the work outside the force kernel
+fell from 62-73 to 59-63 us a substep (alternating runs), the approach's surface test
+(``needle_kernels.near_surface_hit``) included.
 
 The same kernels in the same order: a scene advanced this way gives the same state, to the last
 bit, as one advanced through the Python calls (``Scene.compiled_substeps = False``; tested). It

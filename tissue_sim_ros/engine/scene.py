@@ -236,8 +236,8 @@ class Scene:
         except ValueError as exc:        # MaterialError, MeshError, NeedleInputError...
             raise SceneError(str(exc)) from exc
         self._target_time = 0.0
-        #: run the substeps of a needle inside as the force kernel and one compiled call
-        #: (engine.compiled_substep; False: the Python calls, the same arithmetic)
+        #: run the substeps of a needle outside or inside as the force kernel and one compiled
+        #: call (engine.compiled_substep; False: the Python calls, the same arithmetic)
         self.compiled_substeps = True
         self.element_region = element_region
         self.region_names = [r['name'] for r in s['regions']]
@@ -316,11 +316,11 @@ class Scene:
         self._target_time = end_t
         steps = 0
         step_wall = 0.0
-        # one needle translating, explicit, nothing prescribed: a needle inside runs its substeps
-        # as the force kernel and one compiled call (engine.compiled_substep); the same arithmetic
-        inside = (CompiledSubsteps(self, moves[0][1], moves[0][3]) if self.compiled_substeps
-                  and len(moves) == 1 and not moves[0][7] and sim.integrator == 'explicit'
-                  and not sim.has_prescribed else None)
+        # one needle translating, explicit, nothing prescribed: the substeps it allows are the
+        # force kernel and one compiled call (engine.compiled_substep); the same arithmetic
+        compiled = (CompiledSubsteps(self, moves[0][1], moves[0][3]) if self.compiled_substeps
+                    and len(moves) == 1 and not moves[0][7] and sim.integrator == 'explicit'
+                    and not sim.has_prescribed else None)
         while sim.time + sim.dt <= end_t + 1e-9 * sim.dt:
             if max_steps is not None and steps >= max_steps:
                 return steps
@@ -329,8 +329,8 @@ class Scene:
                 if now + step_wall > deadline:
                     return steps
             s = min(1.0, (sim.time + sim.dt - start_t) / (end_t - start_t))
-            if inside is not None and inside.ready():
-                inside.step(s)
+            if compiled is not None and compiled.ready():
+                compiled.step(s)
             else:
                 for needle, start_p, _, move, position, start_q, q, turning in moves:
                     np.multiply(move, s, out=position)     # start + s * move, no array made a step
@@ -339,8 +339,8 @@ class Scene:
                 sim.step(1)
                 for needle in self.needles:
                     needle.after_step(sim.dt)
-                if inside is not None:
-                    inside.invalidate()
+                if compiled is not None:
+                    compiled.invalidate()
             steps += 1
             if deadline is not None:
                 step_wall = time.perf_counter() - now
