@@ -85,17 +85,19 @@ def after_approach_step(s, work, kinetic, bad, start, move, energy, watch, rest,
 
 
 @njit(cache=True, nogil=True)
-def after_inside_step(s, work, kinetic, bad, start, move, energy, watch, state, decide, kinds, params, tags,
-                      element_region, needle):
+def after_inside_step(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
+                      previous_axis, length, tip, apex_rest, state, decide, kinds, params, tags, element_region,
+                      needle):
     """The substep after the force kernel with the needle inside (module docstring).
 
+    The needle's pose arrays, ``length`` and ``apex_rest`` are those in ``needle``, named.
     ``state``: (the apex's element, whether the applied forces need clearing first), updated.
     ``decide``: (release_beyond, needle length, shaft point spacing, the layer's region index);
     ``kinds``, ``params``, ``tags``: the region selectors (``region_selectors.region_of_point``;
     no kinds: each element's own region, ``element_region``). ``needle``:
     ``NeedleTissue.inserted_arguments``. Returns (outcome, and the inside step's nine values)."""
-    if not _move_and_watch(s, work, kinetic, bad, start, move, energy, watch, needle[7], needle[8], needle[9],
-                           needle[10], needle[12], needle[14]):
+    if not _move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
+                           previous_axis, length, tip):
         return DIVERGED, 0.0, 0.0, 0, 0, 0.0, -2, 0.0, 0.0, 0.0
     (friction, cutting, n_tip, n_applied, needle_work, apex, travel_along, deepest,
      speed_along) = inserted_step(*needle, state[0], state[1] != 0)
@@ -103,7 +105,6 @@ def after_inside_step(s, work, kinetic, bad, start, move, energy, watch, state, 
     energy[0] += needle_work
     outcome = TAIL
     if not (travel_along < 0.0 and deepest > decide[0]) and apex >= 0 and not decide[1] - deepest >= decide[2]:
-        apex_rest = needle[56]
         region = region_of_point(kinds, params, tags, apex_rest[0], apex_rest[1], apex_rest[2], apex)
         if region < 0:
             region = element_region[apex]
@@ -121,7 +122,7 @@ class CompiledSubsteps:
     changed)."""
 
     def __init__(self, scene, start, move):
-        self.scene, self.sim, self.needle = scene, scene.simulation, scene.needle
+        self.sim, self.needle = scene.simulation, scene.needle
         self.start, self.move = start, move
         self.energy = np.zeros(1)
         self.state = np.zeros(2, dtype=np.int64)
@@ -155,9 +156,7 @@ class CompiledSubsteps:
         needle.contact_force[:] = 0.0
         geometry = needle.geometry
         watch = np.array([sim.energy_limit_factor(), sim.reference_energy, sim.energy_floor])
-        advance = (sim.displacement, sim.velocity, *sim.model.force_buffers, sim.internal_force,
-                   sim.external_forces, sim.inverse_mass, sim.damping_rate, sim.dof_kind, sim.dt,
-                   sim.displacement_limit)
+        advance = sim.advance_arguments()
         common = (self.start, self.move, self.energy, watch)
         if mode == _OUTSIDE:
             after = common + (needle.rest, sim.displacement, needle.surface_triangles, needle.surface_boxes,
@@ -172,8 +171,9 @@ class CompiledSubsteps:
                                if selectors is None else (selectors.kinds, selectors.params, selectors.tags))
         decide = np.array([needle._release_beyond, geometry.length_m, geometry.shaft_point_spacing_m,
                            float(needle.region)])
-        after = common + (self.state, decide, kinds, params, tags, needle.element_region,
-                          needle.inserted_arguments(inverse_mass, sim.dt))
+        after = common + (needle.position, needle.axis, needle._previous_position, needle._previous_axis,
+                          geometry.length_m, needle._tip, needle._apex_rest, self.state, decide, kinds, params,
+                          tags, needle.element_region, needle.inserted_arguments(inverse_mass, sim.dt))
         return forces[0], forces[1], advance, after_inside_step, after, inverse_mass
 
     def step(self, s):

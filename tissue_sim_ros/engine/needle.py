@@ -389,8 +389,8 @@ class NeedleTissue(MembraneContact):
     def after_inserted_step(self, inverse_mass, dt, apex, travel_along, deepest, speed_along):
         """What the Python decides after the compiled inside step, from the floats it returned:
         points released behind a retracting tip, the apex's layer and a new shaft point, the phase.
-        (With ``sparse`` the step zeroed what it applied: the implicit integrators' after_step
-        needs the forces after it, the work over the needle's own moves.)"""
+        (Under the explicit integrator the step zeroed what it applied; the implicit integrators'
+        after_step needs the forces after it, the work over the needle's own moves.)"""
         self._forces_applied = self.n_applied > 0 and self.simulation.integrator != 'explicit'
         if travel_along < 0.0 and deepest > self._release_beyond:
             self._release_passed_points()

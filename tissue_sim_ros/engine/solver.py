@@ -245,6 +245,13 @@ class Simulation:
         self.dt *= math.sqrt(ratio)
         self._critical = None
 
+    def advance_arguments(self):
+        """The arguments of the node update ``_advance_free`` after the element pass (the explicit
+        step's, and a compiled substep's, engine.compiled_substep)."""
+        return (self.displacement, self.velocity, *self.model.force_buffers, self.internal_force,
+                self.external_forces, self.inverse_mass, self.damping_rate, self.dof_kind, self.dt,
+                self.displacement_limit)
+
     @property
     def has_prescribed(self):
         """Whether any DOF is driven (``prescribe``)."""
@@ -322,11 +329,7 @@ class Simulation:
                 # internal variables advance over it
                 model.accumulate_forces(self.displacement, self.velocity,
                                         time_step=dt if self.step_count else 0.0)
-                work, kinetic, bad = _advance_free(self.displacement, self.velocity, *model.force_buffers,
-                                                   self.internal_force,
-                                                   self.external_forces, self.inverse_mass,
-                                                   self.damping_rate, self.dof_kind, dt,
-                                                   self.displacement_limit)
+                work, kinetic, bad = _advance_free(*self.advance_arguments())
                 self.kernel_s += time.thread_time() - kernel0
                 free_kinetic = kinetic
                 for p in self._prescribed:
