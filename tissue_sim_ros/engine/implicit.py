@@ -303,6 +303,8 @@ class ImplicitStep:
                 return k
             self._precondition(r, z)
             rz_next = float(np.vdot(r, z))
+            if not rz_next > 0.0:     # r M^-1 r underflowed (|r| near 1e-160): nothing is left to reduce
+                return k
             p *= rz_next / rz
             p += z
             rz = rz_next
