@@ -67,7 +67,7 @@ from tissue_sim_ros.engine.mesh import element_neighbours, face_elements
 from tissue_sim_ros.engine.needle_contact import disc_offsets
 from tissue_sim_ros.engine.needle_kernels import (first_surface_hit, follow_rigid_samples, locate_point,
                                                   locate_walk, needle_kinematics, put_axis_points,
-                                                  put_rigid_points, put_rows, shaft_solve, surface_boxes, wrench_about)
+                                                  put_rigid_points, put_rows, shaft_solve, cell_boxes, wrench_about)
 from tissue_sim_ros.engine.needle_membrane import MembraneContact
 from tissue_sim_ros.engine.needle_parameters import (Friction, Membrane, NeedleGeometry, RegionInteraction,
                                                      TipShape)
@@ -129,6 +129,7 @@ class NeedleTissue(MembraneContact):
         self._free_beyond = geometry.length_m - self._closing_m if self.sharp else math.inf
         self.tip_elements = np.full(n_disc, -1, dtype=np.int64)   # where each sample was last found
         self._candidates = np.zeros(len(self.tetrahedra), dtype=np.int64)   # elements near the tip
+        self._near_boxes = np.zeros((len(self.tetrahedra), 6))              # and their deformed boxes
         self._weights = np.zeros(4)
         self._apex_weights = np.zeros(4)
         self._apex_rest = np.zeros(3)
@@ -168,7 +169,9 @@ class NeedleTissue(MembraneContact):
         triangles = self.mesh.surface_triangles()
         self.surface_triangles = np.ascontiguousarray(triangles, dtype=np.int64)
         self.surface_nodes = np.unique(self.surface_triangles)
-        self.surface_boxes = surface_boxes(self.rest, self.surface_triangles)
+        self.surface_boxes = cell_boxes(self.rest, self.surface_triangles)
+        self.element_boxes = cell_boxes(self.rest, self.tetrahedra)      # the searches near the tip
+        self.mesh_nodes = np.arange(self.mesh.n_nodes)
         self.surface_owner = face_elements(self.tetrahedra, triangles, self.mesh.n_nodes)
         self._neighbours = element_neighbours(self.tetrahedra, self.mesh.n_nodes)
 
@@ -374,13 +377,13 @@ class NeedleTissue(MembraneContact):
         state changes outside that call (the compiled substep keeps it over a slice)."""
         sim, geometry, faces = self.simulation, self.geometry, self._faces
         return (self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.tetrahedra,
-                self._neighbours, self.position, self.axis, self._previous_position, self._previous_axis,
-                self.rotation, geometry.length_m, dt, self._tip, self._travel, self._base_velocity, self._axis_rate,
-                self.point_nodes, self.point_weights, self.n_points, self._friction_laws[self.region],
-                self._free_beyond, self._closing_m, self.point_offsets, self.point_forces, self.point_depths,
-                self.point_shares, self.disc_offsets, self.tip_elements, self.tip_offsets, self.tip_nodes,
-                self.tip_weights, self._weights, self._candidates, self.regions[self.region].cutting_force_n,
-                self._cutting_law, self.tip_forces, self.tip_depths, self._unit_shares, self._no_offsets,
+                self._neighbours, self.element_boxes, self.mesh_nodes, self.position, self.axis,
+                self._previous_position, self._previous_axis, self.rotation, geometry.length_m, dt, self._tip,
+                self._travel, self._base_velocity, self._axis_rate, self.point_nodes, self.point_weights,
+                self.n_points, self._friction_laws[self.region], self._free_beyond, self._closing_m,
+                self.point_offsets, self.point_forces, self.point_depths, self.point_shares, self.disc_offsets,
+                self.tip_elements, self.tip_offsets, self.tip_nodes, self.tip_weights, self._weights,
+                self._candidates, self._near_boxes, self.regions[self.region].cutting_force_n, self._cutting_law, self.tip_forces, self.tip_depths, self._unit_shares, self._no_offsets,
                 self.sharp and self.tip_contact.cutting, faces.engaged, faces.new, faces.nodes, faces.weights,
                 faces.params, faces.forces, faces.points, faces.total, self.applied_forces, self._applied_points,
                 self._applied_point_forces, self.wrench_force, self.wrench_torque, self._apex_weights,
@@ -512,9 +515,10 @@ class NeedleTissue(MembraneContact):
         only at each new shaft point, they stayed with the tissue in between and the force built
         up again after each: a dip of up to 9 % every shaft point spacing."""
         self.n_tip = follow_rigid_samples(self.rest, self.simulation.displacement, self.tetrahedra,
-                                          self._neighbours, self._tip, self.rotation, self.disc_offsets,
+                                          self._neighbours, self.element_boxes, self.mesh_nodes, self._tip,
+                                          self.rotation, self.disc_offsets,
                                           self.tip_elements, self.tip_offsets, self.tip_nodes,
-                                          self.tip_weights, self._weights, self._candidates)
+                                          self.tip_weights, self._weights, self._candidates, self._near_boxes)
 
     def _release_passed_points(self):
         """Shaft points the tip has gone back over leave the needle (retraction). Only while it

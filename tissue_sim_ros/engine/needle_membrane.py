@@ -137,11 +137,12 @@ class MembraneContact:
         contact, disp = self.tip_contact, self.simulation.displacement
         if contact.on_surface:
             back = math.sqrt(float(self._travel @ self._travel)) + self.geometry.diameter_m
-            contact.engage_on_surface(self.rest, disp, self.surface_triangles, self._tip, self.rotation,
-                                      self.axis, back)
+            contact.engage_on_surface(self.rest, disp, self.surface_triangles, self.surface_boxes,
+                                      self.surface_nodes, self._tip, self.rotation, self.axis, back)
         else:
-            contact.engage_in_region(self.rest, disp, self.tetrahedra, self._neighbours, self._tip,
-                                     self.rotation, self.selectors, self.mesh.element_tags)
+            contact.engage_in_region(self.rest, disp, self.tetrahedra, self._neighbours, self.element_boxes,
+                                     self.mesh_nodes, self._tip, self.rotation, self.selectors,
+                                     self.mesh.element_tags)
         if contact.take_new():
             first = self.patch is None
             work = 0.0 if first else self.patch.work

@@ -28,12 +28,12 @@ __all__ = ['inserted_step']
 
 @njit(cache=True)
 def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetrahedra, neighbours,
-                  position, axis, previous_position, previous_axis, rotation, length, dt,
+                  element_boxes, mesh_nodes, position, axis, previous_position, previous_axis, rotation, length, dt,
                   tip, travel, base_velocity, axis_rate,
                   point_nodes, point_weights, n_points, friction_law, free_beyond, closing_m,
                   point_offsets, point_forces, point_depths, point_shares,
                   sample_offsets, sample_elements, tip_offsets, tip_nodes, tip_weights, walk_weights, candidates,
-                  cutting_force_n, cutting_law, tip_forces, tip_depths, unit_shares, no_offsets,
+                  near_boxes, cutting_force_n, cutting_law, tip_forces, tip_depths, unit_shares, no_offsets,
                   faces_cut, engaged, new, face_nodes, face_weights, face_params, face_forces, face_points,
                   face_total,
                   applied_forces, applied_points, applied_point_forces, wrench_force, wrench_torque,
@@ -62,8 +62,9 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
     put_axis_points(position, axis, point_depths, n_points, applied_points, 0)
     put_rows(point_forces, n_points, applied_point_forces, 0)
     n_applied = n_points
-    n_tip = follow_rigid_samples(rest, displacement, tetrahedra, neighbours, tip, rotation, sample_offsets,
-                                 sample_elements, tip_offsets, tip_nodes, tip_weights, walk_weights, candidates)
+    n_tip = follow_rigid_samples(rest, displacement, tetrahedra, neighbours, element_boxes, mesh_nodes, tip,
+                                 rotation, sample_offsets, sample_elements, tip_offsets, tip_nodes, tip_weights,
+                                 walk_weights, candidates, near_boxes)
     if faces_cut:
         n_faces = engaged.shape[0]
         take_found(sample_elements, tip_nodes, tip_weights, engaged, new, face_nodes, face_weights)

@@ -97,20 +97,22 @@ def tip_parameters(radius: float, tip) -> np.ndarray:
 
 
 @njit(cache=True)
-def engage_samples(rest, displacement, triangles, tip, rotation, axis, offsets, engaged, new, back, reach,
-                   candidates, boxes, subset, subset_cells, sample_nodes, sample_weights):
+def engage_samples(rest, displacement, triangles, rest_boxes, surface_nodes, tip, rotation, axis, offsets, engaged,
+                   new, back, reach, candidates, near_boxes, boxes, subset, subset_cells, sample_nodes,
+                   sample_weights):
     """Samples not yet engaged that lie past the deformed surface (the surface within ``back``
     behind them along the axis, or the sample inside it since the last step) take the material
     point there: its triangle's nodes (4th node weight 0) and weights, and are marked ``new``.
-    Only the triangles within ``reach`` of the apex are tried (``candidates``: room for every
-    triangle), and for each sample only those whose box across the axis holds the sample: a ray
+    Only the triangles within ``reach`` of the apex are tried (:func:`.needle_kernels.cells_near`
+    with the triangles' rest boxes ``rest_boxes`` and the ``surface_nodes``; ``candidates``,
+    ``near_boxes``: room for every triangle), and for each sample only those whose box across the axis holds the sample: a ray
     along the axis meets a triangle only where its projection does, so the answer is the one all
     near triangles give (the boxes are padded well past round-off), for a tenth of the ray tests
     (60 samples x 106 near triangles on the default scene: 59 -> 27 us a step). Scratch with room
     for every triangle: ``boxes`` (n, 4), ``subset`` (n, 3), ``subset_cells`` (n,). Returns how
     many took a point."""
     count = 0
-    n_near = cells_near(rest, displacement, triangles, tip, reach, candidates)
+    n_near = cells_near(rest, displacement, triangles, rest_boxes, surface_nodes, tip, reach, candidates, near_boxes)
     # two directions across the axis: the axis crossed with the coordinate axis least along it
     k_min = 0
     for r in range(1, 3):
@@ -363,6 +365,7 @@ class SharpTipContact:
         self._found_weights = np.zeros((s, 4))
         self._weights = np.zeros(4)
         self._candidates = np.zeros(0, dtype=np.int64)
+        self._near_boxes = np.zeros((0, 6))
         # engage_samples' scratch (room for every surface triangle, made at the first contact)
         self._boxes = np.zeros((0, 4))
         self._subset = np.zeros((0, 3), dtype=np.int64)
@@ -410,22 +413,24 @@ class SharpTipContact:
         bonded = engaged[np.sort(first)]
         return self.offsets[bonded], self.nodes[bonded], self.weights[bonded]
 
-    def engage_on_surface(self, rest, displacement, triangles, tip, rotation, axis, back):
+    def engage_on_surface(self, rest, displacement, triangles, rest_boxes, surface_nodes, tip, rotation, axis, back):
         self._room_for(len(triangles))
         if len(self._boxes) < len(triangles):
             self._boxes = np.zeros((len(triangles), 4))
             self._subset = np.zeros((len(triangles), 3), dtype=triangles.dtype)
             self._subset_cells = np.zeros(len(triangles), dtype=np.int64)
-        return engage_samples(rest, displacement, triangles, tip, rotation, axis, self.offsets, self.engaged,
-                              self.new, back, self.reach + back, self._candidates, self._boxes, self._subset,
-                              self._subset_cells, self.nodes, self.weights)
+        return engage_samples(rest, displacement, triangles, rest_boxes, surface_nodes, tip, rotation, axis,
+                              self.offsets, self.engaged, self.new, back, self.reach + back, self._candidates,
+                              self._near_boxes, self._boxes, self._subset, self._subset_cells, self.nodes, self.weights)
 
 
     def _room_for(self, n_cells):
         if len(self._candidates) < n_cells:
             self._candidates = np.zeros(n_cells, dtype=np.int64)
+            self._near_boxes = np.zeros((n_cells, 6))
 
-    def engage_in_region(self, rest, displacement, tetrahedra, neighbours, tip, rotation, selectors, tags):
+    def engage_in_region(self, rest, displacement, tetrahedra, neighbours, element_boxes, nodes, tip, rotation,
+                         selectors, tags):
         """Inside the tissue: samples whose material point (found by a walk) lies in the layer's
         region take it."""
         waiting = np.flatnonzero(~self.engaged)
@@ -433,9 +438,9 @@ class SharpTipContact:
             return 0
         elements = self.elements[waiting]
         self._room_for(len(tetrahedra))
-        n = follow_rigid_samples(rest, displacement, tetrahedra, neighbours, tip, rotation, self.offsets[waiting],
-                                 elements, self._found_offsets, self._found_nodes, self._found_weights, self._weights,
-                                 self._candidates)
+        n = follow_rigid_samples(rest, displacement, tetrahedra, neighbours, element_boxes, nodes, tip, rotation,
+                                 self.offsets[waiting], elements, self._found_offsets, self._found_nodes,
+                                 self._found_weights, self._weights, self._candidates, self._near_boxes)
         self.elements[waiting] = elements
         if n == 0:
             return 0
