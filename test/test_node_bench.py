@@ -108,14 +108,16 @@ def test_diagnostic_figures_read_the_last_message_and_the_kernel_over_the_window
 
 def test_thread_groups_by_os_name_with_the_main_thread_as_the_executor():
     """CPU seconds of each thread at both ends of a 2 s window: the main thread (tid = pid) is
-    the executor, names pick the engine, recorder and DDS threads, a thread born in the window
+    the executor, names pick the engine, tick, recorder and DDS threads, a thread born in the window
     counts from 0, and the groups add up to the threads' total."""
     before = {100: ('tissue_sim_node', 1.0), 101: ('ts-engine', 5.0), 102: ('mcap-writer:ti', 0.5),
-              103: ('dds.shm.4711', 0.2), 104: ('tissue_sim_node', 0.0)}
+              103: ('dds.shm.4711', 0.2), 104: ('tissue_sim_node', 0.0), 106: ('ts-tick', 0.3)}
     after = {100: ('tissue_sim_node', 1.1), 101: ('ts-engine', 5.8), 102: ('mcap-writer:ti', 0.52),
-             103: ('dds.shm.4711', 0.22), 104: ('tissue_sim_node', 0.01), 105: ('dds.ev.0', 0.03)}
+             103: ('dds.shm.4711', 0.22), 104: ('tissue_sim_node', 0.01), 105: ('dds.ev.0', 0.03),
+             106: ('ts-tick', 0.34)}
     groups = node_bench_figures.thread_groups_pct(100, before, after, 2.0)
-    assert groups == pytest.approx({'engine': 40.0, 'executor': 5.0, 'recording': 1.0, 'dds': 2.5, 'other': 0.5})
+    assert groups == pytest.approx({'engine': 40.0, 'tick': 2.0, 'executor': 5.0, 'recording': 1.0, 'dds': 2.5,
+                                    'other': 0.5})
     used = sum(c for _, c in after.values()) - sum(c for _, c in before.values())
     assert sum(groups.values()) == pytest.approx(100.0 * used / 2.0)
 

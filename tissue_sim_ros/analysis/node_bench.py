@@ -21,9 +21,10 @@ Figures (computed from the record by :mod:`~tissue_sim_ros.analysis.node_bench_f
   on the default scene, where the node's own figure, diagnostics ``latency_ms_p99``, agreed with
   the trace's to 0.3 ms.)
 - CPU: the node process's user + system time over the window (/proc), in % of one core, and
-  per thread (``thread_cpu_pct``): the engine thread, the executor (the main thread: callbacks
-  and the tick), the recorder's writer, the DDS threads and the rest, by the names the node
-  gives its threads at the OS level (:mod:`tissue_sim_ros.os_thread_name`);
+  per thread (``thread_cpu_pct``): the engine thread, the tick's thread, the executor (the main
+  thread: the pose callbacks, diagnostics, services), the recorder's writer, the DDS threads and
+  the rest, by the names the node gives its threads at the OS level
+  (:mod:`tissue_sim_ros.os_thread_name`);
 - overruns: ticks whose work took longer than a period, and missed ticks, from the node's last
   diagnostics; its mean step time, substeps, compute load.
 

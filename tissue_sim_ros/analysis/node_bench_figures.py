@@ -41,7 +41,7 @@ def cpu_seconds(pid: int) -> float | None:
 
 
 #: the node's threads by their OS names (os_thread_name); the main thread is the executor's
-THREAD_GROUPS = (('engine', 'ts-engine'), ('recording', 'mcap-writer'), ('dds', 'dds.'))
+THREAD_GROUPS = (('engine', 'ts-engine'), ('tick', 'ts-tick'), ('recording', 'mcap-writer'), ('dds', 'dds.'))
 
 
 def thread_cpu_seconds(pid: int) -> dict[int, tuple[str, float]]:
@@ -61,10 +61,10 @@ def thread_cpu_seconds(pid: int) -> dict[int, tuple[str, float]]:
 
 
 def thread_groups_pct(pid: int, before: dict, after: dict, seconds: float) -> dict[str, float]:
-    """CPU of each group of threads over a window, % of one core: 'engine', 'executor' (the
-    main thread), 'recording', 'dds' and 'other' (numba's, the predictions' intake...); a thread
-    started in the window counts from 0, one that ended in it is not seen."""
-    groups = {'engine': 0.0, 'executor': 0.0, 'recording': 0.0, 'dds': 0.0, 'other': 0.0}
+    """CPU of each group of threads over a window, % of one core: 'engine', 'tick', 'executor'
+    (the main thread), 'recording', 'dds' and 'other' (numba's, the predictions' intake...); a
+    thread started in the window counts from 0, one that ended in it is not seen."""
+    groups = {'engine': 0.0, 'tick': 0.0, 'executor': 0.0, 'recording': 0.0, 'dds': 0.0, 'other': 0.0}
     for tid, (name, cpu) in after.items():
         used = cpu - before.get(tid, (name, 0.0))[1]
         group = 'executor' if tid == pid else next(

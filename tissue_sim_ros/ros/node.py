@@ -16,9 +16,10 @@ initial pose; ``~/pause`` (std_srvs/srv/SetBool) freezes (true) or resumes (fals
 simulation; while paused the node keeps publishing the frozen state.
 
 Timing: the engine runs on its own thread (:mod:`~tissue_sim_ros.ros.engine_loop`), advancing
-toward the newest pose within a budget of each tick period (``engine.budget_fraction``). A timer
-on the node clock (``use_sim_time`` is honoured) publishes the latest state every tick, whatever
-the engine's progress: the tick never waits for the physics. When the engine cannot keep real
+toward the newest pose within a budget of each tick period (``engine.budget_fraction``). The
+tick (:mod:`~tissue_sim_ros.ros.tick_thread`: its own thread on the monotonic clock, started by
+the executor's first spin; with ``use_sim_time`` a timer on the node clock) publishes the latest
+state every period, whatever the engine's progress: the tick never waits for the physics. When the engine cannot keep real
 time its lag is reported and bounded (``engine.max_lag_s``; the excess is dropped), and the
 degradation ladder (``engine.ladder``) steps down and back up. With ``use_sim_time`` the node is
 lock-step: each tick waits until the engine reached it. A divergence (``SimulationDiverged`` or a
@@ -76,6 +77,7 @@ from tissue_sim_ros.ros.parameters import (NODE_NAME, PARAMETERS, ConfigError, N
                                            help_text as _help_text, load_scene, make_config)
 from tissue_sim_ros.ros.pose_input import PoseInput
 from tissue_sim_ros.ros.pose_cdr import decode_pose
+from tissue_sim_ros.ros.tick_thread import TickThread
 from tissue_sim_ros.ros.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODES_QOS, PLAN_QOS,
                                        SURFACE_QOS, WRENCH_QOS, pose_qos)
 from tissue_sim_ros.units import NS_PER_S
@@ -195,7 +197,12 @@ class TissueSimNode(Node):
         self.engine.start()
         if self.engine.ladder is not None:
             self._measure_ladder(self.engine.ladder)
-        self._tick_timer = self.create_timer(cfg.period_s, self.tick)
+        self._ticker = None
+        if self._sim_time:                     # the ticks follow /clock
+            self._tick_timer = self.create_timer(cfg.period_s, self.tick)
+        else:                                  # ticking from the executor's first spin, as a timer
+            self._ticker = TickThread(cfg.period_s, self.tick, self._tick_failed)
+            self._tick_timer = self.create_timer(cfg.period_s, self._start_ticking)
         self._diagnostics_timer = self.create_timer(1.0 / cfg.diagnostics_rate_hz,
                                                     self.publish_diagnostics)
         self.get_logger().info(
@@ -312,6 +319,16 @@ class TissueSimNode(Node):
         else:
             logger.info(text)
 
+    def _start_ticking(self) -> None:
+        self._tick_timer.cancel()
+        if not self._closed:
+            self._ticker.start()
+
+    def _tick_failed(self, exc: Exception) -> None:
+        self._stats.tick_errors += 1
+        self._log_once('tick_failed', f'a tick failed and was skipped ({type(exc).__name__}: {exc}); the '
+                       'next ticks go on', 'error')
+
     def _log_once(self, kind: str, text: str, level: str = 'warning') -> None:
         if kind not in self._logged_kinds:
             self._logged_kinds.add(kind)
@@ -324,7 +341,7 @@ class TissueSimNode(Node):
         if self._recorder is not None:
             self._recorder.write(self.pose_subs[needle].topic_name, data, receipt_ns)
         self.engine.submit(receipt_ns, data, needle)
-        self._stats.input_s += time.perf_counter() - wall0
+        self._stats.input_done(time.perf_counter() - wall0)
 
     def tick(self) -> None:
         """Publish the latest state, stamped with the tick time, and open the engine's next
@@ -431,6 +448,8 @@ class TissueSimNode(Node):
         for timer in (getattr(self, '_tick_timer', None), getattr(self, '_diagnostics_timer', None)):
             if timer is not None:
                 timer.cancel()
+        if getattr(self, '_ticker', None) is not None:
+            self._ticker.stop()
         if self.predictions is not None:
             self.predictions.close()
             self.get_logger().info(f'predictions: {self.predictions.answered} answered, '

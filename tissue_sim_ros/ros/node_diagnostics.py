@@ -9,6 +9,7 @@ the previous diagnostics message; percentiles over the last ten seconds of ticks
 from __future__ import annotations
 
 import math
+import threading
 import time
 
 import numpy as np
@@ -48,12 +49,19 @@ class NodeStats:
                       ('tick_interval_s', 'publish_work_s', 'latency_s', 'input_s')}
         self.missed_ticks = 0
         self.missed_for_input = 0     # missed ticks the node's own input handling caused
-        self.input_s = 0.0            # time in pose callbacks since the last tick
+        self.tick_errors = 0          # ticks skipped for an exception (logged once)
+        self._input_s = 0.0           # time in pose callbacks since the last tick
+        self._input_lock = threading.Lock()   # the callbacks' thread adds, the tick's takes
         self._last_tick_wall: float | None = None
         self.window: dict = {}
 
+    def input_done(self, seconds: float) -> None:
+        """A pose callback took ``seconds`` (from the executor's thread)."""
+        with self._input_lock:
+            self._input_s += seconds
+
     def new_window(self, engine, clock_ns: int | None, bad_total: int) -> None:
-        self.window = {'ticks': 0, 'missed0': self.missed_ticks, 'wall0': time.perf_counter(),
+        self.window = {'missed0': self.missed_ticks, 'wall0': time.perf_counter(),
                        'clock0': clock_ns, 'stepped0': engine.stepped_s,
                        'busy0': engine.pacing.busy_s, 'cpu0': engine.busy_cpu_s,
                        'kernel0': engine.driver.scene.simulation.kernel_s,
@@ -64,20 +72,20 @@ class NodeStats:
         (a gap of more than 1.5 periods), and among them those input handling caused (it took
         more than half a period of the gap)."""
         last, self._last_tick_wall = self._last_tick_wall, wall
-        self.rings['input_s'].add(self.input_s)
+        with self._input_lock:
+            input_s, self._input_s = self._input_s, 0.0
+        self.rings['input_s'].add(input_s)
         if last is not None:
             interval = wall - last
             self.rings['tick_interval_s'].add(interval)
             if interval > 1.5 * self.period_s:
                 missed = int(round(interval / self.period_s)) - 1
                 self.missed_ticks += missed
-                if self.input_s > 0.5 * self.period_s:
+                if input_s > 0.5 * self.period_s:
                     self.missed_for_input += missed
-        self.input_s = 0.0
 
     def tick_done(self, work_s: float) -> None:
         self.rings['publish_work_s'].add(work_s)
-        self.window['ticks'] = self.window.get('ticks', 0) + 1
 
 
 def diagnostics_statuses(name: str, now_ns: int, *, stats: NodeStats, engine, pose_input,
@@ -126,6 +134,7 @@ def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
         'publish_work_ms_p99': stats.rings['publish_work_s'].percentile(99) * 1e3,
         'missed_ticks': stats.missed_ticks,
         'missed_ticks_for_input': stats.missed_for_input,
+        'tick_errors': stats.tick_errors,
         'real_time_factor': rtf,
         'lag_s': driver.lag_s,
         'max_lag_s': pacing.max_lag_s,
