@@ -21,39 +21,31 @@ LAYERS = {'regions': [
      'young_modulus_pa': 25000.0, 'poisson_ratio': 0.45, 'cutting_force_n': 0.03}]}
 
 
-def _counting(monkeypatch):
-    """Count the compiled calls by outcome and mode."""
-    counts = {}
-    for name in ('after_approach_step', 'after_inside_step'):
-        compiled = getattr(compiled_substep, name)
-
-        def counted(*args, compiled=compiled, name=name):
-            result = compiled(*args)
-            outcome = result if isinstance(result, int) else result[0]
-            counts[(name, outcome)] = counts.get((name, outcome), 0) + 1
-            return result
-        monkeypatch.setattr(compiled_substep, name, counted)
-    return counts
-
-
 def _run(sets, compiled, overrides=None, speed=0.005, depth=0.014):
+    """(scene, insertion result, the step counts at which the watchdog checked the energy)."""
     scene = Scene.from_file(sets=COARSE_FAR + sets, **(overrides or {}))
     scene.compiled_substeps = compiled
+    checked, check = [], scene.simulation._check_energy
+
+    def recorded(*args):
+        checked.append(scene.simulation.step_count)
+        return check(*args)
+    scene.simulation._check_energy = recorded
     result = run_insertion(scene, speed, scene.start_gap_m + depth, hold_s=0.1, tick=0.02)
-    return scene, result
+    return scene, result, checked
 
 
 @pytest.mark.parametrize('tip, overrides', [('bevel', None), ('flat', None), ('conical', LAYERS)],
                          ids=['bevel', 'flat', 'conical-layers'])
-def test_compiled_substeps_are_the_general_substeps_bit_for_bit(tip, overrides, monkeypatch):
+def test_compiled_substeps_are_the_general_substeps_bit_for_bit(tip, overrides):
     """Approach, puncture(s), insertion, hold, retraction and out again: the wrench at every tick,
     the phases, the punctures, the tissue state and the work put in are the same to the last bit
-    with the compiled substeps and without; the compiled calls ran on most steps, outside and
+    with the compiled substeps and without; the compiled slices ran most steps, outside and
     inside, and handed steps back (the surface met, new shaft points, layers, released points)."""
-    counts = _counting(monkeypatch)
     sets = [f'needle.tip.shape={tip}']
-    compiled, fast = _run(sets, True, overrides)
-    general, slow = _run(sets, False, overrides)
+    compiled, fast, checked = _run(sets, True, overrides)
+    general, slow, checked_general = _run(sets, False, overrides)
+    assert checked == checked_general and len(checked) >= fast.steps // compiled.simulation.check_interval
     assert np.array_equal(fast.force, slow.force) and np.array_equal(fast.torque, slow.torque)
     assert fast.phase == slow.phase and {'approach', 'contact', 'inserted', 'retracting'} <= set(fast.phase)
     assert compiled.puncture_events == general.puncture_events and len(compiled.puncture_events) >= 1
@@ -62,9 +54,11 @@ def test_compiled_substeps_are_the_general_substeps_bit_for_bit(tip, overrides, 
     assert compiled.simulation.input_work == general.simulation.input_work
     assert compiled.simulation.step_count == general.simulation.step_count == fast.steps
     assert compiled.simulation.time == general.simulation.time
-    done = counts.get(('after_approach_step', 0), 0) + counts.get(('after_inside_step', 0), 0)
+    counts = compiled._compiled.counts
+    done = counts.get(('approach', compiled_substep.DONE), 0) + counts.get(('inside', compiled_substep.DONE), 0)
     assert done > 0.6 * fast.steps, counts
-    assert counts.get(('after_approach_step', 1), 0) >= 1 and counts.get(('after_inside_step', 1), 0) >= 3
+    assert counts.get(('approach', compiled_substep.TAIL), 0) >= 1
+    assert counts.get(('inside', compiled_substep.TAIL), 0) >= 3
     if overrides is not None:
         assert [e['region'] for e in compiled.puncture_events] == ['capsule', 'deeper']
 

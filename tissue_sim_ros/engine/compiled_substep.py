@@ -1,12 +1,13 @@
-"""A scene's substep as the force kernel and one compiled call, while the needle is outside or inside.
+"""A scene's substeps in compiled slices while the needle is outside or inside: one call for many.
 
 A substep of :meth:`.scene.Scene.advance` is the needle's pose for the step, the force kernel (the
 element pass, then the node update), the watchdog, and the needle's step after the tissue's,
 as Python around compiled calls (``NeedleTissue.set_pose``, ``Simulation.step``,
 ``NeedleTissue.after_step``): Python that runs cold, after an element pass has been through the
 caches (issue 19 item 3: one call into compiled code per slice, the needle's bookkeeping inside
-it). Here the force kernel runs as before and is timed as before (``Simulation.kernel_s``), and
-the rest of the substep is one compiled call:
+it). Here :func:`run_slice` runs the substeps of an advance in one ``nogil`` call, as many as run
+the same way in a row, each the force kernel, timed on the thread's CPU clock into
+``Simulation.kernel_s`` as Python timed it (:mod:`.compiled_clock`), and then
 
 - the needle outside (phase ``approach``): :func:`after_approach_step`, the needle moved, the
   watchdog, the needle's kinematics and the test for the surface (``needle_kernels.approach_hit``);
@@ -16,30 +17,40 @@ the rest of the substep is one compiled call:
   outcome the Python would otherwise decide on (the apex still in its layer, no shaft point to
   add, none to release); a step that needs more goes on in ``NeedleTissue.after_inserted_step``.
 
-Both calls release the GIL, as the force kernel does: the node's executor thread publishes while
-the needle's step runs (about 35 us of the inside substep on the default scene). On node-bench's
-insertions (default scene, in-process, 100 advances a second) the work outside the force kernel
-fell from 62-73 to 59-63 us a substep (alternating runs), the approach's surface test
-(``needle_kernels.near_surface_hit``) included.
+The slice calls the element pass, the node update and the step after them as first-class
+function values (:func:`function_value`): the machine code a Python call runs, the element pass
+as compile_cache had it compiled (not optimized again inside another function), and one machine
+code of :func:`run_slice` for every model, cached. It stops at the target time, ``max_steps``,
+the deadline (by its last substep's wall time, on the monotonic clock, as ``Scene.advance``
+does), a watchdog energy-check step and any outcome but DONE. On node-bench's insertions
+(default scene, in-process, 100 advances a second, thread time) a substep's work outside the
+force kernel fell from 15 / 50 / 43 us (outside / inserted / retracting) to 13 / 45 / 40 us and
+the whole substep from 195 / 285 / 241 to 185 / 271 / 230 us; the kernel's own time lost the
+calls' dispatch it used to include (about 8 us a substep). What is left outside the kernel
+inside the tissue is the needle's step itself (about 35 us: the shaft's friction, 61 cutting
+samples found again and 61 tip-face samples pushed out, after the element pass has been
+through the caches).
 
 The same kernels in the same order: a scene advanced this way gives the same state, to the last
-bit, as one advanced through the Python calls (``Scene.compiled_substeps = False``; tested). It
-runs where that holds simply: one needle, translating (a turning needle's slerp stays in Python),
-the explicit integrator with no prescribed DOFs and no relaxation, the needle not at a membrane,
-and not on the watchdog's energy-check steps (every ``check_interval``-th, which need the strain
-energy before the step); every other step is the general one.
+bit, as one advanced through the Python calls (``Scene.compiled_substeps = False``; tested), and
+the watchdog checks the energy at the same steps. It runs where that holds simply: one needle,
+translating (a turning needle's slerp stays in Python), the explicit integrator with no
+prescribed DOFs and no relaxation, the needle not at a membrane, and not on the watchdog's
+energy-check steps (every ``check_interval``-th, which need the strain energy before the step);
+every other step is the general one. Where compiled code cannot read the clocks (not Linux),
+every step is the general one.
 """
-import time
-
 import numpy as np
-from numba import njit
+from numba import njit, types
 
+from tissue_sim_ros.engine.compiled_clock import MONOTONIC, THREAD_CPU, clock_ns
 from tissue_sim_ros.engine.needle_kernels import approach_hit, needle_kinematics, wrench_about
 from tissue_sim_ros.engine.needle_step import inserted_step
 from tissue_sim_ros.engine.region_selectors import region_of_point
 from tissue_sim_ros.engine.solver import _advance_free
 
-__all__ = ['after_approach_step', 'after_inside_step', 'CompiledSubsteps', 'DONE', 'TAIL', 'DIVERGED']
+__all__ = ['after_approach_step', 'after_inside_step', 'run_slice', 'function_value', 'CompiledSubsteps', 'DONE',
+           'TAIL', 'DIVERGED']
 
 #: a compiled step's outcome: complete; the needle's Python must decide the rest; the watchdog
 #: tripped (the needle's step not run)
@@ -87,7 +98,7 @@ def after_approach_step(s, work, kinetic, bad, start, move, energy, watch, rest,
 @njit(cache=True, nogil=True)
 def after_inside_step(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
                       previous_axis, length, tip, apex_rest, state, decide, kinds, params, tags, element_region,
-                      needle):
+                      results, needle):
     """The substep after the force kernel with the needle inside (module docstring).
 
     The needle's pose arrays, ``length`` and ``apex_rest`` are those in ``needle``, named.
@@ -95,14 +106,18 @@ def after_inside_step(s, work, kinetic, bad, start, move, energy, watch, positio
     ``decide``: (release_beyond, needle length, shaft point spacing, the layer's region index);
     ``kinds``, ``params``, ``tags``: the region selectors (``region_selectors.region_of_point``;
     no kinds: each element's own region, ``element_region``). ``needle``:
-    ``NeedleTissue.inserted_arguments``. Returns (outcome, and the inside step's nine values)."""
+    ``NeedleTissue.inserted_arguments``. Returns the outcome; ``results`` gets the inside step's
+    nine values (friction, cutting, samples found, points of action, work, apex element, travel
+    and deepest point along the axis, speed along it)."""
     if not _move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
                            previous_axis, length, tip):
-        return DIVERGED, 0.0, 0.0, 0, 0, 0.0, -2, 0.0, 0.0, 0.0
+        return DIVERGED
     (friction, cutting, n_tip, n_applied, needle_work, apex, travel_along, deepest,
      speed_along) = inserted_step(*needle, state[0], state[1] != 0)
     state[1] = 0                                   # explicit: the step zeroed what it applied
     energy[0] += needle_work
+    results[0], results[1], results[2], results[3], results[4] = friction, cutting, n_tip, n_applied, needle_work
+    results[5], results[6], results[7], results[8] = apex, travel_along, deepest, speed_along
     outcome = TAIL
     if not (travel_along < 0.0 and deepest > decide[0]) and apex >= 0 and not decide[1] - deepest >= decide[2]:
         region = region_of_point(kinds, params, tags, apex_rest[0], apex_rest[1], apex_rest[2], apex)
@@ -111,22 +126,98 @@ def after_inside_step(s, work, kinetic, bad, start, move, energy, watch, positio
         if region == decide[3]:
             state[0] = apex
             outcome = DONE
-    return outcome, friction, cutting, n_tip, n_applied, needle_work, apex, travel_along, deepest, speed_along
+    return outcome
+
+
+@njit(cache=True, nogil=True)
+def run_slice(kernel, kernel_args, advance, advance_args, after, after_args, clock, counters):
+    """Substeps in one call, each the force kernel (``kernel(*kernel_args)``, then the node update
+    ``advance(*advance_args)``) and ``after(s, work, kinetic, bad, *after_args)`` (the three
+    first-class function values, :func:`function_value`: one machine code of this function for
+    every model and mode, and numba's cache keeps it), as ``Scene.advance`` runs them: the needle at
+    ``s`` of its move, toward the running target time. The first substep runs (the caller checked
+    it may); the next ones while they end by the target time, before ``max_steps``, before the
+    watchdog's energy-check step (every ``check_interval``-th), within the deadline (its last
+    substep's wall time ahead) and while ``after`` says DONE.
+
+    ``clock``: (time, dt, start time, target time, deadline (perf_counter s; inf: none), the last
+    substep's wall time) [s]; ``counters``: (step count, check_interval, max_steps (< 0: none)).
+    Time, wall time and step count are updated. Returns (substeps run, the last one's outcome, its
+    kinetic energy and bad components (the watchdog's), thread CPU ns in the force kernel)."""
+    time, dt, start_t, end_t, deadline, step_wall = clock[0], clock[1], clock[2], clock[3], clock[4], clock[5]
+    step_count, check_interval, max_steps = counters[0], counters[1], counters[2]
+    timed = deadline < np.inf
+    steps, outcome, kinetic, bad, kernel_ns = 0, DONE, 0.0, 0, 0
+    while outcome == DONE:
+        if steps:
+            if not time + dt <= end_t + 1e-9 * dt or steps == max_steps or (step_count + 1) % check_interval == 0:
+                break
+            if timed and clock_ns(MONOTONIC) / 1e9 + step_wall > deadline:
+                break
+        wall0 = clock_ns(MONOTONIC) if timed else 0
+        s = min(1.0, (time + dt - start_t) / (end_t - start_t))
+        cpu0 = clock_ns(THREAD_CPU)
+        kernel(*kernel_args)
+        work, kinetic, bad = advance(*advance_args)
+        kernel_ns += clock_ns(THREAD_CPU) - cpu0
+        outcome = after(s, work, kinetic, bad, *after_args)
+        time = time + dt
+        step_count += 1
+        steps += 1
+        if timed:
+            step_wall = (clock_ns(MONOTONIC) - wall0) / 1e9
+    clock[0], clock[5], counters[0] = time, step_wall, step_count
+    return steps, outcome, kinetic, bad, kernel_ns
+
+
+def function_value(dispatcher, args):
+    """``dispatcher``'s compiled code for arguments like ``args`` (compiled or loaded from the
+    cache if need be) as a numba first-class function value: called from :func:`run_slice`
+    through its C wrapper's address, the machine code every Python call runs (the element pass
+    as its cache holds it: compiled into another function it would be optimized again with it,
+    compile_cache)."""
+    from numba import typeof
+    argument_types = tuple(typeof(a) for a in args)
+    dispatcher.compile(argument_types)
+    signature = dispatcher.overloads[argument_types].signature
+    return _FunctionValue(dispatcher.get_compile_result(signature), signature)
+
+
+class _FunctionValue:
+    """What numba takes as a first-class function (``_numba_type_``, the wrapper address
+    protocol), for :func:`function_value`."""
+
+    def __init__(self, compiled, signature):
+        self._numba_type_ = types.FunctionType(signature)
+        self._address = compiled.library.get_pointer_to_function(compiled.fndesc.llvm_cfunc_wrapper_name)
+
+    def __wrapper_address__(self):
+        return self._address
 
 
 class CompiledSubsteps:
-    """A scene's substeps through :func:`after_approach_step` or :func:`after_inside_step` over
-    one ``Scene.advance`` call, its needle translating from ``start`` by ``move`` (module
-    docstring). :meth:`ready` says whether the coming step can be run so; :meth:`step` runs it;
-    :meth:`invalidate` after any other step (the arguments are gathered again: they may have
-    changed)."""
+    """A scene's substeps through :func:`run_slice` with :func:`after_approach_step` or
+    :func:`after_inside_step` (module docstring); one per scene. Each ``Scene.advance`` call
+    :meth:`begin` s with its needle's move (from ``start`` by ``move``); :meth:`ready` says whether
+    the coming substep can run so, :meth:`run` runs it and the next ones it can, and
+    :meth:`invalidate` follows any other substep (the arguments are gathered again: they may have
+    changed). ``counts``: substeps run so by (mode, outcome), for tests and profiles."""
 
-    def __init__(self, scene, start, move):
+    def __init__(self, scene):
         self.sim, self.needle = scene.simulation, scene.needle
-        self.start, self.move = start, move
+        self.start, self.move = np.zeros(3), np.zeros(3)
         self.energy = np.zeros(1)
         self.state = np.zeros(2, dtype=np.int64)
+        self.results = np.zeros(9)
+        self.clock = np.zeros(6)
+        self.counters = np.zeros(3, dtype=np.int64)
+        self.counts: dict = {}
         self._key, self._calls = None, None
+        self._functions: dict = {}          # dispatcher -> function_value (see _function)
+
+    def begin(self, start, move):
+        self.start[:], self.move[:] = start, move
+        self._key = None
 
     def invalidate(self):
         self._key = None
@@ -147,6 +238,15 @@ class CompiledSubsteps:
             self._key, self._calls = key, self._gather(mode)
         return self._calls is not None
 
+    def _function(self, dispatcher, args):
+        """function_value, made at the first gather: typing the arguments again at each advance
+        cost 300-650 us. A scene's arguments keep their types (its arrays keep their dtypes and
+        shapes' ranks when reallocated); were one to change, run_slice would not compile for it."""
+        value = self._functions.get(dispatcher)
+        if value is None:
+            value = self._functions[dispatcher] = function_value(dispatcher, args)
+        return value
+
     def _gather(self, mode):
         sim, needle = self.sim, self.needle
         forces = sim.model.force_pass_call(sim.displacement, sim.velocity)
@@ -159,58 +259,72 @@ class CompiledSubsteps:
         advance = sim.advance_arguments()
         common = (self.start, self.move, self.energy, watch)
         if mode == _OUTSIDE:
+            after_step = after_approach_step
             after = common + (needle.rest, sim.displacement, needle.surface_triangles, needle.surface_boxes,
                               needle.surface_nodes, needle.position, needle.axis, needle._previous_position,
                               needle._previous_axis, geometry.length_m, geometry.diameter_m, sim.dt, needle._tip,
                               needle._travel, needle._base_velocity, needle._axis_rate, needle._ray_origin,
                               needle._applied_points, needle._applied_point_forces, needle.wrench_force,
                               needle.wrench_torque)
-            return forces[0], forces[1], advance, after_approach_step, after, inverse_mass
-        selectors = needle.selectors
-        kinds, params, tags = ((np.zeros(0, dtype=np.int64), np.zeros((0, 6)), np.zeros(0, dtype=np.int64))
-                               if selectors is None else (selectors.kinds, selectors.params, selectors.tags))
-        decide = np.array([needle._release_beyond, geometry.length_m, geometry.shaft_point_spacing_m,
-                           float(needle.region)])
-        after = common + (needle.position, needle.axis, needle._previous_position, needle._previous_axis,
-                          geometry.length_m, needle._tip, needle._apex_rest, self.state, decide, kinds, params,
-                          tags, needle.element_region, needle.inserted_arguments(inverse_mass, sim.dt))
-        return forces[0], forces[1], advance, after_inside_step, after, inverse_mass
-
-    def step(self, s):
-        """One substep, the needle's base at ``start + s move`` (``ready()`` said it can)."""
-        sim, needle = self.sim, self.needle
-        kernel, kernel_args, advance_args, after_step, after_args, inverse_mass = self._calls
-        self.energy[0] = sim.input_work
-        kernel0 = time.thread_time()
-        kernel(*kernel_args)
-        work, kinetic, bad = _advance_free(*advance_args)
-        sim.kernel_s += time.thread_time() - kernel0
-        if after_step is after_approach_step:
-            outcome = after_approach_step(s, work, kinetic, bad, *after_args)
         else:
+            after_step = after_inside_step
+            selectors = needle.selectors
+            kinds, params, tags = ((np.zeros(0, dtype=np.int64), np.zeros((0, 6)), np.zeros(0, dtype=np.int64))
+                                   if selectors is None else (selectors.kinds, selectors.params, selectors.tags))
+            decide = np.array([needle._release_beyond, geometry.length_m, geometry.shaft_point_spacing_m,
+                               float(needle.region)])
+            after = common + (needle.position, needle.axis, needle._previous_position, needle._previous_axis,
+                              geometry.length_m, needle._tip, needle._apex_rest, self.state, decide, kinds, params,
+                              tags, needle.element_region, self.results,
+                              needle.inserted_arguments(inverse_mass, sim.dt))
+        return (self._function(forces[0], forces[1]), forces[1], self._function(_advance_free, advance), advance,
+                after_step, self._function(after_step, (0.5, 0.0, 0.0, 0) + after), after, inverse_mass)
+
+    def run(self, start_t, end_t, max_steps, deadline, step_wall):
+        """The coming substep (``ready()`` said it can run) and the next ones :func:`run_slice`
+        can run, toward target time ``end_t`` from ``start_t`` (``Scene.advance``'s), at most
+        ``max_steps`` (None: no limit), none to start past ``deadline`` (None: none) by the last
+        one's wall time ``step_wall``. Returns (substeps run, the last one's wall time [s])."""
+        sim, needle = self.sim, self.needle
+        kernel, kernel_args, advance, advance_args, after_step, after, after_args, inverse_mass = self._calls
+        clock, counters = self.clock, self.counters
+        clock[:] = (sim.time, sim.dt, start_t, end_t, np.inf if deadline is None else deadline, step_wall)
+        counters[:] = (sim.step_count, sim.check_interval, -1 if max_steps is None else max_steps)
+        self.energy[0] = sim.input_work
+        inside = after_step is after_inside_step
+        if inside:
             self.state[0], self.state[1] = needle.apex_element, needle._forces_applied
-            (outcome, friction, cutting, n_tip, n_applied, _, apex, travel_along, deepest,
-             speed_along) = after_inside_step(s, work, kinetic, bad, *after_args)
+        steps, outcome, kinetic, bad, kernel_ns = run_slice(kernel, kernel_args, advance, advance_args, after,
+                                                            after_args, clock, counters)
         sim.input_work = self.energy[0]
         sim.kinetic_energy = kinetic
-        sim.time = sim.time + sim.dt
-        sim.step_count += 1
+        sim.time = float(clock[0])
+        sim.step_count = int(counters[0])
+        sim.kernel_s += kernel_ns * 1e-9
+        mode = _INSIDE if inside else _OUTSIDE
+        self.counts[(mode, DONE)] = self.counts.get((mode, DONE), 0) + steps - (outcome != DONE)
+        if outcome != DONE:
+            self.counts[(mode, outcome)] = self.counts.get((mode, outcome), 0) + 1
         if outcome == DIVERGED:
             sim.watch(bad, kinetic)        # raises SimulationDiverged, as Simulation.step would
-        if after_step is after_approach_step:
+        if not inside:
             needle.friction_force = needle.cutting_force = 0.0
             needle.n_applied = 0
+            if outcome == DONE or steps > 1:
+                needle.surface_point = None
             if outcome == TAIL:
                 needle.after_kinematics(inverse_mass, sim.dt)
                 self._key = None
-            else:
-                needle.surface_point = None
-            return
-        needle.friction_force, needle.cutting_force, needle.n_tip, needle.n_applied = friction, cutting, n_tip, n_applied
+            return steps, float(clock[5])
+        results = self.results
+        needle.friction_force, needle.cutting_force = float(results[0]), float(results[1])
+        needle.n_tip, needle.n_applied = int(results[2]), int(results[3])
         needle._forces_applied = False
+        needle.apex_element = int(self.state[0])
         if outcome == TAIL:
-            needle.after_inserted_step(inverse_mass, sim.dt, apex, travel_along, deepest, speed_along)
+            needle.after_inserted_step(inverse_mass, sim.dt, int(results[5]), float(results[6]), float(results[7]),
+                                       float(results[8]))
             self._key = None
         else:
-            needle.apex_element = apex
-            needle.phase = 'retracting' if speed_along < -1e-9 else 'inserted'
+            needle.phase = 'retracting' if results[8] < -1e-9 else 'inserted'
+        return steps, float(clock[5])

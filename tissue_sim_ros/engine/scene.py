@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from tissue_sim_ros.engine.compiled_clock import AVAILABLE as CLOCKS_IN_COMPILED_CODE
 from tissue_sim_ros.engine.compiled_substep import CompiledSubsteps
 from tissue_sim_ros.engine.material import Material, MaterialError, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.mesh import make_mesh
@@ -239,6 +240,7 @@ class Scene:
         #: run the substeps of a needle outside or inside as the force kernel and one compiled
         #: call (engine.compiled_substep; False: the Python calls, the same arithmetic)
         self.compiled_substeps = True
+        self._compiled = None
         self.element_region = element_region
         self.region_names = [r['name'] for r in s['regions']]
         from tissue_sim_ros.engine.warm_up import warm_up
@@ -316,11 +318,15 @@ class Scene:
         self._target_time = end_t
         steps = 0
         step_wall = 0.0
-        # one needle translating, explicit, nothing prescribed: the substeps it allows are the
-        # force kernel and one compiled call (engine.compiled_substep); the same arithmetic
-        compiled = (CompiledSubsteps(self, moves[0][1], moves[0][3]) if self.compiled_substeps
-                    and len(moves) == 1 and not moves[0][7] and sim.integrator == 'explicit'
-                    and not sim.has_prescribed else None)
+        # one needle translating, explicit, nothing prescribed: the substeps it allows run in
+        # compiled slices (engine.compiled_substep); the same arithmetic
+        compiled = None
+        if self.compiled_substeps and CLOCKS_IN_COMPILED_CODE and len(moves) == 1 and not moves[0][7] \
+                and sim.integrator == 'explicit' and not sim.has_prescribed:
+            if self._compiled is None:
+                self._compiled = CompiledSubsteps(self)
+            compiled = self._compiled
+            compiled.begin(moves[0][1], moves[0][3])
         while sim.time + sim.dt <= end_t + 1e-9 * sim.dt:
             if max_steps is not None and steps >= max_steps:
                 return steps
@@ -328,19 +334,21 @@ class Scene:
                 now = time.perf_counter()
                 if now + step_wall > deadline:
                     return steps
-            s = min(1.0, (sim.time + sim.dt - start_t) / (end_t - start_t))
             if compiled is not None and compiled.ready():
-                compiled.step(s)
-            else:
-                for needle, start_p, _, move, position, start_q, q, turning in moves:
-                    np.multiply(move, s, out=position)     # start + s * move, no array made a step
-                    position += start_p
-                    needle.set_pose(position, slerp(start_q, q, s) if turning else None)
-                sim.step(1)
-                for needle in self.needles:
-                    needle.after_step(sim.dt)
-                if compiled is not None:
-                    compiled.invalidate()
+                ran, step_wall = compiled.run(start_t, end_t, None if max_steps is None else max_steps - steps,
+                                              deadline, step_wall)
+                steps += ran
+                continue
+            s = min(1.0, (sim.time + sim.dt - start_t) / (end_t - start_t))
+            for needle, start_p, _, move, position, start_q, q, turning in moves:
+                np.multiply(move, s, out=position)     # start + s * move, no array made a step
+                position += start_p
+                needle.set_pose(position, slerp(start_q, q, s) if turning else None)
+            sim.step(1)
+            for needle in self.needles:
+                needle.after_step(sim.dt)
+            if compiled is not None:
+                compiled.invalidate()
             steps += 1
             if deadline is not None:
                 step_wall = time.perf_counter() - now
