@@ -35,14 +35,21 @@ def _run(sets, compiled, overrides=None, speed=0.005, depth=0.014):
     return scene, result, checked
 
 
-@pytest.mark.parametrize('tip, overrides', [('bevel', None), ('flat', None), ('conical', LAYERS)],
-                         ids=['bevel', 'flat', 'conical-layers'])
-def test_compiled_substeps_are_the_general_substeps_bit_for_bit(tip, overrides):
+#: the membrane punctured by the work done since contact (about 2/3 of the force criterion's)
+ENERGY = ['regions[0].membrane.criterion=energy', 'regions[0].membrane.toughness_j_per_m2=3000',
+          'regions[0].membrane.rate_exponent=0.2']
+
+
+@pytest.mark.parametrize('tip, overrides, extra', [('bevel', None, []), ('flat', None, []), ('conical', LAYERS, []),
+                                                   ('bevel', None, ENERGY)],
+                         ids=['bevel', 'flat', 'conical-layers', 'bevel-energy'])
+def test_compiled_substeps_are_the_general_substeps_bit_for_bit(tip, overrides, extra):
     """Approach, puncture(s), insertion, hold, retraction and out again: the wrench at every tick,
     the phases, the punctures, the tissue state and the work put in are the same to the last bit
     with the compiled substeps and without; the compiled slices ran most steps, outside and
-    inside, and handed steps back (the surface met, new shaft points, layers, released points)."""
-    sets = [f'needle.tip.shape={tip}']
+    inside, and handed steps back (the surface met, new shaft points, layers, released points);
+    a sharp tip's contact with the membrane too (samples touching, the puncture)."""
+    sets = [f'needle.tip.shape={tip}'] + extra
     compiled, fast, checked = _run(sets, True, overrides)
     general, slow, checked_general = _run(sets, False, overrides)
     assert checked == checked_general and len(checked) >= fast.steps // compiled.simulation.check_interval
@@ -59,6 +66,11 @@ def test_compiled_substeps_are_the_general_substeps_bit_for_bit(tip, overrides):
     assert done > 0.6 * fast.steps, counts
     assert counts.get(('approach', compiled_substep.TAIL), 0) >= 1
     assert counts.get(('inside', compiled_substep.TAIL), 0) >= 3
+    if tip != 'flat':
+        assert counts.get(('contact', compiled_substep.DONE), 0) > 100, counts
+        assert counts.get(('contact', compiled_substep.TAIL), 0) >= 1           # the puncture
+        if tip == 'bevel':      # its samples touch one by one (a cone's at once, before the slices)
+            assert counts.get(('contact', compiled_substep.ENGAGED), 0) >= 1
     if overrides is not None:
         assert [e['region'] for e in compiled.puncture_events] == ['capsule', 'deeper']
 

@@ -278,5 +278,7 @@ def test_measure_end_to_end_under_load(tmp_path):
     assert 'prediction workers warm' in text
     # per thread: the groups add up to the process (both /proc, 10 ms ticks over a 1 s window)
     threads = r['thread_cpu_pct']
-    assert threads['engine'] > 0.0 and threads['executor'] > 0.0
+    # the executor (pose callbacks) and the tick take about 1 % of a core each: 10 ms in the 1 s
+    # window, /proc's clock tick, so either may read 0 there
+    assert threads['engine'] > 0.0 and {'tick', 'executor'} <= set(threads)
     assert sum(threads.values()) == pytest.approx(r['node_cpu_pct_of_one_core'], abs=6.0)

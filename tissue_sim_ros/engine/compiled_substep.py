@@ -1,4 +1,4 @@
-"""A scene's substeps in compiled slices while the needle is outside or inside: one call for many.
+"""A scene's substeps in compiled slices while the needle is outside, at the membrane or inside.
 
 A substep of :meth:`.scene.Scene.advance` is the needle's pose for the step, the force kernel (the
 element pass, then the node update), the watchdog, and the needle's step after the tissue's,
@@ -12,6 +12,11 @@ the same way in a row, each the force kernel, timed on the thread's CPU clock in
 - the needle outside (phase ``approach``): :func:`after_approach_step`, the needle moved, the
   watchdog, the needle's kinematics and the test for the surface (``needle_kernels.approach_hit``);
   a step that meets the surface goes on in ``NeedleTissue.after_kinematics``;
+- a sharp tip bonded to the outer membrane (phase ``contact``, before the first puncture):
+  :func:`after_contact_step`, the needle moved, the watchdog, the bonds solved and applied, the
+  tip's samples tried against the surface, the work and the wrench; a step where the contact may
+  end or the membrane may rupture goes on in ``NeedleTissue.after_kinematics``, one where samples
+  touched in ``NeedleTissue.after_engaging``;
 - the needle inside (``inserted``, ``retracting``, no membrane): :func:`after_inside_step`, the
   needle moved, the watchdog, the compiled inside step (``needle_step.inserted_step``) and the
   outcome the Python would otherwise decide on (the apex still in its layer, no shaft point to
@@ -24,28 +29,35 @@ code of :func:`run_slice` for every model, cached. It stops at the target time, 
 the deadline (by its last substep's wall time, on the monotonic clock, as ``Scene.advance``
 does), a watchdog energy-check step and any outcome but DONE. On node-bench's insertions
 (default scene, in-process, 100 advances a second, thread time) a substep's work outside the
-force kernel fell from 15 / 50 / 43 us (outside / inserted / retracting) to 13 / 45 / 40 us and
-the whole substep from 195 / 285 / 241 to 185 / 271 / 230 us; the kernel's own time lost the
-calls' dispatch it used to include (about 8 us a substep). What is left outside the kernel
-inside the tissue is the needle's step itself (about 35 us: the shaft's friction, 61 cutting
-samples found again and 61 tip-face samples pushed out, after the element pass has been
-through the caches).
+force kernel fell from 15 / 47 / 50 / 43 us (outside / contact / inserted / retracting) to
+14 / 33 / 44 / 38 us, the kernel then 87 % of the engine's work (85.5 % before); the kernel's own
+time lost the calls' dispatch it used to include (about 8 us a substep). The work of the needle's
+forces (``needle_kernels.applied_work``) and the 3-vector dots a contact step decides on
+(``needle_kernels.dot3``) are one function for both paths: numpy's went through BLAS, whose
+kernels may sum in another order. What is left outside the kernel is mostly the needle's own
+physics: inside, about 35 us a step (the shaft's friction, 61 cutting samples found again and 61
+tip-face samples pushed out, after the element pass has been through the caches).
 
 The same kernels in the same order: a scene advanced this way gives the same state, to the last
 bit, as one advanced through the Python calls (``Scene.compiled_substeps = False``; tested), and
 the watchdog checks the energy at the same steps. It runs where that holds simply: one needle,
 translating (a turning needle's slerp stays in Python), the explicit integrator with no
-prescribed DOFs and no relaxation, the needle not at a membrane, and not on the watchdog's
-energy-check steps (every ``check_interval``-th, which need the strain energy before the step);
-every other step is the general one. Where compiled code cannot read the clocks (not Linux),
+prescribed DOFs and no relaxation, the needle at no membrane but a sharp tip at the outer one,
+and not on the watchdog's energy-check steps (every ``check_interval``-th, which need the strain
+energy before the step); every other step is the general one. Where compiled code cannot read the clocks (not Linux),
 every step is the general one.
 """
+import math
+
 import numpy as np
 from numba import njit, types
 
 from tissue_sim_ros.engine.compiled_clock import MONOTONIC, THREAD_CPU, clock_ns
-from tissue_sim_ros.engine.needle_kernels import approach_hit, needle_kinematics, wrench_about
+from tissue_sim_ros.engine.needle_kernels import (applied_work, approach_hit, dot3, needle_kinematics, patch_apply,
+                                                  patch_solve, put_rigid_points, put_rows, wrench_about)
+from tissue_sim_ros.engine.needle_parameters import MIN_RATE_SPEED_M_S
 from tissue_sim_ros.engine.needle_step import inserted_step
+from tissue_sim_ros.engine.needle_tip import engage_samples
 from tissue_sim_ros.engine.region_selectors import region_of_point
 from tissue_sim_ros.engine.solver import _advance_free
 
@@ -53,9 +65,9 @@ __all__ = ['after_approach_step', 'after_inside_step', 'run_slice', 'function_va
            'TAIL', 'DIVERGED']
 
 #: a compiled step's outcome: complete; the needle's Python must decide the rest; the watchdog
-#: tripped (the needle's step not run)
-DONE, TAIL, DIVERGED = 0, 1, 2
-_OUTSIDE, _INSIDE = 'approach', 'inside'
+#: tripped (the needle's step not run); (a contact step) samples touched: the Python takes them
+DONE, TAIL, DIVERGED, ENGAGED = 0, 1, 2, 3
+_OUTSIDE, _INSIDE, _CONTACT = 'approach', 'inside', 'contact'
 
 
 @njit(cache=True, inline='always')
@@ -127,6 +139,66 @@ def after_inside_step(s, work, kinetic, bad, start, move, energy, watch, positio
             state[0] = apex
             outcome = DONE
     return outcome
+
+
+@njit(cache=True, nogil=True)
+def after_contact_step(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
+                       previous_axis, length, dt, tip, travel, base_velocity, axis_rate, contact_force, rest,
+                       displacement, velocity, inverse_mass, force_scale, rotation, patch_offsets, targets, nodes,
+                       weights, pseudo_inverse, residual, multipliers, sample_scale, sample_forces, total,
+                       patch_work, rupture, triangles, surface_boxes, surface_nodes, sample_offsets, engaged, new,
+                       reach, diameter, candidates, near_boxes, boxes, subset, subset_cells, sample_nodes,
+                       sample_weights, applied_forces, applied_points, applied_point_forces, wrench_force,
+                       wrench_torque):
+    """The substep after the force kernel with a sharp tip bonded to the outer membrane (phase
+    ``contact``, on the surface, no shaft points yet): ``NeedleTissue._after_step`` for the step
+    that holds the bonds, does not rupture the membrane and takes no new sample. DONE; TAIL
+    before the bonds are applied when the contact may end or the membrane may rupture (within
+    1e-6 of its criterion: the Python decides, from ``after_kinematics``); ENGAGED after the tip's
+    samples were tried when some touched (``after_engaging`` goes on); DIVERGED.
+
+    ``rupture``: (0 for the force criterion, 1 for energy; rupture force [N], its rate exponent,
+    reference speed [m/s], the slowest speed of the rate law [m/s]; the energy criterion's
+    toughness times the needle's section [J]). The patch's arrays are ContactPatch's (its work in
+    ``patch_work``), the samples' the SharpTipContact's; the rest NeedleTissue's."""
+    if not _move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
+                           previous_axis, length, tip):
+        return DIVERGED
+    for r in range(3):
+        contact_force[r] = 0.0
+    applied_forces[:] = 0.0
+    needle_kinematics(position, axis, previous_position, previous_axis, length, dt, tip, travel, base_velocity,
+                      axis_rate)
+    n = patch_offsets.shape[0]
+    put_rigid_points(tip, rotation, patch_offsets, n, targets, 0)
+    patch_solve(rest, displacement, nodes, weights, pseudo_inverse, targets, residual, multipliers, sample_scale,
+                1.0 / (dt * dt), sample_forces, total)
+    axial = dot3(total, axis)
+    if axial < 1e-9 and not dot3(travel, axis) > 1e-15:        # it may pull back: the Python decides
+        return TAIL
+    speed = dot3(base_velocity, axis)
+    if rupture[0] == 0.0:
+        threshold = rupture[1]
+        if rupture[2] != 0.0:
+            threshold = rupture[1] * (max(abs(speed), rupture[4]) / rupture[3]) ** rupture[2]
+        if axial >= threshold * (1.0 - 1e-6):
+            return TAIL
+    elif patch_work[0] + dot3(total, travel) >= rupture[5] * (1.0 - 1e-6):
+        return TAIL
+    patch_apply(displacement, velocity, inverse_mass, force_scale, nodes, weights, multipliers, dt, applied_forces)
+    for r in range(3):
+        contact_force[r] = total[r]
+    patch_work[0] += dot3(total, travel)
+    put_rows(targets, n, applied_points, 0)
+    put_rows(sample_forces, n, applied_point_forces, 0)
+    back = math.sqrt(dot3(travel, travel)) + diameter
+    if engage_samples(rest, displacement, triangles, surface_boxes, surface_nodes, tip, rotation, axis,
+                      sample_offsets, engaged, new, back, reach + back, candidates, near_boxes, boxes, subset,
+                      subset_cells, sample_nodes, sample_weights):
+        return ENGAGED
+    energy[0] += applied_work(applied_forces, velocity) * dt
+    wrench_about(applied_points, applied_point_forces, n, position, wrench_force, wrench_torque)
+    return DONE
 
 
 @njit(cache=True, nogil=True)
@@ -209,6 +281,7 @@ class CompiledSubsteps:
         self.energy = np.zeros(1)
         self.state = np.zeros(2, dtype=np.int64)
         self.results = np.zeros(9)
+        self.patch_work = np.zeros(1)
         self.clock = np.zeros(6)
         self.counters = np.zeros(3, dtype=np.int64)
         self.counts: dict = {}
@@ -224,18 +297,22 @@ class CompiledSubsteps:
 
     def ready(self) -> bool:
         sim, needle = self.sim, self.needle
-        # the membrane contact first: it holds for a fifth of the default insertion's substeps,
-        # each asking again (16 us a call in the running node, thread time)
-        if needle._touching() or not ((sim.step_count + 1) % sim.check_interval and sim.reference_energy
-                                      is not None and sim.model.topology_version == sim._topology_version):
+        if not ((sim.step_count + 1) % sim.check_interval and sim.reference_energy is not None
+                and sim.model.topology_version == sim._topology_version):
             return False
-        if needle.n_points:
+        if needle._touching():
+            contact, patch = needle.tip_contact, needle.patch
+            needle._inverse_mass()                     # (new masses: a new generation, set below)
+            mode = (_CONTACT if patch is not None and contact is not None and contact.active and contact.on_surface
+                    and not needle.n_points and needle.phase == 'contact'
+                    and patch.scale_generation == needle._mass_generation else None)
+        elif needle.n_points:
             mode = _INSIDE if needle.compiled_inside else None
         else:
             mode = _OUTSIDE if needle.phase == 'approach' and not needle._forces_applied else None
         if mode is None:
             return False
-        key = (mode, sim.mass_version, sim.dt, needle.region)
+        key = (mode, sim.mass_version, sim.dt, needle.region, id(needle.patch))
         if key != self._key:
             self._key, self._calls = key, self._gather(mode)
         return self._calls is not None
@@ -260,7 +337,25 @@ class CompiledSubsteps:
         watch = np.array([sim.energy_limit_factor(), sim.reference_energy, sim.energy_floor])
         advance = sim.advance_arguments()
         common = (self.start, self.move, self.energy, watch)
-        if mode == _OUTSIDE:
+        if mode == _CONTACT:
+            after_step = after_contact_step
+            patch, contact = needle.patch, needle.tip_contact
+            membrane = needle.regions[patch.region].membrane
+            rupture = np.array([0.0 if membrane.criterion == 'force' else 1.0, membrane.rupture_force_n,
+                                membrane.rate_exponent, membrane.reference_speed_m_s, MIN_RATE_SPEED_M_S,
+                                membrane.toughness_j_per_m2 * 0.25 * math.pi * geometry.diameter_m ** 2])
+            after = common + (needle.position, needle.axis, needle._previous_position, needle._previous_axis,
+                              geometry.length_m, sim.dt, needle._tip, needle._travel, needle._base_velocity,
+                              needle._axis_rate, needle.contact_force, needle.rest, sim.displacement, sim.velocity,
+                              inverse_mass, needle._force_scale, needle.rotation, patch.offsets, patch.targets,
+                              patch.nodes, patch.weights, patch.pseudo_inverse, patch.residual, patch.multipliers,
+                              patch.sample_scale, patch.sample_forces, patch.total, self.patch_work, rupture,
+                              needle.surface_triangles, needle.surface_boxes, needle.surface_nodes, contact.offsets,
+                              contact.engaged, contact.new, contact.reach, geometry.diameter_m,
+                              *contact.surface_scratch(needle.surface_triangles), contact.nodes, contact.weights,
+                              needle.applied_forces, needle._applied_points, needle._applied_point_forces,
+                              needle.wrench_force, needle.wrench_torque)
+        elif mode == _OUTSIDE:
             after_step = after_approach_step
             after = common + (needle.rest, sim.displacement, needle.surface_triangles, needle.surface_boxes,
                               needle.surface_nodes, needle.position, needle.axis, needle._previous_position,
@@ -296,6 +391,8 @@ class CompiledSubsteps:
         inside = after_step is after_inside_step
         if inside:
             self.state[0], self.state[1] = needle.apex_element, needle._forces_applied
+        elif after_step is after_contact_step:
+            self.patch_work[0] = needle.patch.work
         steps, outcome, kinetic, bad, kernel_ns = run_slice(kernel, kernel_args, advance, advance_args, after,
                                                             after_args, clock, counters)
         sim.input_work = self.energy[0]
@@ -303,12 +400,15 @@ class CompiledSubsteps:
         sim.time = float(clock[0])
         sim.step_count = int(counters[0])
         sim.kernel_s += kernel_ns * 1e-9
-        mode = _INSIDE if inside else _OUTSIDE
+        mode = self._key[0]
         self.counts[(mode, DONE)] = self.counts.get((mode, DONE), 0) + steps - (outcome != DONE)
         if outcome != DONE:
             self.counts[(mode, outcome)] = self.counts.get((mode, outcome), 0) + 1
         if outcome == DIVERGED:
             sim.watch(bad, kinetic)        # raises SimulationDiverged, as Simulation.step would
+        if after_step is after_contact_step:
+            self._after_contact_slice(outcome, inverse_mass)
+            return steps, float(clock[5])
         if not inside:
             needle.friction_force = needle.cutting_force = 0.0
             needle.n_applied = 0
@@ -330,3 +430,21 @@ class CompiledSubsteps:
         else:
             needle.phase = 'retracting' if results[8] < -1e-9 else 'inserted'
         return steps, float(clock[5])
+
+    def _after_contact_slice(self, outcome, inverse_mass):
+        """The needle's Python state after a slice of contact steps, and the Python's part of its
+        last step (TAIL: from the kinematics on; ENGAGED: from the samples' engaging on)."""
+        sim, needle = self.sim, self.needle
+        needle.friction_force = needle.cutting_force = 0.0
+        needle.patch.work = float(self.patch_work[0])
+        if outcome == TAIL:
+            needle.n_applied = 0
+            needle.after_kinematics(inverse_mass, sim.dt)
+            self._key = None
+            return
+        needle.n_applied = len(needle.patch.offsets)
+        if outcome == ENGAGED:
+            needle.after_engaging(inverse_mass, sim.dt)
+            self._key = None
+        else:
+            needle._forces_applied = True

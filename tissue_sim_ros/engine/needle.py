@@ -67,7 +67,8 @@ from tissue_sim_ros.engine.mesh import element_neighbours, face_elements
 from tissue_sim_ros.engine.needle_contact import disc_offsets
 from tissue_sim_ros.engine.needle_kernels import (first_surface_hit, follow_rigid_samples, locate_point,
                                                   locate_walk, needle_kinematics, put_axis_points,
-                                                  put_rigid_points, put_rows, shaft_solve, cell_boxes, wrench_about)
+                                                  put_rigid_points, put_rows, shaft_solve, cell_boxes, wrench_about,
+                                                  applied_work)
 from tissue_sim_ros.engine.needle_membrane import MembraneContact
 from tissue_sim_ros.engine.needle_parameters import (Friction, Membrane, NeedleGeometry, RegionInteraction,
                                                      TipShape)
@@ -318,14 +319,30 @@ class NeedleTissue(MembraneContact):
     def after_kinematics(self, inverse_mass, dt):
         """The general step after the needle's kinematics (``after_step`` but the inside step's
         path): contact, the shaft and cutting, the phase, the wrench. Also where a compiled
-        approach step (engine.compiled_substep) goes on when the tip has met the surface."""
-        sim = self.simulation
+        approach or contact step (engine.compiled_substep) goes on when the tip has met the
+        surface, or the contact may end."""
         if self.phase == 'approach':
             self._detect_surface_contact(inverse_mass)
         if self.patch is not None:
             self._enforce_patch(inverse_mass, dt)
-        if self.tip_contact is not None and self.tip_contact.active and self._engage_tip(inverse_mass):
-            self._enforce_patch(inverse_mass, dt)      # the first bonds hold from the step they touch
+        if self.tip_contact is not None and self.tip_contact.active:
+            self._engage_tip()
+            self.after_engaging(inverse_mass, dt)
+        else:
+            self.after_contact(inverse_mass, dt)
+
+    def after_engaging(self, inverse_mass, dt):
+        """After a sharp tip's samples were tried against the membrane: new bonds (the first
+        hold from the step they touch), then :meth:`after_contact`. Also where a compiled contact
+        step goes on when samples touched."""
+        if self._take_engaged(inverse_mass):
+            self._enforce_patch(inverse_mass, dt)
+        self.after_contact(inverse_mass, dt)
+
+    def after_contact(self, inverse_mass, dt):
+        """The step after the membrane contact: the shaft and cutting, the work of the needle's
+        forces, the phase, the wrench."""
+        sim = self.simulation
         if self.n_points:
             n = self.n_points
             self.friction_force = shaft_solve(
@@ -357,7 +374,7 @@ class NeedleTissue(MembraneContact):
                 self._track_apex(inverse_mass)
         self._forces_applied = self.n_applied > 0
         if self._forces_applied:         # work of the needle's forces, for the energy watchdog
-            sim.input_work += float(np.vdot(self.applied_forces, sim.velocity)) * dt
+            sim.input_work += applied_work(self.applied_forces, sim.velocity) * dt
         self._update_phase(dt)
         wrench_about(self._applied_points, self._applied_point_forces, self.n_applied, self.position,
                 self.wrench_force, self.wrench_torque)

@@ -11,8 +11,27 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ['first_surface_hit', 'near_surface_hit', 'approach_hit', 'cell_boxes', 'locate_point', 'locate_walk', 'cells_near', 'follow_rigid_samples', 'patch_solve', 'patch_apply', 'needle_kinematics',
+__all__ = ['dot3', 'applied_work', 'first_surface_hit', 'near_surface_hit', 'approach_hit', 'cell_boxes', 'locate_point', 'locate_walk', 'cells_near', 'follow_rigid_samples', 'patch_solve', 'patch_apply', 'needle_kinematics',
            'put_rigid_points', 'put_axis_points', 'put_rows', 'wrench_about', 'length_shares', 'shaft_solve']
+
+
+@njit(cache=True)
+def dot3(a, b):
+    """a . b of two 3-vectors, summed in order: the Python that decides a contact step and the
+    compiled contact step (engine.compiled_substep) call this one function, so they agree to the
+    last bit (numpy's dot of 3-vectors goes through BLAS, whose kernels may fuse and reorder)."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True)
+def applied_work(applied_forces, velocity):
+    """The power of the needle's nodal forces, sum f . v over the mesh, summed node by node (one
+    function for the general step and the compiled contact step)."""
+    work = 0.0
+    for i in range(applied_forces.shape[0]):
+        for r in range(3):
+            work += applied_forces[i, r] * velocity[i, r]
+    return work
 
 
 # -- geometric queries (numba) ------------------------------------------------------------------

@@ -34,7 +34,7 @@ import math
 import numpy as np
 
 from tissue_sim_ros.engine.needle_contact import ContactPatch, end_samples
-from tissue_sim_ros.engine.needle_kernels import approach_hit, locate_point, put_rows
+from tissue_sim_ros.engine.needle_kernels import approach_hit, dot3, locate_point, put_rows
 
 __all__ = ['MembraneContact']
 
@@ -104,7 +104,7 @@ class MembraneContact:
         if not held:                # (held: the step counted the bonds' work itself)
             patch.apply(sim.displacement, sim.velocity, inverse_mass, self._force_scale, dt, self.applied_forces)
         self.contact_force[:] = total
-        patch.work += float(total @ self._travel)
+        patch.work += dot3(total, self._travel)
         start = self._add_applied(n)
         put_rows(patch.targets, n, self._applied_points, start)
         put_rows(patch.sample_forces, n, self._applied_point_forces, start)
@@ -126,23 +126,27 @@ class MembraneContact:
         """In contact with a membrane (the end bonded, or a sharp tip about to touch)."""
         return self.patch is not None or (self.tip_contact is not None and self.tip_contact.active)
 
-    def _engage_tip(self, inverse_mass):
+    def _engage_tip(self):
         """A sharp tip against a membrane: new points touch (at the outer surface, or in the layer
-        met inside) and the bonded patch is rebuilt with them for the next step (its work carried
-        over); a contact nothing touches ends when the needle does not advance. Returns whether
-        the first bonds were made (the caller enforces them in this step, as a flat end's). Called after the
+        met inside); :meth:`_take_engaged` takes them. Called after the
         patch's correction: a point taken before it was off by the step's rebound of the nodes it
         shares with the bonds (0.36 mm under a cone's apex), and the exact solve moved their other
         nodes by 2.3 mm to agree."""
         contact, disp = self.tip_contact, self.simulation.displacement
         if contact.on_surface:
-            back = math.sqrt(float(self._travel @ self._travel)) + self.geometry.diameter_m
+            back = math.sqrt(dot3(self._travel, self._travel)) + self.geometry.diameter_m
             contact.engage_on_surface(self.rest, disp, self.surface_triangles, self.surface_boxes,
                                       self.surface_nodes, self._tip, self.rotation, self.axis, back)
         else:
             contact.engage_in_region(self.rest, disp, self.tetrahedra, self._neighbours, self.element_boxes,
                                      self.mesh_nodes, self._tip, self.rotation, self.selectors,
                                      self.mesh.element_tags)
+
+    def _take_engaged(self, inverse_mass):
+        """The points that touched rebuild the bonded patch for the next step (its work carried
+        over); a contact nothing touches ends when the needle does not advance. Returns whether
+        the first bonds were made (the caller enforces them in this step, as a flat end's)."""
+        contact = self.tip_contact
         if contact.take_new():
             first = self.patch is None
             work = 0.0 if first else self.patch.work

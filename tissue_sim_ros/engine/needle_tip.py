@@ -414,14 +414,19 @@ class SharpTipContact:
         return self.offsets[bonded], self.nodes[bonded], self.weights[bonded]
 
     def engage_on_surface(self, rest, displacement, triangles, rest_boxes, surface_nodes, tip, rotation, axis, back):
+        return engage_samples(rest, displacement, triangles, rest_boxes, surface_nodes, tip, rotation, axis,
+                              self.offsets, self.engaged, self.new, back, self.reach + back,
+                              *self.surface_scratch(triangles), self.nodes, self.weights)
+
+    def surface_scratch(self, triangles):
+        """engage_samples' scratch arrays (candidates, near_boxes, boxes, subset, subset_cells),
+        with room for ``triangles``."""
         self._room_for(len(triangles))
         if len(self._boxes) < len(triangles):
             self._boxes = np.zeros((len(triangles), 4))
             self._subset = np.zeros((len(triangles), 3), dtype=triangles.dtype)
             self._subset_cells = np.zeros(len(triangles), dtype=np.int64)
-        return engage_samples(rest, displacement, triangles, rest_boxes, surface_nodes, tip, rotation, axis,
-                              self.offsets, self.engaged, self.new, back, self.reach + back, self._candidates,
-                              self._near_boxes, self._boxes, self._subset, self._subset_cells, self.nodes, self.weights)
+        return self._candidates, self._near_boxes, self._boxes, self._subset, self._subset_cells
 
 
     def _room_for(self, n_cells):
