@@ -30,8 +30,8 @@ the deadline (by its last substep's wall time, on the monotonic clock, as ``Scen
 does), a watchdog energy-check step and any outcome but DONE. On node-bench's insertions
 (default scene, in-process, 100 advances a second, thread time) a substep's work outside the
 force kernel fell from 15 / 47 / 50 / 43 us (outside / contact / inserted / retracting) to
-14 / 33 / 44 / 38 us, the kernel then 87 % of the engine's work (85.5 % before); the kernel's own
-time lost the calls' dispatch it used to include (about 8 us a substep). The work of the needle's
+14 / 33 / 44 / 38 us, the kernel then 87 % of the engine's work (85.5 % before the slices); the
+kernel's time lost the calls' dispatch it used to include (about 8 us a substep). The work of the needle's
 forces (``needle_kernels.applied_work``) and the 3-vector dots a contact step decides on
 (``needle_kernels.dot3``) are one function for both paths: numpy's went through BLAS, whose
 kernels may sum in another order. What is left outside the kernel is mostly the needle's own
