@@ -44,8 +44,8 @@ the watchdog checks the energy at the same steps. It runs where that holds simpl
 translating (a turning needle's slerp stays in Python), the explicit integrator with no
 prescribed DOFs and no relaxation, the needle at no membrane but a sharp tip at the outer one,
 and not on the watchdog's energy-check steps (every ``check_interval``-th, which need the strain
-energy before the step); every other step is the general one. Where compiled code cannot read the clocks (not Linux),
-every step is the general one.
+energy before the step); every other step is the general one. Where compiled code cannot read
+the clocks (not Linux), every step is the general one.
 """
 import math
 

@@ -65,10 +65,9 @@ import numpy as np
 from tissue_sim_ros.engine.implicit_bonds import BondRows
 from tissue_sim_ros.engine.mesh import element_neighbours, face_elements
 from tissue_sim_ros.engine.needle_contact import disc_offsets
-from tissue_sim_ros.engine.needle_kernels import (first_surface_hit, follow_rigid_samples, locate_point,
-                                                  locate_walk, needle_kinematics, put_axis_points,
-                                                  put_rigid_points, put_rows, shaft_solve, cell_boxes, wrench_about,
-                                                  applied_work)
+from tissue_sim_ros.engine.needle_kernels import (applied_work, cell_boxes, first_surface_hit, follow_rigid_samples,
+                                                  locate_point, locate_walk, needle_kinematics, put_axis_points,
+                                                  put_rigid_points, put_rows, shaft_solve, wrench_about)
 from tissue_sim_ros.engine.needle_membrane import MembraneContact
 from tissue_sim_ros.engine.needle_parameters import (Friction, Membrane, NeedleGeometry, RegionInteraction,
                                                      TipShape)
@@ -400,7 +399,8 @@ class NeedleTissue(MembraneContact):
                 self.n_points, self._friction_laws[self.region], self._free_beyond, self._closing_m,
                 self.point_offsets, self.point_forces, self.point_depths, self.point_shares, self.disc_offsets,
                 self.tip_elements, self.tip_offsets, self.tip_nodes, self.tip_weights, self._weights,
-                self._candidates, self._near_boxes, self.regions[self.region].cutting_force_n, self._cutting_law, self.tip_forces, self.tip_depths, self._unit_shares, self._no_offsets,
+                self._candidates, self._near_boxes, self.regions[self.region].cutting_force_n, self._cutting_law,
+                self.tip_forces, self.tip_depths, self._unit_shares, self._no_offsets,
                 self.sharp and self.tip_contact.cutting, faces.engaged, faces.new, faces.nodes, faces.weights,
                 faces.params, faces.forces, faces.points, faces.total, self.applied_forces, self._applied_points,
                 self._applied_point_forces, self.wrench_force, self.wrench_torque, self._apex_weights,

@@ -11,8 +11,10 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ['dot3', 'applied_work', 'first_surface_hit', 'near_surface_hit', 'approach_hit', 'cell_boxes', 'locate_point', 'locate_walk', 'cells_near', 'follow_rigid_samples', 'patch_solve', 'patch_apply', 'needle_kinematics',
-           'put_rigid_points', 'put_axis_points', 'put_rows', 'wrench_about', 'length_shares', 'shaft_solve']
+__all__ = ['dot3', 'applied_work', 'first_surface_hit', 'near_surface_hit', 'approach_hit', 'cell_boxes',
+           'locate_point', 'locate_walk', 'cells_near', 'follow_rigid_samples', 'patch_solve', 'patch_apply',
+           'needle_kinematics', 'put_rigid_points', 'put_axis_points', 'put_rows', 'wrench_about',
+           'length_shares', 'shaft_solve']
 
 
 @njit(cache=True)
@@ -296,9 +298,9 @@ def follow_rigid_samples(rest, displacement, tetrahedra, neighbours, boxes, node
     extent; the pad is 1e-6 of it and 1e-12 m): the same element as trying every candidate, for
     6 comparisons instead of 12 gathers. (A needle leaving the tissue has most samples outside
     and no walk to start from: each tried all ~340 candidates, 300-500 us a step on the default
-    scene, 85 % of this function's time over a retraction.) Samples in the hole behind a sharp tip searched the whole mesh every step,
-    which made the step 80 % dearer. Writes the found points' offsets, element nodes and weights compactly;
-    returns how many were inside the mesh."""
+    scene, 85 % of this function's time over a retraction.) Samples in the hole behind a sharp tip
+    searched the whole mesh every step, which made the step 80 % dearer. Writes the found points'
+    offsets, element nodes and weights compactly; returns how many were inside the mesh."""
     n = 0
     n_near = -1
     hint = -1

@@ -105,14 +105,16 @@ def engage_samples(rest, displacement, triangles, rest_boxes, surface_nodes, tip
     point there: its triangle's nodes (4th node weight 0) and weights, and are marked ``new``.
     Only the triangles within ``reach`` of the apex are tried (:func:`.needle_kernels.cells_near`
     with the triangles' rest boxes ``rest_boxes`` and the ``surface_nodes``; ``candidates``,
-    ``near_boxes``: room for every triangle), and for each sample only those whose box across the axis holds the sample: a ray
-    along the axis meets a triangle only where its projection does, so the answer is the one all
-    near triangles give (the boxes are padded well past round-off), for a tenth of the ray tests
+    ``near_boxes``: room for every triangle), and for each sample only those whose box across the
+    axis holds the sample: a ray along the axis meets a triangle only where its projection does,
+    so the answer is the one all near triangles give (the boxes are padded well past round-off),
+    for a tenth of the ray tests
     (60 samples x 106 near triangles on the default scene: 59 -> 27 us a step). Scratch with room
     for every triangle: ``boxes`` (n, 4), ``subset`` (n, 3), ``subset_cells`` (n,). Returns how
     many took a point."""
     count = 0
-    n_near = cells_near(rest, displacement, triangles, rest_boxes, surface_nodes, tip, reach, candidates, near_boxes)
+    n_near = cells_near(rest, displacement, triangles, rest_boxes, surface_nodes, tip, reach, candidates,
+                        near_boxes)
     # two directions across the axis: the axis crossed with the coordinate axis least along it
     k_min = 0
     for r in range(1, 3):

@@ -237,8 +237,8 @@ class Scene:
         except ValueError as exc:        # MaterialError, MeshError, NeedleInputError...
             raise SceneError(str(exc)) from exc
         self._target_time = 0.0
-        #: run the substeps of a needle outside or inside as the force kernel and one compiled
-        #: call (engine.compiled_substep; False: the Python calls, the same arithmetic)
+        #: run the substeps of a needle outside, at the outer membrane or inside in compiled
+        #: slices (engine.compiled_substep; False: the Python calls, the same arithmetic)
         self.compiled_substeps = True
         self._compiled = None
         self.element_region = element_region
