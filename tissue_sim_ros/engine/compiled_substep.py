@@ -55,14 +55,14 @@ from numba import njit, types
 from tissue_sim_ros.engine.compiled_clock import MONOTONIC, THREAD_CPU, clock_ns
 from tissue_sim_ros.engine.needle_kernels import (applied_work, approach_hit, dot3, needle_kinematics, patch_apply,
                                                   patch_solve, put_rigid_points, put_rows, wrench_about)
-from tissue_sim_ros.engine.needle_parameters import MIN_RATE_SPEED_M_S
+from tissue_sim_ros.engine.needle_parameters import rupture_force_at
 from tissue_sim_ros.engine.needle_step import inserted_step
 from tissue_sim_ros.engine.needle_tip import engage_samples
 from tissue_sim_ros.engine.region_selectors import region_of_point
 from tissue_sim_ros.engine.solver import _advance_free
 
-__all__ = ['after_approach_step', 'after_inside_step', 'run_slice', 'function_value', 'CompiledSubsteps', 'DONE',
-           'TAIL', 'DIVERGED']
+__all__ = ['after_approach_step', 'after_inside_step', 'after_contact_step', 'run_slice', 'function_value',
+           'CompiledSubsteps', 'DONE', 'TAIL', 'DIVERGED', 'ENGAGED']
 
 #: a compiled step's outcome: complete; the needle's Python must decide the rest; the watchdog
 #: tripped (the needle's step not run); (a contact step) samples touched: the Python takes them
@@ -158,8 +158,8 @@ def after_contact_step(s, work, kinetic, bad, start, move, energy, watch, positi
     samples were tried when some touched (``after_engaging`` goes on); DIVERGED.
 
     ``rupture``: (0 for the force criterion, 1 for energy; rupture force [N], its rate exponent,
-    reference speed [m/s], the slowest speed of the rate law [m/s]; the energy criterion's
-    toughness times the needle's section [J]). The patch's arrays are ContactPatch's (its work in
+    reference speed [m/s]; the work that ruptures it under the energy criterion [J]):
+    ``Membrane``'s, through the functions the Python uses. The patch's arrays are ContactPatch's (its work in
     ``patch_work``), the samples' the SharpTipContact's; the rest NeedleTissue's."""
     if not _move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
                            previous_axis, length, tip):
@@ -178,12 +178,9 @@ def after_contact_step(s, work, kinetic, bad, start, move, energy, watch, positi
         return TAIL
     speed = dot3(base_velocity, axis)
     if rupture[0] == 0.0:
-        threshold = rupture[1]
-        if rupture[2] != 0.0:
-            threshold = rupture[1] * (max(abs(speed), rupture[4]) / rupture[3]) ** rupture[2]
-        if axial >= threshold * (1.0 - 1e-6):
+        if axial >= rupture_force_at(rupture[1], rupture[2], rupture[3], speed) * (1.0 - 1e-6):
             return TAIL
-    elif patch_work[0] + dot3(total, travel) >= rupture[5] * (1.0 - 1e-6):
+    elif patch_work[0] + dot3(total, travel) >= rupture[4] * (1.0 - 1e-6):
         return TAIL
     patch_apply(displacement, velocity, inverse_mass, force_scale, nodes, weights, multipliers, dt, applied_forces)
     for r in range(3):
@@ -342,8 +339,8 @@ class CompiledSubsteps:
             patch, contact = needle.patch, needle.tip_contact
             membrane = needle.regions[patch.region].membrane
             rupture = np.array([0.0 if membrane.criterion == 'force' else 1.0, membrane.rupture_force_n,
-                                membrane.rate_exponent, membrane.reference_speed_m_s, MIN_RATE_SPEED_M_S,
-                                membrane.toughness_j_per_m2 * 0.25 * math.pi * geometry.diameter_m ** 2])
+                                membrane.rate_exponent, membrane.reference_speed_m_s,
+                                membrane.rupture_work_j(geometry.diameter_m)])
             after = common + (needle.position, needle.axis, needle._previous_position, needle._previous_axis,
                               geometry.length_m, sim.dt, needle._tip, needle._travel, needle._base_velocity,
                               needle._axis_rate, needle.contact_force, needle.rest, sim.displacement, sim.velocity,

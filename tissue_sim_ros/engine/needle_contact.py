@@ -142,8 +142,7 @@ class ContactPatch:
         reaches the toughness times the needle's cross-section area ('energy')."""
         if membrane.criterion == 'force':
             return axial_force >= membrane.rupture_force(speed)
-        area = 0.25 * math.pi * diameter ** 2
-        return self.work >= membrane.toughness_j_per_m2 * area
+        return self.work >= membrane.rupture_work_j(diameter)
 
     def entry_point(self):
         """(nodes, weights) of the first shaft point after puncture: the centre sample's four

@@ -128,10 +128,9 @@ class MembraneContact:
 
     def _engage_tip(self):
         """A sharp tip against a membrane: new points touch (at the outer surface, or in the layer
-        met inside); :meth:`_take_engaged` takes them. Called after the
-        patch's correction: a point taken before it was off by the step's rebound of the nodes it
-        shares with the bonds (0.36 mm under a cone's apex), and the exact solve moved their other
-        nodes by 2.3 mm to agree."""
+        met inside); :meth:`_take_engaged` takes them. Called after the patch's correction: a point
+        taken before it was off by the step's rebound of the nodes it shares with the bonds (0.36 mm
+        under a cone's apex), and the exact solve moved their other nodes by 2.3 mm to agree."""
         contact, disp = self.tip_contact, self.simulation.displacement
         if contact.on_surface:
             back = math.sqrt(dot3(self._travel, self._travel)) + self.geometry.diameter_m

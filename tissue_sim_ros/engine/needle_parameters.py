@@ -4,9 +4,11 @@ Frozen dataclasses read from the scene file (``needle`` and ``regions[i]``); SI 
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from tissue_sim_ros.engine.pose import DEFAULT_MAX_JUMP_M
 
@@ -71,14 +73,25 @@ class Membrane:
 
     def rupture_force(self, speed_m_s: float) -> float:
         """The axial force [N] that ruptures the membrane at this axial speed [m/s]."""
-        if self.rate_exponent == 0.0:
-            return self.rupture_force_n
-        speed = max(abs(speed_m_s), MIN_RATE_SPEED_M_S)
-        return self.rupture_force_n * (speed / self.reference_speed_m_s) ** self.rate_exponent
+        return rupture_force_at(self.rupture_force_n, self.rate_exponent, self.reference_speed_m_s, speed_m_s)
+
+    def rupture_work_j(self, diameter_m: float) -> float:
+        """The work [J] since contact that ruptures it under the 'energy' criterion, for a
+        needle of this diameter: the toughness times its cross-section area."""
+        return self.toughness_j_per_m2 * 0.25 * math.pi * diameter_m ** 2
 
 
 #: the slowest speed the rupture rate law uses [m/s]
 MIN_RATE_SPEED_M_S = 1e-5
+
+
+@njit(cache=True)
+def rupture_force_at(rupture_force_n, rate_exponent, reference_speed_m_s, speed_m_s):
+    """:meth:`Membrane.rupture_force` (the rate law) with the membrane's numbers: one function
+    for the Python and the compiled contact step (engine.compiled_substep)."""
+    if rate_exponent == 0.0:
+        return rupture_force_n
+    return rupture_force_n * (max(abs(speed_m_s), MIN_RATE_SPEED_M_S) / reference_speed_m_s) ** rate_exponent
 
 
 @dataclass(frozen=True)

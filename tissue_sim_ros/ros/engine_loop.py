@@ -175,8 +175,9 @@ class EngineLoop:
         """A tick: a new budget window, which the engine opens at its next cycle; with ``wait``
         (sim time), return once the engine has simulated up to now. The engine is woken for it
         only when it is behind (a deadline left substeps for this window) or with ``wait``: else
-        its next pose wakes it, or its wait's timeout (a period) when none comes, and a cycle of
-        its own for the tick cost about 100 us of thread time 50 times a second for nothing to do."""
+        its next pose wakes it, or its wait's timeout (a period) when none comes: a cycle of its
+        own for the tick, 50 a second, had nothing to do (in the engine-only loop the engine's CPU
+        did not change measurably without them)."""
         with self._cond:
             self._tick_seq += 1
             seq = self._tick_seq

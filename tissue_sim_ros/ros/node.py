@@ -19,12 +19,12 @@ Timing: the engine runs on its own thread (:mod:`~tissue_sim_ros.ros.engine_loop
 toward the newest pose within a budget of each tick period (``engine.budget_fraction``). The
 tick (:mod:`~tissue_sim_ros.ros.tick_thread`: its own thread on the monotonic clock, started by
 the executor's first spin; with ``use_sim_time`` a timer on the node clock) publishes the latest
-state every period, whatever the engine's progress: the tick never waits for the physics. When the engine cannot keep real
-time its lag is reported and bounded (``engine.max_lag_s``; the excess is dropped), and the
-degradation ladder (``engine.ladder``) steps down and back up. With ``use_sim_time`` the node is
-lock-step: each tick waits until the engine reached it. A divergence (``SimulationDiverged`` or a
-non-finite state) is logged at ERROR and, by ``on_divergence``, reset to rest or held until
-``~/reset`` (the last finite wrench republished).
+state every period, whatever the engine's progress: the tick never waits for the physics. When
+the engine cannot keep real time its lag is reported and bounded (``engine.max_lag_s``; the
+excess is dropped), and the degradation ladder (``engine.ladder``) steps down and back up. With
+``use_sim_time`` the node is lock-step: each tick waits until the engine reached it. A divergence
+(``SimulationDiverged`` or a non-finite state) is logged at ERROR and, by ``on_divergence``, reset
+to rest or held until ``~/reset`` (the last finite wrench republished).
 
 Bad input never stops the node and never reaches a topic as NaN: see ``BAD_INPUT_KINDS`` in
 :mod:`~tissue_sim_ros.ros.pose_input`, plus ``malformed`` (a payload that does not decode as a
