@@ -7,6 +7,7 @@ import pytest
 from test_needle_tips import COARSE_FAR
 from tissue_sim_ros.analysis.insertion import run_insertion
 from tissue_sim_ros.engine import compiled_substep
+from tissue_sim_ros.engine.compiled_call import compiled_address
 from tissue_sim_ros.engine.scene import Scene
 from tissue_sim_ros.engine.solver import SimulationDiverged
 
@@ -122,3 +123,25 @@ def test_the_compiled_watchdog_limit_is_the_simulations():
         assert not compiled_substep._move_and_watch(0.5, step_work, 0.0, 1, needle.position, np.zeros(3),
                                                     np.array([work_in]), watch, *moved[:4],
                                                     needle.geometry.length_m, moved[4])
+
+
+def test_a_function_found_for_other_types_is_refused_and_found_again(monkeypatch):
+    """The slice checks the types its three functions were compiled for (engine.compiled_call)
+    before it calls them: with every check stale at first (as after an argument changed type),
+    each slice is refused, its functions are found again and the run is the general path's, bit
+    for bit."""
+    found = []
+
+    def stale_first(dispatcher, args, returns):
+        address, check = compiled_address(dispatcher, args, returns)
+        found.append(dispatcher)
+        return address, check + (found.count(dispatcher) == 1)
+    monkeypatch.setattr(compiled_substep, 'compiled_address', stale_first)
+    compiled, fast, _ = _run(['needle.tip.shape=flat'], True, depth=0.006)
+    general, slow, _ = _run(['needle.tip.shape=flat'], False, depth=0.006)
+    assert np.array_equal(fast.force, slow.force) and fast.phase == slow.phase
+    assert np.array_equal(compiled.simulation.displacement, general.simulation.displacement)
+    assert len(found) >= 6 and all(found.count(d) >= 2 for d in found)
+    counts = compiled._compiled.counts
+    assert counts.get(('approach', compiled_substep.DONE), 0) + counts.get(('inside', compiled_substep.DONE), 0) \
+        > 0.5 * fast.steps, counts

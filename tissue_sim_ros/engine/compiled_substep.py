@@ -22,10 +22,12 @@ the same way in a row, each the force kernel, timed on the thread's CPU clock in
   outcome the Python would otherwise decide on (the apex still in its layer, no shaft point to
   add, none to release); a step that needs more goes on in ``NeedleTissue.after_inserted_step``.
 
-The slice calls the element pass, the node update and the step after them as first-class
-function values (:func:`function_value`): the machine code a Python call runs, the element pass
-as compile_cache had it compiled (not optimized again inside another function), and one machine
-code of :func:`run_slice` for every model, cached. It stops at the target time, ``max_steps``,
+The slice calls the element pass, the node update and the step after them by the addresses of
+their compiled code (:mod:`.compiled_call`, each with a check of its types): the machine code a
+Python call runs, the element pass as compile_cache had it compiled (not optimized again inside
+another function), one machine code of :func:`run_slice` for every model, cached, and a
+dispatch that types arrays and integers only (as numba first-class function values, the three
+cost 11-13 us of Python a slice). It stops at the target time, ``max_steps``,
 the deadline (by its last substep's wall time, on the monotonic clock, as ``Scene.advance``
 does), a watchdog energy-check step and any outcome but DONE. On node-bench's insertions
 (default scene, in-process, 100 advances a second, thread time) a substep's work outside the
@@ -52,6 +54,7 @@ import math
 import numpy as np
 from numba import njit, types
 
+from tissue_sim_ros.engine.compiled_call import call_compiled, compiled_address, signature_check
 from tissue_sim_ros.engine.compiled_clock import MONOTONIC, THREAD_CPU, clock_ns
 from tissue_sim_ros.engine.needle_kernels import (applied_work, approach_hit, dot3, needle_kinematics, patch_apply,
                                                   patch_solve, put_rigid_points, put_rows, wrench_about)
@@ -61,13 +64,15 @@ from tissue_sim_ros.engine.needle_tip import engage_samples
 from tissue_sim_ros.engine.region_selectors import region_of_point
 from tissue_sim_ros.engine.solver import _advance_free
 
-__all__ = ['after_approach_step', 'after_inside_step', 'after_contact_step', 'run_slice', 'function_value',
+__all__ = ['after_approach_step', 'after_inside_step', 'after_contact_step', 'run_slice',
            'CompiledSubsteps', 'DONE', 'TAIL', 'DIVERGED', 'ENGAGED']
 
 #: a compiled step's outcome: complete; the needle's Python must decide the rest; the watchdog
-#: tripped (the needle's step not run); (a contact step) samples touched: the Python takes them
-DONE, TAIL, DIVERGED, ENGAGED = 0, 1, 2, 3
+#: tripped (the needle's step not run); (a contact step) samples touched: the Python takes them;
+#: (run_slice) no step run: a function's check is not that of its arguments' types
+DONE, TAIL, DIVERGED, ENGAGED, REFUSED = 0, 1, 2, 3, 4
 _OUTSIDE, _INSIDE, _CONTACT = 'approach', 'inside', 'contact'
+_ADVANCE_RETURNS = types.Tuple((types.float64, types.float64, types.int64))     # solver._advance_free's
 
 
 @njit(cache=True, inline='always')
@@ -199,20 +204,26 @@ def after_contact_step(s, work, kinetic, bad, start, move, energy, watch, positi
 
 
 @njit(cache=True, nogil=True)
-def run_slice(kernel, kernel_args, advance, advance_args, after, after_args, clock, counters):
+def run_slice(addresses, checks, kernel_args, advance_args, after_args, clock, counters):
     """Substeps in one call, each the force kernel (``kernel(*kernel_args)``, then the node update
-    ``advance(*advance_args)``) and ``after(s, work, kinetic, bad, *after_args)`` (the three
-    first-class function values, :func:`function_value`: one machine code of this function for
-    every model and mode, and numba's cache keeps it), as ``Scene.advance`` runs them: the needle at
-    ``s`` of its move, toward the running target time. The first substep runs (the caller checked
-    it may); the next ones while they end by the target time, before ``max_steps``, before the
-    watchdog's energy-check step (every ``check_interval``-th), within the deadline (its last
-    substep's wall time ahead) and while ``after`` says DONE.
+    ``advance(*advance_args)``) and ``after(s, work, kinetic, bad, *after_args)``, the three called
+    by the addresses of their compiled code (``addresses``, with ``checks`` of their types:
+    :mod:`.compiled_call`; one machine code of this function for every model and mode, and numba's
+    cache keeps it), as ``Scene.advance`` runs them: the needle at ``s`` of its move, toward the
+    running target time. The first substep runs (the caller checked it may); the next ones while
+    they end by the target time, before ``max_steps``, before the watchdog's energy-check step
+    (every ``check_interval``-th), within the deadline (its last substep's wall time ahead) and
+    while ``after`` says DONE. None runs (outcome REFUSED) if a check is not that of the types
+    passed here.
 
     ``clock``: (time, dt, start time, target time, deadline (perf_counter s; inf: none), the last
     substep's wall time) [s]; ``counters``: (step count, check_interval, max_steps (< 0: none)).
     Time, wall time and step count are updated. Returns (substeps run, the last one's outcome, its
     kinetic energy and bad components (the watchdog's), thread CPU ns in the force kernel)."""
+    if (checks[0] != signature_check((), kernel_args, None)
+            or checks[1] != signature_check((), advance_args, (0.0, 0.0, 0))
+            or checks[2] != signature_check((0.5, 0.0, 0.0, 0), after_args, 0)):
+        return 0, REFUSED, 0.0, 0, 0
     time, dt, start_t, end_t, deadline, step_wall = clock[0], clock[1], clock[2], clock[3], clock[4], clock[5]
     step_count, check_interval, max_steps = counters[0], counters[1], counters[2]
     timed = deadline < np.inf
@@ -226,10 +237,10 @@ def run_slice(kernel, kernel_args, advance, advance_args, after, after_args, clo
         wall0 = clock_ns(MONOTONIC) if timed else 0
         s = min(1.0, (time + dt - start_t) / (end_t - start_t))
         cpu0 = clock_ns(THREAD_CPU)
-        kernel(*kernel_args)
-        work, kinetic, bad = advance(*advance_args)
+        call_compiled(addresses[0], (), kernel_args, None)
+        work, kinetic, bad = call_compiled(addresses[1], (), advance_args, (0.0, 0.0, 0))
         kernel_ns += clock_ns(THREAD_CPU) - cpu0
-        outcome = after(s, work, kinetic, bad, *after_args)
+        outcome = call_compiled(addresses[2], (s, work, kinetic, bad), after_args, 0)
         time = time + dt
         step_count += 1
         steps += 1
@@ -237,31 +248,6 @@ def run_slice(kernel, kernel_args, advance, advance_args, after, after_args, clo
             step_wall = (clock_ns(MONOTONIC) - wall0) / 1e9
     clock[0], clock[5], counters[0] = time, step_wall, step_count
     return steps, outcome, kinetic, bad, kernel_ns
-
-
-def function_value(dispatcher, args):
-    """``dispatcher``'s compiled code for arguments like ``args`` (compiled or loaded from the
-    cache if need be) as a numba first-class function value: called from :func:`run_slice`
-    through its C wrapper's address, the machine code every Python call runs (the element pass
-    as its cache holds it: compiled into another function it would be optimized again with it,
-    compile_cache)."""
-    from numba import typeof
-    argument_types = tuple(typeof(a) for a in args)
-    dispatcher.compile(argument_types)
-    signature = dispatcher.overloads[argument_types].signature
-    return _FunctionValue(dispatcher.get_compile_result(signature), signature)
-
-
-class _FunctionValue:
-    """What numba takes as a first-class function (``_numba_type_``, the wrapper address
-    protocol), for :func:`function_value`."""
-
-    def __init__(self, compiled, signature):
-        self._numba_type_ = types.FunctionType(signature)
-        self._address = compiled.library.get_pointer_to_function(compiled.fndesc.llvm_cfunc_wrapper_name)
-
-    def __wrapper_address__(self):
-        return self._address
 
 
 class CompiledSubsteps:
@@ -283,7 +269,7 @@ class CompiledSubsteps:
         self.counters = np.zeros(3, dtype=np.int64)
         self.counts: dict = {}
         self._key, self._calls = None, None
-        self._functions: dict = {}          # dispatcher -> function_value (see _function)
+        self._functions: dict = {}          # (kernel, step after) -> (addresses, checks) (_functions_for)
 
     def begin(self, start, move):
         self.start[:], self.move[:] = start, move
@@ -314,13 +300,19 @@ class CompiledSubsteps:
             self._key, self._calls = key, self._gather(mode)
         return self._calls is not None
 
-    def _function(self, dispatcher, args):
-        """function_value, made at the first gather: typing the arguments again at each advance
-        cost 300-650 us. A scene's arguments keep their types (its arrays keep their dtypes and
-        shapes' ranks when reallocated); were one to change, run_slice would not compile for it."""
-        value = self._functions.get(dispatcher)
+    def _functions_for(self, kernel, kernel_args, advance_args, after_step, after_args):
+        """(addresses, checks) of the kernel's, the node update's and the step after's code
+        (compiled_call.compiled_address), found at the first gather with them: typing the
+        arguments again at each advance cost 300-650 us. A scene's arguments keep their types (its
+        arrays keep their dtypes and shapes' ranks when reallocated); were one to change, run_slice
+        refuses the call and :meth:`run` finds the code for the new types."""
+        value = self._functions.get((kernel, after_step))
         if value is None:
-            value = self._functions[dispatcher] = function_value(dispatcher, args)
+            found = (compiled_address(kernel, kernel_args, types.none),
+                     compiled_address(_advance_free, advance_args, _ADVANCE_RETURNS),
+                     compiled_address(after_step, (0.5, 0.0, 0.0, 0) + after_args, types.int64))
+            value = self._functions[(kernel, after_step)] = (np.array([f[0] for f in found], dtype=np.int64),
+                                                             np.array([f[1] for f in found], dtype=np.int64))
         return value
 
     def _gather(self, mode):
@@ -371,16 +363,16 @@ class CompiledSubsteps:
                               geometry.length_m, needle._tip, needle._apex_rest, self.state, decide, kinds, params,
                               tags, needle.element_region, self.results,
                               needle.inserted_arguments(inverse_mass, sim.dt))
-        return (self._function(forces[0], forces[1]), forces[1], self._function(_advance_free, advance), advance,
-                after_step, self._function(after_step, (0.5, 0.0, 0.0, 0) + after), after, inverse_mass)
+        return (*self._functions_for(forces[0], forces[1], advance, after_step, after), forces[1], advance, after_step,
+                after, inverse_mass)
 
-    def run(self, start_t, end_t, max_steps, deadline, step_wall):
+    def run(self, start_t, end_t, max_steps, deadline, step_wall, found_again=False):
         """The coming substep (``ready()`` said it can run) and the next ones :func:`run_slice`
         can run, toward target time ``end_t`` from ``start_t`` (``Scene.advance``'s), at most
         ``max_steps`` (None: no limit), none to start past ``deadline`` (None: none) by the last
         one's wall time ``step_wall``. Returns (substeps run, the last one's wall time [s])."""
         sim, needle = self.sim, self.needle
-        kernel, kernel_args, advance, advance_args, after_step, after, after_args, inverse_mass = self._calls
+        addresses, checks, kernel_args, advance_args, after_step, after_args, inverse_mass = self._calls
         clock, counters = self.clock, self.counters
         clock[:] = (sim.time, sim.dt, start_t, end_t, np.inf if deadline is None else deadline, step_wall)
         counters[:] = (sim.step_count, sim.check_interval, -1 if max_steps is None else max_steps)
@@ -390,8 +382,14 @@ class CompiledSubsteps:
             self.state[0], self.state[1] = needle.apex_element, needle._forces_applied
         elif after_step is after_contact_step:
             self.patch_work[0] = needle.patch.work
-        steps, outcome, kinetic, bad, kernel_ns = run_slice(kernel, kernel_args, advance, advance_args, after,
-                                                            after_args, clock, counters)
+        steps, outcome, kinetic, bad, kernel_ns = run_slice(addresses, checks, kernel_args, advance_args, after_args,
+                                                            clock, counters)
+        if outcome == REFUSED:        # an argument's type changed: the functions' code for the new ones
+            if found_again:
+                raise RuntimeError('compiled substeps: the functions found for the arguments do not take them')
+            self._functions.clear()
+            self._calls = self._gather(self._key[0])
+            return self.run(start_t, end_t, max_steps, deadline, step_wall, found_again=True)
         sim.input_work = self.energy[0]
         sim.kinetic_energy = kinetic
         sim.time = float(clock[0])
