@@ -26,12 +26,12 @@ def _run(sets, compiled, overrides=None, speed=0.005, depth=0.014):
     """(scene, insertion result, the step counts at which the watchdog checked the energy)."""
     scene = Scene.from_file(sets=COARSE_FAR + sets, **(overrides or {}))
     scene.compiled_substeps = compiled
-    checked, check = [], scene.simulation._check_energy
+    checked, note = [], scene.simulation.note_safeguarded
 
-    def recorded(*args):
+    def recorded():          # at each energy-check step that passed, either path
         checked.append(scene.simulation.step_count)
-        return check(*args)
-    scene.simulation._check_energy = recorded
+        return note()
+    scene.simulation.note_safeguarded = recorded
     result = run_insertion(scene, speed, scene.start_gap_m + depth, hold_s=0.1, tick=0.02)
     return scene, result, checked
 
@@ -65,6 +65,7 @@ def test_compiled_substeps_are_the_general_substeps_bit_for_bit(tip, overrides, 
     counts = compiled._compiled.counts
     done = counts.get(('approach', compiled_substep.DONE), 0) + counts.get(('inside', compiled_substep.DONE), 0)
     assert done > 0.6 * fast.steps, counts
+    assert sum(n for (mode, what), n in counts.items() if what == 'checked') > 0.6 * len(checked), counts
     assert counts.get(('approach', compiled_substep.TAIL), 0) >= 1
     assert counts.get(('inside', compiled_substep.TAIL), 0) >= 3
     if tip != 'flat':
@@ -100,6 +101,69 @@ def test_the_watchdog_trips_at_the_same_step_either_way(phase_depth):
     (steps, message, u, work, position), (steps2, message2, u2, work2, position2) = outcomes
     assert steps == steps2 and message == message2 and 'energy grew without input' in message
     assert np.array_equal(u, u2, equal_nan=True) and work == work2 and np.array_equal(position, position2)
+
+
+@pytest.mark.parametrize('depth, phase', [(0.0015, 'contact'), (0.012, 'inserted')])
+def test_a_failed_energy_check_trips_at_the_same_step_either_way(depth, phase):
+    """With the energy limit set to a fifth of the strain energy the tissue holds (the kinetic energy
+    far below it), a slow push and a small load on every node, the first energy-check step fails: the compiled slice ends there, and the step,
+    the message, the state and the needle's pose are Simulation.step's."""
+    outcomes = []
+    for compiled in (True, False):
+        scene = Scene.from_file(sets=COARSE_FAR + ['needle.tip.shape=bevel'])
+        scene.compiled_substeps = compiled
+        p, q = scene.needle_pose
+        axis = scene.needle.axis
+        for k in range(1, 41):
+            scene.advance(0.02, p + axis * (scene.start_gap_m + depth) * min(1.0, k / 30), q)
+        assert scene.phase == phase
+        sim = scene.simulation
+        kinetic, strain = sim.energy()
+        assert 0.0 < 1e3 * kinetic < strain
+        sim.reference_energy = (0.2 * strain - sim.energy_floor) / sim.energy_limit_factor() - max(sim.input_work, 0.0)
+        sim.external_forces[:, 2] = -1e-5                 # a load whose work the step puts in
+        step = sim.step_count
+        with pytest.raises(SimulationDiverged) as caught:
+            for k in range(1, 11):
+                scene.advance(0.02, p + axis * (scene.start_gap_m + depth + 2e-5 * k), q)
+        assert sim.step_count - step <= sim.check_interval
+        outcomes.append((sim.step_count, str(caught.value), sim.displacement.copy(), sim.velocity.copy(),
+                         sim.input_work, sim.kinetic_energy, scene.needle.position.copy(), scene.needle.tip.copy()))
+        if compiled:
+            assert sum(n for (mode, what), n in scene._compiled.counts.items() if what == compiled_substep.CHECK) == 1
+    first, second = outcomes
+    assert first[0] == second[0] and first[1] == second[1] and 'kinetic + strain energy' in first[1]
+    assert all(np.array_equal(a, b) for a, b in zip(first[2:], second[2:]))
+
+
+def test_the_compiled_energy_check_is_the_simulations():
+    """_energy_check_fails decides as Simulation.watch(bad, None) and _check_energy raise: a total
+    energy 1e-12 below and above the limit, work put in below and above zero, a non-finite
+    energy, bad components, inverted elements refused or let through."""
+    scene = Scene.from_file(sets=COARSE_FAR)
+    sim = scene.simulation
+    scene.advance(0.01, *scene.needle_pose)
+    for work_in, step_work in ((-2e-3, 1e-4), (0.0, 0.0), (3e-2, -1e-3), (5.0, 2e-3)):
+        for allow in (False, True):
+            sim.allow_inverted = allow
+            sim.input_work = work_in + step_work
+            limit = sim._energy_limit()
+            watch = np.array([sim.energy_limit_factor(), sim.reference_energy, sim.energy_floor,
+                              float(sim.refuses_inverted())])
+            cases = [(0.3 * limit, limit * 0.7 * (1 - 1e-12), 0, 0), (0.3 * limit, limit * 0.7 * (1 + 1e-12), 0, 0),
+                     (0.1 * limit, np.inf, 0, 0), (0.1 * limit, np.nan, 0, 0), (0.1 * limit, 0.1 * limit, 0, 2),
+                     (0.1 * limit, 0.1 * limit, 3, 0)]
+            for kinetic, strain, inverted, bad in cases:
+                sim.kinetic_energy = kinetic
+                try:
+                    sim.watch(bad, None)
+                    sim._check_energy(strain, inverted)
+                    raised = False
+                except SimulationDiverged:
+                    raised = True
+                assert compiled_substep._energy_check_fails(kinetic, strain, inverted, bad, step_work,
+                                                            np.array([work_in]), watch) == raised
+            assert raised != allow or sim.model.geometric and sim.model.inversion_safeguard
 
 
 def test_the_compiled_watchdog_limit_is_the_simulations():

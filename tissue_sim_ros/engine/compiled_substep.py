@@ -27,9 +27,11 @@ their compiled code (:mod:`.compiled_call`, each with a check of its types): the
 Python call runs, the element pass as compile_cache had it compiled (not optimized again inside
 another function), one machine code of :func:`run_slice` for every model, cached, and a
 dispatch that types arrays and integers only (as numba first-class function values, the three
-cost 11-13 us of Python a slice). It stops at the target time, ``max_steps``,
-the deadline (by its last substep's wall time, on the monotonic clock, as ``Scene.advance``
-does), a watchdog energy-check step and any outcome but DONE. On node-bench's insertions
+cost 11-13 us of Python a slice). It stops at the target time, ``max_steps``, the deadline (by
+its last substep's wall time, on the monotonic clock, as ``Scene.advance`` does), after a
+watchdog energy-check step (every ``check_interval``-th: the strain energy's element pass before
+it, called the same way, the test after the tissue's step as ``Simulation.step`` makes it) and
+at any outcome but DONE. On node-bench's insertions
 (default scene, in-process, 100 advances a second, thread time) a substep's work outside the
 force kernel fell from 15 / 47 / 50 / 43 us (outside / contact / inserted / retracting) to
 14 / 33 / 44 / 38 us, the kernel then 87 % of the engine's work (85.5 % before the slices); the
@@ -44,9 +46,8 @@ The same kernels in the same order: a scene advanced this way gives the same sta
 bit, as one advanced through the Python calls (``Scene.compiled_substeps = False``; tested), and
 the watchdog checks the energy at the same steps. It runs where that holds simply: one needle,
 translating (a turning needle's slerp stays in Python), the explicit integrator with no
-prescribed DOFs and no relaxation, the needle at no membrane but a sharp tip at the outer one,
-and not on the watchdog's energy-check steps (every ``check_interval``-th, which need the strain
-energy before the step); every other step is the general one. Where compiled code cannot read
+prescribed DOFs and no relaxation, the needle at no membrane but a sharp tip at the outer one;
+every other step is the general one. Where compiled code cannot read
 the clocks (not Linux), every step is the general one.
 """
 import math
@@ -65,14 +66,16 @@ from tissue_sim_ros.engine.region_selectors import region_of_point
 from tissue_sim_ros.engine.solver import _advance_free
 
 __all__ = ['after_approach_step', 'after_inside_step', 'after_contact_step', 'run_slice',
-           'CompiledSubsteps', 'DONE', 'TAIL', 'DIVERGED', 'ENGAGED']
+           'CompiledSubsteps', 'DONE', 'TAIL', 'DIVERGED', 'ENGAGED', 'REFUSED', 'CHECK']
 
 #: a compiled step's outcome: complete; the needle's Python must decide the rest; the watchdog
 #: tripped (the needle's step not run); (a contact step) samples touched: the Python takes them;
-#: (run_slice) no step run: a function's check is not that of its arguments' types
-DONE, TAIL, DIVERGED, ENGAGED, REFUSED = 0, 1, 2, 3, 4
+#: (run_slice) no step run: a function's check is not that of its arguments' types; an
+#: energy-check step failed (the needle neither moved nor stepped)
+DONE, TAIL, DIVERGED, ENGAGED, REFUSED, CHECK = 0, 1, 2, 3, 4, 5
 _OUTSIDE, _INSIDE, _CONTACT = 'approach', 'inside', 'contact'
 _ADVANCE_RETURNS = types.Tuple((types.float64, types.float64, types.int64))     # solver._advance_free's
+_ENERGY_RETURNS = types.Tuple((types.float64, types.int64))                     # model._strain_energy's
 
 
 @njit(cache=True, inline='always')
@@ -203,44 +206,71 @@ def after_contact_step(s, work, kinetic, bad, start, move, energy, watch, positi
     return DONE
 
 
+@njit(cache=True, inline='always')
+def _energy_check_fails(kinetic, strain, inverted, bad, work, energy, watch):
+    """Whether an energy-check step diverged, as ``Simulation.watch(bad, None)`` and
+    ``Simulation._check_energy`` decide after the step's tissue work is put in: bad components,
+    kinetic + strain energy not finite or past the limit (``watch``: growth factor times swing,
+    initial energy, floor; ``energy[0]``: the work put in before the step), inverted elements
+    where refused (``watch[3]`` 1)."""
+    total = kinetic + strain
+    limit = watch[0] * (watch[1] + max(energy[0] + work, 0.0)) + watch[2]
+    return bad != 0 or not math.isfinite(total) or total > limit or (inverted != 0 and watch[3] != 0.0)
+
+
 @njit(cache=True, nogil=True)
-def run_slice(addresses, checks, kernel_args, advance_args, after_args, clock, counters):
+def run_slice(addresses, checks, kernel_args, advance_args, after_args, energy_args, energy, watch, clock,
+              counters):
     """Substeps in one call, each the force kernel (``kernel(*kernel_args)``, then the node update
-    ``advance(*advance_args)``) and ``after(s, work, kinetic, bad, *after_args)``, the three called
-    by the addresses of their compiled code (``addresses``, with ``checks`` of their types:
+    ``advance(*advance_args)``) and ``after(s, work, kinetic, bad, *after_args)``, the functions
+    called by the addresses of their compiled code (``addresses``, with ``checks`` of their types:
     :mod:`.compiled_call`; one machine code of this function for every model and mode, and numba's
     cache keeps it), as ``Scene.advance`` runs them: the needle at ``s`` of its move, toward the
     running target time. The first substep runs (the caller checked it may); the next ones while
-    they end by the target time, before ``max_steps``, before the watchdog's energy-check step
-    (every ``check_interval``-th), within the deadline (its last substep's wall time ahead) and
-    while ``after`` says DONE. None runs (outcome REFUSED) if a check is not that of the types
-    passed here.
+    they end by the target time, before ``max_steps``, within the deadline (its last substep's wall
+    time ahead) and while ``after`` says DONE. The watchdog's energy-check step (every
+    ``check_interval``-th) is the slice's last: the strain energy before it
+    (``strain_energy(*energy_args)``, the fourth function), the test after the tissue's step
+    (:func:`_energy_check_fails`; ``energy`` and ``watch`` are ``after``'s); a step that fails
+    it ends the slice before ``after`` (outcome CHECK). None runs (outcome REFUSED) if a check
+    of types is not that of the arguments passed here.
 
     ``clock``: (time, dt, start time, target time, deadline (perf_counter s; inf: none), the last
-    substep's wall time) [s]; ``counters``: (step count, check_interval, max_steps (< 0: none)).
-    Time, wall time and step count are updated. Returns (substeps run, the last one's outcome, its
-    kinetic energy and bad components (the watchdog's), thread CPU ns in the force kernel)."""
+    substep's wall time, then, after a check step, its strain energy, ``s`` and tissue work) [s,
+    J]; ``counters``: (step count, check_interval, max_steps (< 0: none), then, after a check
+    step, its inverted elements and 1). Returns (substeps run, the last one's outcome, its kinetic
+    energy and bad components (the watchdog's), thread CPU ns in the force kernel)."""
     if (checks[0] != signature_check((), kernel_args, None)
             or checks[1] != signature_check((), advance_args, (0.0, 0.0, 0))
-            or checks[2] != signature_check((0.5, 0.0, 0.0, 0), after_args, 0)):
+            or checks[2] != signature_check((0.5, 0.0, 0.0, 0), after_args, 0)
+            or checks[3] != signature_check((), energy_args, (0.0, 0))):
         return 0, REFUSED, 0.0, 0, 0
     time, dt, start_t, end_t, deadline, step_wall = clock[0], clock[1], clock[2], clock[3], clock[4], clock[5]
     step_count, check_interval, max_steps = counters[0], counters[1], counters[2]
     timed = deadline < np.inf
     steps, outcome, kinetic, bad, kernel_ns = 0, DONE, 0.0, 0, 0
-    while outcome == DONE:
+    checking = False
+    while outcome == DONE and not checking:
         if steps:
-            if not time + dt <= end_t + 1e-9 * dt or steps == max_steps or (step_count + 1) % check_interval == 0:
+            if not time + dt <= end_t + 1e-9 * dt or steps == max_steps:
                 break
             if timed and clock_ns(MONOTONIC) / 1e9 + step_wall > deadline:
                 break
         wall0 = clock_ns(MONOTONIC) if timed else 0
         s = min(1.0, (time + dt - start_t) / (end_t - start_t))
+        checking = (step_count + 1) % check_interval == 0
+        if checking:         # energy at u_n, matched with the velocity at t_n from the advance
+            strain, inverted = call_compiled(addresses[3], (), energy_args, (0.0, 0))
         cpu0 = clock_ns(THREAD_CPU)
         call_compiled(addresses[0], (), kernel_args, None)
         work, kinetic, bad = call_compiled(addresses[1], (), advance_args, (0.0, 0.0, 0))
         kernel_ns += clock_ns(THREAD_CPU) - cpu0
-        outcome = call_compiled(addresses[2], (s, work, kinetic, bad), after_args, 0)
+        if checking:
+            clock[6], clock[7], clock[8], counters[3], counters[4] = strain, s, work, inverted, 1
+            if _energy_check_fails(kinetic, strain, inverted, bad, work, energy, watch):
+                outcome = CHECK
+        if outcome == DONE:
+            outcome = call_compiled(addresses[2], (s, work, kinetic, bad), after_args, 0)
         time = time + dt
         step_count += 1
         steps += 1
@@ -265,8 +295,8 @@ class CompiledSubsteps:
         self.state = np.zeros(2, dtype=np.int64)
         self.results = np.zeros(9)
         self.patch_work = np.zeros(1)
-        self.clock = np.zeros(6)
-        self.counters = np.zeros(3, dtype=np.int64)
+        self.clock = np.zeros(9)
+        self.counters = np.zeros(5, dtype=np.int64)
         self.counts: dict = {}
         self._key, self._calls = None, None
         self._functions: dict = {}          # (kernel, step after) -> (addresses, checks) (_functions_for)
@@ -280,8 +310,7 @@ class CompiledSubsteps:
 
     def ready(self) -> bool:
         sim, needle = self.sim, self.needle
-        if not ((sim.step_count + 1) % sim.check_interval and sim.reference_energy is not None
-                and sim.model.topology_version == sim._topology_version):
+        if not (sim.reference_energy is not None and sim.model.topology_version == sim._topology_version):
             return False
         if needle._touching():
             contact, patch = needle.tip_contact, needle.patch
@@ -300,17 +329,18 @@ class CompiledSubsteps:
             self._key, self._calls = key, self._gather(mode)
         return self._calls is not None
 
-    def _functions_for(self, kernel, kernel_args, advance_args, after_step, after_args):
-        """(addresses, checks) of the kernel's, the node update's and the step after's code
-        (compiled_call.compiled_address), found at the first gather with them: typing the
-        arguments again at each advance cost 300-650 us. A scene's arguments keep their types (its
-        arrays keep their dtypes and shapes' ranks when reallocated); were one to change, run_slice
-        refuses the call and :meth:`run` finds the code for the new types."""
+    def _functions_for(self, kernel, kernel_args, advance_args, after_step, after_args, energy, energy_args):
+        """(addresses, checks) of the kernel's, the node update's, the step after's and the strain
+        energy's code (compiled_call.compiled_address), found at the first gather with them: typing
+        the arguments again at each advance cost 300-650 us. A scene's arguments keep their types
+        (its arrays keep their dtypes and shapes' ranks when reallocated); were one to change,
+        run_slice refuses the call and :meth:`run` finds the code for the new types."""
         value = self._functions.get((kernel, after_step))
         if value is None:
             found = (compiled_address(kernel, kernel_args, types.none),
                      compiled_address(_advance_free, advance_args, _ADVANCE_RETURNS),
-                     compiled_address(after_step, (0.5, 0.0, 0.0, 0) + after_args, types.int64))
+                     compiled_address(after_step, (0.5, 0.0, 0.0, 0) + after_args, types.int64),
+                     compiled_address(energy, energy_args, _ENERGY_RETURNS))
             value = self._functions[(kernel, after_step)] = (np.array([f[0] for f in found], dtype=np.int64),
                                                              np.array([f[1] for f in found], dtype=np.int64))
         return value
@@ -318,12 +348,14 @@ class CompiledSubsteps:
     def _gather(self, mode):
         sim, needle = self.sim, self.needle
         forces = sim.model.force_pass_call(sim.displacement, sim.velocity)
-        if forces is None:
+        energy = sim.model.strain_energy_call(sim.displacement)
+        if forces is None or energy is None:
             return None
         inverse_mass = needle._inverse_mass()
         needle.contact_force[:] = 0.0
         geometry = needle.geometry
-        watch = np.array([sim.energy_limit_factor(), sim.reference_energy, sim.energy_floor])
+        watch = np.array([sim.energy_limit_factor(), sim.reference_energy, sim.energy_floor,
+                          float(sim.refuses_inverted())])
         advance = sim.advance_arguments()
         common = (self.start, self.move, self.energy, watch)
         if mode == _CONTACT:
@@ -363,8 +395,8 @@ class CompiledSubsteps:
                               geometry.length_m, needle._tip, needle._apex_rest, self.state, decide, kinds, params,
                               tags, needle.element_region, self.results,
                               needle.inserted_arguments(inverse_mass, sim.dt))
-        return (*self._functions_for(forces[0], forces[1], advance, after_step, after), forces[1], advance, after_step,
-                after, inverse_mass)
+        return (*self._functions_for(forces[0], forces[1], advance, after_step, after, *energy), forces[1], advance,
+                after_step, after, energy[1], watch, inverse_mass)
 
     def run(self, start_t, end_t, max_steps, deadline, step_wall, found_again=False):
         """The coming substep (``ready()`` said it can run) and the next ones :func:`run_slice`
@@ -372,10 +404,11 @@ class CompiledSubsteps:
         ``max_steps`` (None: no limit), none to start past ``deadline`` (None: none) by the last
         one's wall time ``step_wall``. Returns (substeps run, the last one's wall time [s])."""
         sim, needle = self.sim, self.needle
-        addresses, checks, kernel_args, advance_args, after_step, after_args, inverse_mass = self._calls
+        (addresses, checks, kernel_args, advance_args, after_step, after_args, energy_args, watch,
+         inverse_mass) = self._calls
         clock, counters = self.clock, self.counters
-        clock[:] = (sim.time, sim.dt, start_t, end_t, np.inf if deadline is None else deadline, step_wall)
-        counters[:] = (sim.step_count, sim.check_interval, -1 if max_steps is None else max_steps)
+        clock[:6] = (sim.time, sim.dt, start_t, end_t, np.inf if deadline is None else deadline, step_wall)
+        counters[:] = (sim.step_count, sim.check_interval, -1 if max_steps is None else max_steps, 0, 0)
         self.energy[0] = sim.input_work
         inside = after_step is after_inside_step
         if inside:
@@ -383,7 +416,7 @@ class CompiledSubsteps:
         elif after_step is after_contact_step:
             self.patch_work[0] = needle.patch.work
         steps, outcome, kinetic, bad, kernel_ns = run_slice(addresses, checks, kernel_args, advance_args, after_args,
-                                                            clock, counters)
+                                                            energy_args, self.energy, watch, clock, counters)
         if outcome == REFUSED:        # an argument's type changed: the functions' code for the new ones
             if found_again:
                 raise RuntimeError('compiled substeps: the functions found for the arguments do not take them')
@@ -401,6 +434,11 @@ class CompiledSubsteps:
             self.counts[(mode, outcome)] = self.counts.get((mode, outcome), 0) + 1
         if outcome == DIVERGED:
             sim.watch(bad, kinetic)        # raises SimulationDiverged, as Simulation.step would
+        if outcome == CHECK:
+            self._failed_check(bad)
+        if counters[4]:                    # the last step was an energy-check step, passed
+            sim.note_safeguarded()
+            self.counts[(mode, 'checked')] = self.counts.get((mode, 'checked'), 0) + 1
         if after_step is after_contact_step:
             self._after_contact_slice(outcome, inverse_mass)
             return steps, float(clock[5])
@@ -425,6 +463,18 @@ class CompiledSubsteps:
         else:
             needle.phase = 'retracting' if results[8] < -1e-9 else 'inserted'
         return steps, float(clock[5])
+
+    def _failed_check(self, bad):
+        """A slice's energy-check step that failed: the needle moved for it (not stepped) and the
+        step's tissue work put in, as before Simulation.step's check, which then raises."""
+        sim, clock = self.sim, self.clock
+        position = np.multiply(self.move, clock[7])
+        position += self.start
+        self.needle.set_pose(position)
+        sim.input_work += clock[8]
+        sim.watch(bad, None)
+        sim._check_energy(float(clock[6]), int(self.counters[3]))
+        raise RuntimeError('compiled substeps: an energy check failed that Simulation passes')
 
     def _after_contact_slice(self, outcome, inverse_mass):
         """The needle's Python state after a slice of contact steps, and the Python's part of its

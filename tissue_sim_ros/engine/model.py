@@ -464,11 +464,19 @@ class TensorMassModel:
         stored (free) energy: the relaxed part of mu left out, the energy the Maxwell branches
         hold added (relaxation.py), so it never exceeds the work put in.
         """
-        energy, inverted = _strain_energy(self.tetrahedra, self.shape_gradients, self.volume_lambda,
-                                          self.volume_mu, displacement, self.geometric)
+        energy, inverted = _strain_energy(*self._strain_energy_arguments(displacement))
         if self.relaxation is not None:
             energy += self.relaxation.energy_change(self, displacement)
         return energy, inverted
+
+    def strain_energy_call(self, displacement):
+        """(kernel, arguments) of :meth:`strain_energy`'s element pass, for a caller that repeats
+        it (the watchdog's energy-check steps in a slice of substeps, engine.compiled_substep); None
+        with relaxation (its energy is not in the pass)."""
+        return None if self.relaxation is not None else (_strain_energy, self._strain_energy_arguments(displacement))
+
+    def _strain_energy_arguments(self, displacement):
+        return self.tetrahedra, self.shape_gradients, self.volume_lambda, self.volume_mu, displacement, self.geometric
 
     def critical_time_step(self, method='lanczos'):
         """Critical (largest stable) explicit time step [s] of the linearised model, 2 / omega_max

@@ -371,15 +371,25 @@ class Simulation:
         at 0.9 dt_crit: the discrete modes' kinetic/strain split), so the allowed growth is
         widened by that factor; a run above the limit grows exponentially and crosses it fast.
         """
-        self.safeguarded_elements = self.model.safeguarded_count   # reported, see TensorMassModel
-        self.max_safeguarded_elements = max(self.max_safeguarded_elements, self.safeguarded_elements)
+        self.note_safeguarded()
         total = self.kinetic_energy + strain
         budget = self.reference_energy + max(self.input_work, 0.0)
         if not math.isfinite(total) or total > self._energy_limit():
             self._diverged(f'energy grew without input: kinetic + strain energy {total:.4g} J against '
                            f'{budget:.4g} J initial plus work put in')
-        if inverted and not self.allow_inverted and not (self.model.geometric and self.model.inversion_safeguard):
+        if inverted and self.refuses_inverted():
             self._diverged(f'{inverted} inverted elements (det F <= 0)')
+
+    def note_safeguarded(self):
+        """At an energy-check step: the elements the inversion safeguard changed in the step's
+        force evaluation (reported, see TensorMassModel), and the most so far."""
+        self.safeguarded_elements = self.model.safeguarded_count
+        self.max_safeguarded_elements = max(self.max_safeguarded_elements, self.safeguarded_elements)
+
+    def refuses_inverted(self):
+        """Whether inverted elements at an energy-check step are a divergence: unless allowed, or
+        the geometric model's inversion safeguard handles them."""
+        return not self.allow_inverted and not (self.model.geometric and self.model.inversion_safeguard)
 
     def _energy_limit(self):
         """The most energy [J] a stable run can hold: the growth factor times the initial energy
