@@ -6,7 +6,8 @@ import pytest
 from tissue_sim_ros.engine.driver import SimulationDriver
 from tissue_sim_ros.engine.needle import NeedleInputError
 from tissue_sim_ros.engine.solver import SimulationDiverged
-from tissue_sim_ros.ros.engine_pacing import RATIO_TRUST, EnginePacing, LadderControl
+from tissue_sim_ros.ros.engine_pacing import (COALESCE_MARGIN_S, COALESCE_MIN_WAIT_S, COALESCE_SAFETY, RATIO_TRUST,
+                                             EnginePacing, LadderControl)
 
 COARSE = {'generator': 'box', 'divisions': [6, 6, 4]}
 MS = 1_000_000
@@ -160,6 +161,29 @@ def test_pacing_budget_per_tick_and_measured_cost():
         p.new_window(behind=False)
         p.spent(0.016, 0.02)
     assert p.cost_per_sim_s == pytest.approx(0.8, rel=0.01)
+
+
+def test_the_wait_for_more_poses_still_ends_the_advance_before_the_tick_within_the_budget():
+    """The wait w solves w + safety * cost * (owed + w) + margin = time to the tick where the tick
+    limits it, safety * cost * (owed + w) = the budget left where the budget does; none with sim
+    time, before the cost is measured, or when too short."""
+    p = EnginePacing(0.02, 0.8, 0.25)
+    assert p.wait_for_poses_s(0.019, 0.001) == 0.0            # no cost measured yet
+    p.spent(0.004, 0.02)
+    p.new_window(behind=False)                                  # cost 0.2 s a simulated second
+    k = COALESCE_SAFETY * 0.2
+    for to_tick, owed in ((0.019, 0.001), (0.012, 0.004), (0.008, 0.0)):
+        w = p.wait_for_poses_s(to_tick, owed)
+        assert w > 0.0 and w + k * (owed + w) + COALESCE_MARGIN_S == pytest.approx(to_tick)
+    assert p.wait_for_poses_s(0.004, 0.005) == 0.0             # the advance alone needs the time left
+    assert p.wait_for_poses_s(COALESCE_MARGIN_S + 0.0001, 0.0) == 0.0    # too short to be worth it
+    p.spent(0.014, 0.0)                                         # 2 ms of the tick's 16 ms budget left
+    w = p.wait_for_poses_s(0.019, 0.001)
+    assert w > COALESCE_MIN_WAIT_S and k * (0.001 + w) == pytest.approx(0.002)
+    lock_step = EnginePacing(0.02, 0.8, 0.25, sim_time=True)
+    lock_step.spent(0.004, 0.02)
+    lock_step.new_window(behind=False)
+    assert lock_step.wait_for_poses_s(0.019, 0.001) == 0.0
 
 
 def test_ladder_control_steps_down_after_a_second_over_and_up_after_three_with_room():

@@ -270,7 +270,8 @@ def report(r: dict) -> str:
         f'engine thread\'s work)',
         '  threads              ' + ', '.join(f'{name} {pct:.1f} %' for name, pct in r.get('thread_cpu_pct', {}).items())
         + ' of one core',
-        f'  engine               budget use {r["budget_use"]:.2f}, lag {1e3 * r["lag_s"]:.1f} ms, '
+        f'  engine               {r.get("advances_per_s", float("nan")):.0f} advances a second, budget use '
+        f'{r["budget_use"]:.2f}, lag {1e3 * r["lag_s"]:.1f} ms, '
         f'{r["dropped_time_s"]:.3g} s dropped, ladder level {r["ladder_level"]} ({r["ladder_changes"]} changes); '
         f'{r["missed_ticks"]} missed ticks of {r["ticks"]}',
     ]

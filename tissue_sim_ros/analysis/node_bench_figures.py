@@ -225,6 +225,7 @@ def diagnostic_figures(diagnostics: list, window_start_ns: int | None = None) ->
         'ladder_changes': int(engine.get('ladder_changes', -1)),
         'engine_threads': int(engine.get('engine_threads', -1)),
         'kernel_share_of_engine': float(engine.get('kernel_share_of_engine', 'nan')),
+        'advances_per_s': float(engine.get('advances_per_s', 'nan')),
         'kernel_s_in_window': kernel,
         'node_latency_ms_p99_own': float(inputs.get('latency_ms_p99', 'nan')),
         'prediction_real_time_factor': float(predictions.get('real_time_factor_median', 'nan')),

@@ -3,8 +3,10 @@
 The ROS side (:mod:`~tissue_sim_ros.ros.node`) only hands received poses over (:meth:`submit`),
 calls :meth:`tick` every period and publishes :meth:`latest`, whatever the engine's progress:
 the tick never waits for the physics. The engine thread (no rclpy) wakes on a pose, a request,
-a tick that finds it behind, or a period without any of them, decodes at most
-``MAX_POSES_PER_CYCLE`` of the newest poses, advances the
+a tick that finds it behind, or a period without any of them; woken by a pose with time to
+spare before the tick, it sleeps while more may come and their advance still ends before the
+tick (:meth:`EnginePacing.wait_for_poses_s`: one cycle for a batch of a fast stream's poses, not
+one each); then it decodes at most ``MAX_POSES_PER_CYCLE`` of the newest poses, advances the
 :class:`~tissue_sim_ros.engine.driver.SimulationDriver` as :mod:`~tissue_sim_ros.ros.engine_pacing`
 says (toward the newest pose's stamp, within each tick's budget of wall time), keeps its lag
 within the bound (dropping the excess), steps the degradation ladder, and leaves the state in a
@@ -37,6 +39,7 @@ from tissue_sim_ros.os_thread_name import name_os_thread
 from tissue_sim_ros.ros.engine_pacing import EnginePacing, LadderControl
 from tissue_sim_ros.ros.engine_trace import DROP, LEVEL, RESET, advance_row, event_row
 from tissue_sim_ros.ros.pose_receiver import PoseReceiver
+from tissue_sim_ros.units import NS_PER_S
 
 __all__ = ['EngineLoop', 'Snapshot', 'MAX_POSES_PER_CYCLE']
 
@@ -109,7 +112,11 @@ class _Wake:
             self._queue.get(timeout=timeout_s)
         except queue.Empty:
             return
-        for _ in range(self._queue.qsize()):      # the sets since: one wake for all of them
+        self.clear()
+
+    def clear(self) -> None:
+        """Forget the sets so far (one wake for all of them)."""
+        for _ in range(self._queue.qsize()):
             self._queue.get_nowait()
 
 
@@ -142,6 +149,8 @@ class EngineLoop:
         self._wake, self._stop = _Wake(), threading.Event()
         self._cond = threading.Condition()
         self._tick_seq = self._window_seq = self._served_seq = 0
+        self._tick_wall: float | None = None       # perf_counter time of the last tick
+        self.coalesced = 0                          # waits for more poses before an advance
         self.paused = False
         self.advances = 0
         self.stepped_s = 0.0                      # simulated seconds actually stepped
@@ -178,6 +187,7 @@ class EngineLoop:
         its next pose wakes it, or its wait's timeout (a period) when none comes: a cycle of its
         own for the tick, 50 a second, had nothing to do (in the engine-only loop the engine's CPU
         did not change measurably without them)."""
+        self._tick_wall = time.perf_counter()
         with self._cond:
             self._tick_seq += 1
             seq = self._tick_seq
@@ -257,6 +267,7 @@ class EngineLoop:
         try:
             while not self._stop.is_set():
                 self._wake.wait(self.pacing.period_s)
+                self._wait_for_more_poses()
                 self._cycle()
         except BaseException as exc:  # noqa: BLE001 - a bug: said at ERROR, the node publishes on
             self.failure = exc
@@ -266,6 +277,26 @@ class EngineLoop:
             with self._cond:
                 self._served_seq = self._tick_seq
                 self._cond.notify_all()
+
+    def _wait_for_more_poses(self) -> None:
+        """Woken by a pose with time to spare before the tick: sleep while more poses may come
+        and the advance of them all still ends before the tick (EnginePacing.wait_for_poses_s),
+        so a fast pose stream costs a cycle per batch, not per pose. A sleep, not a wait on the
+        wake: the poses that come meanwhile do not wake the engine (a request or a stop waits
+        at most the sleep, under a period); their wakes are forgotten, the cycle takes them."""
+        pacing = self.pacing
+        while True:
+            if (self._tick_wall is None or pacing.engine_clock_ns is None or self._requests or self.paused
+                    or self.driver.held or self.driver.behind or self._stop.is_set()
+                    or not (self.receiver.queue or any(r.queue for r in self.other_receivers))):
+                return
+            to_tick = self._tick_wall + pacing.period_s - time.perf_counter()
+            wait = pacing.wait_for_poses_s(to_tick, (self._now_ns() - pacing.engine_clock_ns) / NS_PER_S)
+            if wait <= 0.0:
+                return
+            self.coalesced += 1
+            time.sleep(wait)
+            self._wake.clear()
 
     def _cycle(self) -> None:
         while self._requests:

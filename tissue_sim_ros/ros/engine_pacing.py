@@ -13,7 +13,12 @@ ROS graph. The engine thread (:mod:`~tissue_sim_ros.ros.engine_loop`) asks:
   ``use_sim_time`` there is no wall-clock budget: the node is lock-step;
 - the cost measured online: wall seconds per simulated second, averaged over about a second;
   ``demand`` = that cost / budget_fraction is the budget use (above 1 the engine cannot keep
-  real time within its budget).
+  real time within its budget);
+- whether to wait for more poses before advancing (``wait_for_poses_s``): a pose stream faster
+  than the ticks (a robot's state at 500 Hz or 1 kHz) made a cycle of the engine's Python per
+  pose, while only the state at each tick is published; waiting costs no pose its tick as long
+  as, by the measured cost, the advance of what is then owed still ends before the tick, with
+  ``COALESCE_SAFETY`` times the cost and ``COALESCE_MARGIN_S`` to spare, and within the budget.
 
 When the engine cannot keep up, what it was asked for and has not simulated is its lag; it is
 held at most ``max_lag_s`` (the engine thread drops the excess: the needle then reaches its
@@ -31,7 +36,8 @@ from __future__ import annotations
 from tissue_sim_ros.units import NS_PER_S
 
 __all__ = ['EnginePacing', 'LadderControl', 'COST_TIME_CONSTANT_S', 'DOWN_AFTER_S', 'UP_AFTER_S',
-           'UP_BELOW', 'SETTLE_S', 'RATIO_TRUST', 'START_GRACE_S']
+           'UP_BELOW', 'SETTLE_S', 'RATIO_TRUST', 'START_GRACE_S', 'COALESCE_SAFETY', 'COALESCE_MARGIN_S',
+           'COALESCE_MIN_WAIT_S']
 
 COST_TIME_CONSTANT_S = 1.0
 DOWN_AFTER_S = 1.0
@@ -42,6 +48,12 @@ SETTLE_S = 1.0
 RATIO_TRUST = 1.5
 #: no ladder decision this long after the engine starts (imports, first page faults, a cold cache)
 START_GRACE_S = 3.0
+#: waiting for more poses: the advance's predicted wall time is this times the measured cost per
+#: simulated second, and ends this long before the tick (a thread woken late on a busy machine)
+COALESCE_SAFETY = 2.0
+COALESCE_MARGIN_S = 0.002
+#: shorter waits are not worth a sleep: the engine advances at once
+COALESCE_MIN_WAIT_S = 0.0005
 
 
 class EnginePacing:
@@ -117,6 +129,21 @@ class EnginePacing:
         self._window_used += wall_s
         self._wall_acc += wall_s
         self._sim_acc += simulated_s
+
+    def wait_for_poses_s(self, to_tick_s: float, owed_s: float) -> float:
+        """How long the engine may wait for more poses [s] when it owes ``owed_s`` of simulated
+        time and the coming tick is ``to_tick_s`` away: the longest wait w after which the
+        advance of ``owed_s + w`` (the poses go on coming in real time), at ``COALESCE_SAFETY``
+        times the measured cost, still ends ``COALESCE_MARGIN_S`` before the tick and within
+        what is left of this tick's budget. 0 (advance now) with sim time (lock-step), before
+        the cost is measured, or for less than ``COALESCE_MIN_WAIT_S``."""
+        if self.sim_time or self.cost_per_sim_s is None:
+            return 0.0
+        k = COALESCE_SAFETY * self.cost_per_sim_s
+        wait = (to_tick_s - COALESCE_MARGIN_S - k * owed_s) / (1.0 + k)
+        if k > 0.0:
+            wait = min(wait, (self.budget_s - self._window_used) / k - owed_s)
+        return wait if wait >= COALESCE_MIN_WAIT_S else 0.0
 
     def reset_cost(self) -> None:
         """Forget the measured cost (the engine's settings changed)."""

@@ -63,7 +63,7 @@ class NodeStats:
     def new_window(self, engine, clock_ns: int | None, bad_total: int) -> None:
         self.window = {'missed0': self.missed_ticks, 'wall0': time.perf_counter(),
                        'clock0': clock_ns, 'stepped0': engine.stepped_s,
-                       'busy0': engine.pacing.busy_s, 'cpu0': engine.busy_cpu_s,
+                       'busy0': engine.pacing.busy_s, 'cpu0': engine.busy_cpu_s, 'advances0': engine.advances,
                        'kernel0': engine.driver.scene.simulation.kernel_s,
                        'dropped0': engine.driver.dropped_s, 'bad0': bad_total}
 
@@ -144,6 +144,8 @@ def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
         'budget_ms_per_tick': pacing.budget_s * 1e3,
         'budget_windows_spent_behind': pacing.windows_spent,
         'engine_busy_fraction': busy / wall,
+        'advances_per_s': (engine.advances - w['advances0']) / wall,
+        'waits_for_poses': engine.coalesced,
         'kernel_share_of_engine': kernel / busy_cpu if busy_cpu > 0 else float('nan'),
         'engine_busy_s_total': pacing.busy_s,
         'engine_cpu_s_total': engine.busy_cpu_s,
