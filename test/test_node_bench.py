@@ -86,9 +86,11 @@ def test_diagnostic_figures_read_the_last_message_and_the_kernel_over_the_window
     diagnostic_msgs = pytest.importorskip('diagnostic_msgs.msg')
     from builtin_interfaces.msg import Time
 
-    def array(sec, missed, kernel_s):
+    def array(sec, missed, kernel_s, advances=0):
         status = diagnostic_msgs.DiagnosticStatus(name='tissue_sim: engine', values=[
             diagnostic_msgs.KeyValue(key='missed_ticks', value=str(missed)),
+            diagnostic_msgs.KeyValue(key='advances_total', value=str(advances)),
+            diagnostic_msgs.KeyValue(key='advances_per_s', value='99'),
             diagnostic_msgs.KeyValue(key='ticks', value='1000'),
             diagnostic_msgs.KeyValue(key='kernel_s_total', value=str(kernel_s)),
             diagnostic_msgs.KeyValue(key='budget_use', value='0.5')])
@@ -97,10 +99,11 @@ def test_diagnostic_figures_read_the_last_message_and_the_kernel_over_the_window
         msg = diagnostic_msgs.DiagnosticArray(status=[status, inputs])
         msg.header.stamp = Time(sec=sec)
         return msg
-    f = node_bench_figures.diagnostic_figures([array(10, 7, 1.0), array(11, 7, 1.5), array(20, 3, 4.0)],
-                                       window_start_ns=11 * 1_000_000_000)
+    f = node_bench_figures.diagnostic_figures([array(10, 7, 1.0, 40), array(11, 7, 1.5, 100),
+                                               array(20, 3, 4.0, 640)], window_start_ns=11 * 1_000_000_000)
     assert (f['missed_ticks'], f['ticks'], f['budget_use']) == (3, 1000, 0.5)
     assert f['kernel_s_in_window'] == pytest.approx(2.5)   # from the last message before the window
+    assert f['advances_per_s'] == pytest.approx(60.0)      # (640 - 100) advances in 9 s, not the last second's
     assert f['node_latency_ms_p99_own'] == 12.5
     assert f['ladder_level'] == -1  # not reported: said so, not invented
     assert node_bench_figures.diagnostic_figures([])['missed_ticks'] == -1

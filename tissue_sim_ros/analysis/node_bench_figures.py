@@ -205,8 +205,9 @@ def engine_dt_s(diagnostics: list) -> float:
 
 def diagnostic_figures(diagnostics: list, window_start_ns: int | None = None) -> dict:
     """Counters from the node's last diagnostics (engine and input status), and the engine's
-    kernel seconds over the window (from the last message before it starts: its cumulative
-    ``kernel_s_total``). -1 or NaN where the node did not report a figure."""
+    kernel seconds over the window and its advances a second (from the last message before it
+    starts: its cumulative ``kernel_s_total`` and ``advances_total``). -1 or NaN where the node
+    did not report a figure."""
     from tissue_sim_ros.ros.conversions import stamp_to_ns
     last = diagnostics[-1] if diagnostics else None
     engine, inputs = status_values(last, 'engine'), status_values(last, 'input')
@@ -215,6 +216,9 @@ def diagnostic_figures(diagnostics: list, window_start_ns: int | None = None) ->
               and stamp_to_ns(m.header.stamp) <= window_start_ns]
     engine0 = status_values(before[-1] if before else None, 'engine')
     kernel = float(engine.get('kernel_s_total', 'nan')) - float(engine0.get('kernel_s_total', 'nan'))
+    span_s = (stamp_to_ns(last.header.stamp) - stamp_to_ns(before[-1].header.stamp)) / 1e9 if before else 0.0
+    advances = ((float(engine.get('advances_total', 'nan')) - float(engine0.get('advances_total', 'nan'))) / span_s
+                if span_s > 0 else float(engine.get('advances_per_s', 'nan')))
     return {
         'missed_ticks': int(engine.get('missed_ticks', -1)),
         'ticks': int(engine.get('ticks', -1)),
@@ -225,7 +229,7 @@ def diagnostic_figures(diagnostics: list, window_start_ns: int | None = None) ->
         'ladder_changes': int(engine.get('ladder_changes', -1)),
         'engine_threads': int(engine.get('engine_threads', -1)),
         'kernel_share_of_engine': float(engine.get('kernel_share_of_engine', 'nan')),
-        'advances_per_s': float(engine.get('advances_per_s', 'nan')),
+        'advances_per_s': advances,
         'kernel_s_in_window': kernel,
         'node_latency_ms_p99_own': float(inputs.get('latency_ms_p99', 'nan')),
         'prediction_real_time_factor': float(predictions.get('real_time_factor_median', 'nan')),

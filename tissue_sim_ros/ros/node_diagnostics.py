@@ -145,6 +145,7 @@ def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
         'budget_windows_spent_behind': pacing.windows_spent,
         'engine_busy_fraction': busy / wall,
         'advances_per_s': (engine.advances - w['advances0']) / wall,
+        'advances_total': engine.advances,
         'waits_for_poses': engine.coalesced,
         'kernel_share_of_engine': kernel / busy_cpu if busy_cpu > 0 else float('nan'),
         'engine_busy_s_total': pacing.busy_s,
