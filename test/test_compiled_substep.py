@@ -209,3 +209,23 @@ def test_a_function_found_for_other_types_is_refused_and_found_again(monkeypatch
     counts = compiled._compiled.counts
     assert counts.get(('approach', compiled_substep.DONE), 0) + counts.get(('inside', compiled_substep.DONE), 0) \
         > 0.5 * fast.steps, counts
+
+
+def test_a_copied_scene_finds_its_own_compiled_functions():
+    """A scene pickled mid-run (as to a prediction worker, another process) carries no address of
+    compiled code: its copy gathers its own, and goes on as the original, bit for bit."""
+    import pickle
+    scene = Scene.from_file(sets=COARSE_FAR + ['needle.tip.shape=bevel'])
+    p, q = scene.needle_pose
+    axis = scene.needle.axis
+    for k in range(1, 16):
+        scene.advance(0.02, p + axis * scene.start_gap_m * k / 10, q)
+    assert scene._compiled._functions
+    copy = pickle.loads(pickle.dumps(scene, protocol=5))
+    assert copy._compiled._functions == {} and copy._compiled._calls is None
+    for k in range(16, 30):
+        for s in (scene, copy):
+            s.advance(0.02, p + axis * scene.start_gap_m * k / 10, q)
+    assert copy._compiled._functions and copy.phase == scene.phase
+    assert np.array_equal(copy.simulation.displacement, scene.simulation.displacement)
+    assert np.array_equal(copy.needle.wrench_force, scene.needle.wrench_force)

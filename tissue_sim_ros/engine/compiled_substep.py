@@ -301,6 +301,13 @@ class CompiledSubsteps:
         self._key, self._calls = None, None
         self._functions: dict = {}          # (kernel, step after) -> (addresses, checks) (_functions_for)
 
+    def __getstate__(self):
+        """Pickled (a scene copied to a prediction worker) without what holds addresses of
+        compiled code: they are this process's; the copy finds its own at its first gather."""
+        state = dict(self.__dict__)
+        state.update(_key=None, _calls=None, _functions={})
+        return state
+
     def begin(self, start, move):
         self.start[:], self.move[:] = start, move
         self._key = None
