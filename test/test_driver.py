@@ -6,8 +6,8 @@ import pytest
 from tissue_sim_ros.engine.driver import SimulationDriver
 from tissue_sim_ros.engine.needle import NeedleInputError
 from tissue_sim_ros.engine.solver import SimulationDiverged
-from tissue_sim_ros.ros.engine_pacing import (COALESCE_MARGIN_S, COALESCE_MIN_WAIT_S, COALESCE_SAFETY, RATIO_TRUST,
-                                             EnginePacing, LadderControl)
+from tissue_sim_ros.ros.engine_pacing import (COALESCE_MARGIN_S, COALESCE_MAX_SPAN_S, COALESCE_MIN_WAIT_S, COALESCE_SAFETY,
+                                             RATIO_TRUST, EnginePacing, LadderControl)
 
 COARSE = {'generator': 'box', 'divisions': [6, 6, 4]}
 MS = 1_000_000
@@ -165,21 +165,23 @@ def test_pacing_budget_per_tick_and_measured_cost():
 
 def test_the_wait_for_more_poses_still_ends_the_advance_before_the_tick_within_the_budget():
     """The wait w solves w + safety * cost * (owed + w) + margin = time to the tick where the tick
-    limits it, safety * cost * (owed + w) = the budget left where the budget does; none with sim
-    time, before the cost is measured, or when too short."""
+    limits it, safety * cost * (owed + w) = the budget left where the budget does, owed + w = the
+    longest span of poses where that does; none with sim time, before the cost is measured, or
+    when too short."""
     p = EnginePacing(0.02, 0.8, 0.25)
     assert p.wait_for_poses_s(0.019, 0.001) == 0.0            # no cost measured yet
     p.spent(0.004, 0.02)
     p.new_window(behind=False)                                  # cost 0.2 s a simulated second
     k = COALESCE_SAFETY * 0.2
-    for to_tick, owed in ((0.019, 0.001), (0.012, 0.004), (0.008, 0.0)):
+    for to_tick, owed in ((0.006, 0.001), (0.007, 0.0), (0.005, 0.002)):
         w = p.wait_for_poses_s(to_tick, owed)
         assert w > 0.0 and w + k * (owed + w) + COALESCE_MARGIN_S == pytest.approx(to_tick)
+    assert p.wait_for_poses_s(0.019, 0.001) == pytest.approx(COALESCE_MAX_SPAN_S - 0.001)   # the span
     assert p.wait_for_poses_s(0.004, 0.005) == 0.0             # the advance alone needs the time left
     assert p.wait_for_poses_s(COALESCE_MARGIN_S + 0.0001, 0.0) == 0.0    # too short to be worth it
-    p.spent(0.014, 0.0)                                         # 2 ms of the tick's 16 ms budget left
+    p.spent(0.0148, 0.0)                                        # 1.2 ms of the tick's 16 ms budget left
     w = p.wait_for_poses_s(0.019, 0.001)
-    assert w > COALESCE_MIN_WAIT_S and k * (0.001 + w) == pytest.approx(0.002)
+    assert w > COALESCE_MIN_WAIT_S and k * (0.001 + w) == pytest.approx(0.0012)
     lock_step = EnginePacing(0.02, 0.8, 0.25, sim_time=True)
     lock_step.spent(0.004, 0.02)
     lock_step.new_window(behind=False)

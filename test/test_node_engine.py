@@ -197,10 +197,11 @@ def test_a_slow_engine_costs_no_tick_and_the_ladder_steps_down_and_back_up(harne
 
 def test_a_fast_pose_stream_is_advanced_in_batches_that_still_make_their_tick(harness):
     """Poses at 1 kHz (a robot's state stream): the engine waits for more of them while the
-    advance of all still ends before the tick (engine_pacing.wait_for_poses_s), so it runs far
-    fewer advances than poses; every tick is published, the needle reaches the last pose, and a
-    pose's state is published at the tick after it, not one later (latency within a period and
-    its margin, p99, on a quiet run; two periods allowed for a loaded machine)."""
+    advance of all still ends before the tick, for up to 5 ms of poses
+    (engine_pacing.wait_for_poses_s), so it runs far fewer advances than poses (0.2-0.3 of them
+    here, about one each without the wait); every tick is published, the needle reaches the last
+    pose, and a pose's state is published at the tick after it, not one later (latency within a
+    period and its margin, p99, on a quiet run; two periods allowed for a loaded machine)."""
     h = harness()
     engine = h.node.engine
     start = h.scene.needle_pose[0]
@@ -217,7 +218,7 @@ def test_a_fast_pose_stream_is_advanced_in_batches_that_still_make_their_tick(ha
     latency_p99 = float(d['tissue_sim: input'][2]['latency_ms_p99'])
     print(f'\n1 kHz poses: {len(stamps)} poses, {advances} advances in {elapsed:.2f} s, '
           f'{engine.coalesced} waits, latency p99 {latency_p99:.1f} ms')
-    assert advances < 0.4 * len(stamps) and engine.coalesced > 0
+    assert advances < 0.6 * len(stamps) and engine.coalesced > 0
     assert int(d['tissue_sim: engine'][2]['waits_for_poses']) == engine.coalesced
     assert published >= 0.97 * 50 * elapsed
     np.testing.assert_allclose(h.scene.needle_pose[0], positions[-1], atol=1e-9)

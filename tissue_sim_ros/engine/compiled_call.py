@@ -43,6 +43,8 @@ def compiled_address(dispatcher, args, return_type) -> tuple[int, int]:
         raise TypeError(f'{dispatcher.py_func.__qualname__} returns {signature.return_type}, expected {return_type}')
     compiled = dispatcher.get_compile_result(signature)
     address = compiled.library.get_pointer_to_function(compiled.fndesc.llvm_cfunc_wrapper_name)
+    if not address:        # numba made no C wrapper for these types
+        raise TypeError(f'{dispatcher.py_func.__qualname__} has no C wrapper for {signature}')
     return address, _check_of(signature.args, signature.return_type)
 
 

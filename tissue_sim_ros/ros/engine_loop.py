@@ -283,10 +283,12 @@ class EngineLoop:
         and the advance of them all still ends before the tick (EnginePacing.wait_for_poses_s),
         so a fast pose stream costs a cycle per batch, not per pose. A sleep, not a wait on the
         wake: the poses that come meanwhile do not wake the engine (a request or a stop waits
-        at most the sleep, under a period); their wakes are forgotten, the cycle takes them."""
-        pacing = self.pacing
+        at most the sleep, under a period); their wakes are forgotten, the cycle takes them. A
+        tick during the wait ends it (a sleep that overran the tick must not start another)."""
+        pacing, seq = self.pacing, self._tick_seq
         while True:
-            if (self._tick_wall is None or pacing.engine_clock_ns is None or self._requests or self.paused
+            if (self._tick_seq != seq or self._tick_wall is None or pacing.engine_clock_ns is None
+                    or self._requests or self.paused
                     or self.driver.held or self.driver.behind or self._stop.is_set()
                     or not (self.receiver.queue or any(r.queue for r in self.other_receivers))):
                 return

@@ -18,7 +18,9 @@ ROS graph. The engine thread (:mod:`~tissue_sim_ros.ros.engine_loop`) asks:
   than the ticks (a robot's state at 500 Hz or 1 kHz) made a cycle of the engine's Python per
   pose, while only the state at each tick is published; waiting costs no pose its tick as long
   as, by the measured cost, the advance of what is then owed still ends before the tick, with
-  ``COALESCE_SAFETY`` times the cost and ``COALESCE_MARGIN_S`` to spare, and within the budget.
+  ``COALESCE_SAFETY`` times the cost and ``COALESCE_MARGIN_S`` to spare, and within the budget;
+  and for at most ``COALESCE_MAX_SPAN_S`` of poses, as the needle goes on a straight line over an
+  advance (the poses between its ends are not followed).
 
 When the engine cannot keep up, what it was asked for and has not simulated is its lag; it is
 held at most ``max_lag_s`` (the engine thread drops the excess: the needle then reaches its
@@ -37,7 +39,7 @@ from tissue_sim_ros.units import NS_PER_S
 
 __all__ = ['EnginePacing', 'LadderControl', 'COST_TIME_CONSTANT_S', 'DOWN_AFTER_S', 'UP_AFTER_S',
            'UP_BELOW', 'SETTLE_S', 'RATIO_TRUST', 'START_GRACE_S', 'COALESCE_SAFETY', 'COALESCE_MARGIN_S',
-           'COALESCE_MIN_WAIT_S']
+           'COALESCE_MIN_WAIT_S', 'COALESCE_MAX_SPAN_S']
 
 COST_TIME_CONSTANT_S = 1.0
 DOWN_AFTER_S = 1.0
@@ -54,6 +56,9 @@ COALESCE_SAFETY = 2.0
 COALESCE_MARGIN_S = 0.002
 #: shorter waits are not worth a sleep: the engine advances at once
 COALESCE_MIN_WAIT_S = 0.0005
+#: at most this much of the pose stream in one advance: the needle moves on the chord between its
+#: ends, about 1 % of the amplitude off a 10 Hz tremor's path (A (omega T)^2 / 8)
+COALESCE_MAX_SPAN_S = 0.005
 
 
 class EnginePacing:
@@ -135,12 +140,13 @@ class EnginePacing:
         time and the coming tick is ``to_tick_s`` away: the longest wait w after which the
         advance of ``owed_s + w`` (the poses go on coming in real time), at ``COALESCE_SAFETY``
         times the measured cost, still ends ``COALESCE_MARGIN_S`` before the tick and within
-        what is left of this tick's budget. 0 (advance now) with sim time (lock-step), before
-        the cost is measured, or for less than ``COALESCE_MIN_WAIT_S``."""
+        what is left of this tick's budget, and spans at most ``COALESCE_MAX_SPAN_S``. 0
+        (advance now) with sim time (lock-step), before the cost is measured, or for less than
+        ``COALESCE_MIN_WAIT_S``."""
         if self.sim_time or self.cost_per_sim_s is None:
             return 0.0
         k = COALESCE_SAFETY * self.cost_per_sim_s
-        wait = (to_tick_s - COALESCE_MARGIN_S - k * owed_s) / (1.0 + k)
+        wait = min((to_tick_s - COALESCE_MARGIN_S - k * owed_s) / (1.0 + k), COALESCE_MAX_SPAN_S - owed_s)
         if k > 0.0:
             wait = min(wait, (self.budget_s - self._window_used) / k - owed_s)
         return wait if wait >= COALESCE_MIN_WAIT_S else 0.0
