@@ -79,6 +79,13 @@ _ENERGY_RETURNS = types.Tuple((types.float64, types.int64))                     
 
 
 @njit(cache=True, inline='always')
+def _energy_limit(watch, work_put_in):
+    """``Simulation._energy_limit`` from ``watch`` (growth factor times swing, initial energy,
+    floor) and the work put in so far [J]."""
+    return watch[0] * (watch[1] + max(work_put_in, 0.0)) + watch[2]
+
+
+@njit(cache=True, inline='always')
 def _move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
                     previous_axis, length, tip):
     """The needle's base to ``start + s move`` (``NeedleTissue.set_pose`` with no rotation), the
@@ -92,7 +99,7 @@ def _move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position,
         tip[r] = axis[r] * length
         tip[r] += position[r]
     energy[0] += work
-    return not bad and kinetic <= watch[0] * (watch[1] + max(energy[0], 0.0)) + watch[2]
+    return not bad and kinetic <= _energy_limit(watch, energy[0])
 
 
 @njit(cache=True, nogil=True)
@@ -214,8 +221,8 @@ def _energy_check_fails(kinetic, strain, inverted, bad, work, energy, watch):
     initial energy, floor; ``energy[0]``: the work put in before the step), inverted elements
     where refused (``watch[3]`` 1)."""
     total = kinetic + strain
-    limit = watch[0] * (watch[1] + max(energy[0] + work, 0.0)) + watch[2]
-    return bad != 0 or not math.isfinite(total) or total > limit or (inverted != 0 and watch[3] != 0.0)
+    return (bad != 0 or not math.isfinite(total) or total > _energy_limit(watch, energy[0] + work)
+            or (inverted != 0 and watch[3] != 0.0))
 
 
 @njit(cache=True, nogil=True)
@@ -299,7 +306,7 @@ class CompiledSubsteps:
         self.counters = np.zeros(5, dtype=np.int64)
         self.counts: dict = {}
         self._key, self._calls = None, None
-        self._functions: dict = {}          # (kernel, step after) -> (addresses, checks) (_functions_for)
+        self._functions: dict = {}          # (kernel, step after, energy) -> (addresses, checks) (_functions_for)
 
     def __getstate__(self):
         """Pickled (a scene copied to a prediction worker) without what holds addresses of
@@ -342,14 +349,14 @@ class CompiledSubsteps:
         the arguments again at each advance cost 300-650 us. A scene's arguments keep their types
         (its arrays keep their dtypes and shapes' ranks when reallocated); were one to change,
         run_slice refuses the call and :meth:`run` finds the code for the new types."""
-        value = self._functions.get((kernel, after_step))
+        value = self._functions.get((kernel, after_step, energy))
         if value is None:
             found = (compiled_address(kernel, kernel_args, types.none),
                      compiled_address(_advance_free, advance_args, _ADVANCE_RETURNS),
                      compiled_address(after_step, (0.5, 0.0, 0.0, 0) + after_args, types.int64),
                      compiled_address(energy, energy_args, _ENERGY_RETURNS))
-            value = self._functions[(kernel, after_step)] = (np.array([f[0] for f in found], dtype=np.int64),
-                                                             np.array([f[1] for f in found], dtype=np.int64))
+            value = self._functions[(kernel, after_step, energy)] = (
+                np.array([f[0] for f in found], dtype=np.int64), np.array([f[1] for f in found], dtype=np.int64))
         return value
 
     def _gather(self, mode):
