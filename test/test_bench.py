@@ -3,10 +3,10 @@ import re
 
 import numpy as np
 
-from tissue_sim_ros.analysis import bench
-from tissue_sim_ros.engine.material import Material
-from tissue_sim_ros.engine.mesh_generators import box_mesh
-from tissue_sim_ros.engine.model import TensorMassModel
+from tissue_sim_ros.bench import speed as bench
+from tissue_sim_ros.engine.model.material import Material
+from tissue_sim_ros.engine.mesh.generators import box_mesh
+from tissue_sim_ros.engine.model.tensor_mass import TensorMassModel
 
 
 def test_paired_precisions_time_both_and_compare_their_forces_to_the_element_truth():

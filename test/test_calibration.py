@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tissue_sim_ros.analysis import calibration
-from tissue_sim_ros.analysis.calibration_objective import FAILED_RESIDUAL, Objective
-from tissue_sim_ros.analysis.calibration_parameters import parse_fit
+from tissue_sim_ros.analysis.calibration import calibrate as calibration
+from tissue_sim_ros.analysis.calibration.objective import FAILED_RESIDUAL, Objective
+from tissue_sim_ros.analysis.calibration.parameters import parse_fit
 from tissue_sim_ros.analysis.synthetic_study import write_synthetic_study
-from tissue_sim_ros.engine.scene import Scene
-from tissue_sim_ros.io.data_spec import DataSpec, load_trials
+from tissue_sim_ros.engine.scene.scene import Scene
+from tissue_sim_ros.io.trials.data_spec import DataSpec, load_trials
 
 # the tests' own tissue, not the default scene's calibrated values (they move when it is calibrated again)
 TISSUE = ['regions[0].friction.insertion_coulomb_n_per_m=10.57']
@@ -65,7 +65,7 @@ def test_known_parameters_come_back_and_predict_a_held_out_speed_at_the_noise_le
     # the outputs: a scene every command accepts, that reproduces the fit
     calibrated = Scene.from_file(tmp_path / 'out' / 'calibrated.yaml')
     for key, entry in report['parameters'].items():
-        from tissue_sim_ros.analysis.calibration_parameters import read_key
+        from tissue_sim_ros.analysis.calibration.parameters import read_key
         assert read_key(calibrated.spec, key) == pytest.approx(entry['value'], rel=1e-9)
     saved = json.loads((tmp_path / 'out' / 'report.json').read_text())
     assert saved['fit']['nrmse_mean'] == pytest.approx(report['fit']['nrmse_mean'])
@@ -102,8 +102,8 @@ def test_a_late_puncture_costs_a_residual_smooth_in_its_shift_not_a_staircase_of
     cost stays within one step of it."""
     from types import SimpleNamespace
 
-    from tissue_sim_ros.analysis.calibration_objective import puncture_shift_residuals
-    from tissue_sim_ros.analysis.force_events import detect_punctures
+    from tissue_sim_ros.analysis.calibration.objective import puncture_shift_residuals
+    from tissue_sim_ros.analysis.compare.force_events import detect_punctures
     travel = np.linspace(0.0, 0.01, 20001)                    # 0.5 um a sample
     indices = np.arange(0, travel.size, 100)                   # scored every 50 um
 
@@ -140,7 +140,7 @@ def test_a_stage_runs_its_simulations_only_as_far_as_its_phases_and_scores_them_
     the simulation is deterministic, so those phases' residuals are the whole run's to rounding,
     for a fraction of its steps. A horizon that falls short of a sample (a margin made negative
     here) is run again whole, never scored as a miss."""
-    from tissue_sim_ros.analysis import calibration_objective
+    from tissue_sim_ros.analysis.calibration import objective as calibration_objective
     punctured = dict(TRUE, **{'regions[0].membrane.rupture_force_n': 1.0})   # 0.6 drops too little to detect
     spec = write_study(tmp_path, [3.0], MESH + sets(punctured), repeats=1)
     trials = load_trials(DataSpec.from_file(spec))
@@ -302,7 +302,7 @@ def test_a_bad_fit_option_is_one_error_line_naming_it(cheap_study, tmp_path, cap
 def test_a_fitted_value_reaches_the_scene_as_the_same_number(value):
     """YAML 1.1 reads 1e-10 as text; the scene refused such a value mid-search."""
     import yaml
-    from tissue_sim_ros.analysis.calibration_parameters import yaml_number
+    from tissue_sim_ros.analysis.calibration.parameters import yaml_number
     assert yaml.safe_load(yaml_number(value)) == value
 
 
@@ -320,7 +320,7 @@ def test_coarse_to_fine_finishes_on_the_scene_as_asked_and_says_whose_jacobian_t
 def test_a_model_farther_from_a_speeds_data_than_another_speeds_data_is_named():
     """Fitted or held out, a speed whose calibrated NRMSE is above the nearest other speed's
     measured curve is named with both figures; one below it, or without a baseline, is not."""
-    from tissue_sim_ros.analysis.calibration_report import _warnings
+    from tissue_sim_ros.analysis.calibration.report import _warnings
     fit = {'failed': [], 'finish': [], 'inertia': {'error_at_optimum': 0.01, 'bound': 0.02}}
     spread = {'correlated_pairs': [], 'insensitive': []}
 

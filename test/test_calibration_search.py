@@ -5,8 +5,8 @@ the global stage. The end-to-end calibration on synthetic data is test_calibrati
 import numpy as np
 import pytest
 
-from tissue_sim_ros.analysis.calibration_objective import Objective
-from tissue_sim_ros.analysis.calibration_parameters import parse_fit
+from tissue_sim_ros.analysis.calibration.objective import Objective
+from tissue_sim_ros.analysis.calibration.parameters import parse_fit
 
 
 class _LinearObjective:
@@ -31,7 +31,7 @@ class _LinearObjective:
         return list(self._cache.values())
 
     def evaluate_many(self, us, phases=None):
-        from tissue_sim_ros.analysis.calibration_objective import Evaluation
+        from tissue_sim_ros.analysis.calibration.objective import Evaluation
         out = []
         for u in us:
             k = self._key(u)
@@ -57,7 +57,7 @@ def test_the_loading_refit_moves_only_the_loading_keys_onto_their_optimum_on_the
     a rupture force) stay where the coarse search left them; with residuals linear in the keys
     its Gauss-Newton step lands on the loading's own least-squares optimum with the others held
     (numpy)."""
-    from tissue_sim_ros.analysis.calibration_fine import refit_loading
+    from tissue_sim_ros.analysis.calibration.fine import refit_loading
     rng = np.random.default_rng(3)
     A = rng.normal(size=(40, 3))
     b = A @ np.array([0.3, 0.6, 0.45]) + 0.01 * rng.normal(size=40)
@@ -79,7 +79,7 @@ def test_the_fine_finish_lands_on_the_fine_optimum_from_a_point_off_it():
     finish (the fine Jacobian there, then Gauss-Newton steps) lands on it in one step, hands back
     the fine Jacobian for the standard errors, and its linear model predicts the run exactly (no
     warning)."""
-    from tissue_sim_ros.analysis.calibration_fine import fine_finish, linear_model_warning
+    from tissue_sim_ros.analysis.calibration.fine import fine_finish, linear_model_warning
     rng = np.random.default_rng(2)
     A = rng.normal(size=(40, 3))
     b = A @ np.array([0.4, 0.55, 0.5]) + 0.3 * rng.normal(size=40)
@@ -97,7 +97,7 @@ def test_the_fine_finish_lands_on_the_fine_optimum_from_a_point_off_it():
 
 
 def test_broyden_update_meets_the_secant_condition_and_leaves_other_directions_alone():
-    from tissue_sim_ros.analysis.calibration_fine import broyden_update
+    from tissue_sim_ros.analysis.calibration.fine import broyden_update
     rng = np.random.default_rng(4)
     B, step, change = rng.normal(size=(30, 4)), rng.normal(size=4), rng.normal(size=30)
     updated = broyden_update(B, step, change)
@@ -112,7 +112,7 @@ def test_the_fine_finish_lands_on_scipys_optimum_of_a_curved_problem_with_a_boun
     what its forward differences and its move tolerance allow of scipy's bounded least squares
     (exact Jacobian, tight tolerances), on the bound exactly, in at most 5 fine runs."""
     from scipy.optimize import least_squares
-    from tissue_sim_ros.analysis.calibration_fine import FINISH_FD_STEP, fine_finish
+    from tissue_sim_ros.analysis.calibration.fine import FINISH_FD_STEP, fine_finish
     rng = np.random.default_rng(1)
     A, C = rng.normal(size=(40, 3)), rng.normal(size=(40, 3))
     x = np.array([0.4, 1.08, 0.5])                        # beyond the upper bound on the second key
@@ -137,7 +137,7 @@ def test_the_global_stage_starts_from_the_start_and_gets_far_closer_to_the_optim
     problem whose start is far off: the start is among what it tries, and what it returns scores
     a small fraction of the start's objective, nearer numpy's optimum."""
     pytest.importorskip(method if method == 'optuna' else 'scipy')
-    from tissue_sim_ros.analysis.calibration_search import GLOBAL_METHODS
+    from tissue_sim_ros.analysis.calibration.search import GLOBAL_METHODS
     rng = np.random.default_rng(7)
     A = rng.normal(size=(40, 3))
     b = A @ np.array([0.3, 0.7, 0.5]) + 0.01 * rng.normal(size=40)
@@ -155,7 +155,7 @@ def test_the_global_stage_starts_from_the_start_and_gets_far_closer_to_the_optim
 def test_the_steps_end_once_the_fit_is_good_enough_and_the_finish_asks_for_the_noise_floor():
     """``enough`` ends the steps at the first accepted point it approves (the finish's: the fit's
     NRMSE within the data's noise floor); a floor the fit never reaches runs every step."""
-    from tissue_sim_ros.analysis.calibration_fine import gauss_newton
+    from tissue_sim_ros.analysis.calibration.fine import gauss_newton
     rng = np.random.default_rng(1)
     A, C = rng.normal(size=(40, 3)), rng.normal(size=(40, 3))
     x = np.array([0.4, 0.6, 0.5])
@@ -174,7 +174,7 @@ def test_the_steps_end_once_the_fit_is_good_enough_and_the_finish_asks_for_the_n
 def test_a_finish_step_that_gains_far_more_or_less_than_its_model_predicted_is_reported():
     """The benchmark's second finish step: predicted 0.000768 -> 0.000752, ran 0.000580 (12x the
     predicted gain); a step within 3x of its prediction either way is not reported."""
-    from tissue_sim_ros.analysis.calibration_fine import linear_model_warning
+    from tissue_sim_ros.analysis.calibration.fine import linear_model_warning
     agreeing = {'objective_before': 0.0040, 'predicted': 0.0012, 'objective': 0.00077}   # 1.2x
     surprising = {'objective_before': 0.000768, 'predicted': 0.000752, 'objective': 0.000580}
     disappointing = {'objective_before': 0.0040, 'predicted': 0.0010, 'objective': 0.0039}

@@ -1,4 +1,4 @@
-"""tissue-sim chart (analysis/chart.py): the reference row, the linear model against the full
+"""tissue-sim chart (analysis/charting/chart.py): the reference row, the linear model against the full
 one, the Pareto front against a brute-force definition, and rows reproducible from their
 overrides."""
 import csv
@@ -7,8 +7,8 @@ import shlex
 import numpy as np
 import pytest
 
-from tissue_sim_ros.analysis import chart
-from tissue_sim_ros.engine.scene import Scene
+from tissue_sim_ros.analysis.charting import chart
+from tissue_sim_ros.engine.scene.scene import Scene
 
 MEDIUM = chart.MESHES['medium']
 

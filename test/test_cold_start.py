@@ -1,7 +1,7 @@
 """First start: where numba's cache goes, what a first start prints, and which kernels it compiles.
 
 Each test runs a fresh Python process, since numba reads its cache directory once, at import.
-The cold start's figure is a benchmark: python -m tissue_sim_ros.analysis.cold_start.
+The cold start's figure is a benchmark: python -m tissue_sim_ros.bench.cold_start.
 """
 import os
 import subprocess
@@ -11,15 +11,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tissue_sim_ros.child_env import importing_from
-from tissue_sim_ros.user_cache import sources_key
+from tissue_sim_ros.system.child_env import importing_from
+from tissue_sim_ros.system.user_cache import sources_key
 
 ROOT = Path(__file__).resolve().parents[1]
 
 # compiles one small kernel (about a second): forces.reduce_buffers
 SMALL_KERNEL = '''
 import numpy as np
-from tissue_sim_ros.engine import forces
+from tissue_sim_ros.engine.model import kernels as forces
 out = np.zeros((4, 3))
 forces.reduce_buffers(np.ones((1, 4, 3)), np.zeros(1, dtype=np.int64), np.full(1, 4, dtype=np.int64), out)
 assert (out == 1.0).all()
@@ -50,29 +50,32 @@ def test_cache_goes_to_the_user_cache_directory_and_a_first_start_says_so(tmp_pa
     user_cache = xdg / 'tissue_sim_ros' / 'numba'
     # under the directory of this version of the engine's sources
     keyed = user_cache / sources_key(str(ROOT / 'tissue_sim_ros' / 'engine'))
-    assert any(name.startswith('forces.reduce_buffers') for name in cached_kernels(keyed))
+    assert any(name.startswith('kernels.reduce_buffers') for name in cached_kernels(keyed))
     after = {p: p.stat().st_mtime_ns for p in package_cache.glob('*.nbi')} if package_cache.exists() else {}
     assert after == before, 'numba wrote its cache beside the installed sources'
     assert f'cached in {user_cache}' in first.stderr
-    assert 'compiling forces.reduce_buffers' in first.stderr
-    assert 'compiled forces.reduce_buffers in' in first.stderr
+    assert 'compiling kernels.reduce_buffers' in first.stderr
+    assert 'compiled kernels.reduce_buffers in' in first.stderr
 
     again = run_python(SMALL_KERNEL, {'XDG_CACHE_HOME': str(xdg)})
     assert 'tissue_sim_ros:' not in again.stderr       # loaded from the cache: nothing to say
 
 
 def test_the_cache_key_changes_with_any_engine_source_and_only_with_them(tmp_path):
-    """A kernel's helpers in another file (forces.py's pass, simd_lanes.py's gather) change the
-    key, so their kernels are compiled afresh; a file that is not Python source does not."""
+    """A kernel's helpers in another file (kernels.py's pass, simd_lanes.py's gather), in any
+    sub-package, change the key, so their kernels are compiled afresh; a file that is not Python
+    source does not."""
     engine = tmp_path / 'engine'
-    engine.mkdir()
-    for source in (ROOT / 'tissue_sim_ros' / 'engine').glob('*.py'):
-        (engine / source.name).write_bytes(source.read_bytes())
+    source_engine = ROOT / 'tissue_sim_ros' / 'engine'
+    for source in source_engine.rglob('*.py'):
+        copy = engine / source.relative_to(source_engine)
+        copy.parent.mkdir(parents=True, exist_ok=True)
+        copy.write_bytes(source.read_bytes())
     key = sources_key(str(engine))
-    assert key == sources_key(str(ROOT / 'tissue_sim_ros' / 'engine'))
+    assert key == sources_key(str(source_engine))
     (engine / 'notes.txt').write_text('not a source')
     assert sources_key(str(engine)) == key
-    helper = engine / 'simd_lanes.py'
+    helper = engine / 'model' / 'simd_lanes.py'
     helper.write_text(helper.read_text() + '# changed\n')
     changed = sources_key(str(engine))
     assert changed != key and changed.startswith('engine-') and len(changed) == len(key)
@@ -83,7 +86,7 @@ def test_the_cache_key_changes_with_any_engine_source_and_only_with_them(tmp_pat
 def test_numba_cache_dir_of_the_user_moves_the_cache(tmp_path):
     own, xdg = tmp_path / 'own', tmp_path / 'xdg'
     result = run_python(SMALL_KERNEL, {'NUMBA_CACHE_DIR': str(own), 'XDG_CACHE_HOME': str(xdg)})
-    assert any(name.startswith('forces.reduce_buffers') for name in cached_kernels(own))
+    assert any(name.startswith('kernels.reduce_buffers') for name in cached_kernels(own))
     assert not xdg.exists()
     assert f'cached in {own}' in result.stderr
 
@@ -92,8 +95,8 @@ def test_a_scene_compiles_the_element_pass_of_its_own_model_and_the_linear_one()
     """The warm-up scene used to add a third (geometric) variant; now the scene's model and the
     linear pass of the critical time step are all (the packaged scene: the full model)."""
     code = '''
-from tissue_sim_ros.engine import forces
-from tissue_sim_ros.engine.scene import Scene
+from tissue_sim_ros.engine.model import kernels as forces
+from tissue_sim_ros.engine.scene.scene import Scene
 scene = Scene.from_file()
 print(scene.model.geometric, scene.model.physical, scene.model.viscous, forces.element_kernel.cache_info().currsize)
 '''
@@ -103,9 +106,9 @@ print(scene.model.geometric, scene.model.physical, scene.model.viscous, forces.e
 
 
 def forces_of(flags, displacement, velocity):
-    from tissue_sim_ros.engine.material import Material, MeanRatioLaw, Viscosity
-    from tissue_sim_ros.engine.mesh_generators import box_mesh
-    from tissue_sim_ros.engine.model import TensorMassModel
+    from tissue_sim_ros.engine.model.material import Material, MeanRatioLaw, Viscosity
+    from tissue_sim_ros.engine.mesh.generators import box_mesh
+    from tissue_sim_ros.engine.model.tensor_mass import TensorMassModel
     geometric, physical, viscous = flags
     model = TensorMassModel(box_mesh((0.01, 0.01, 0.01), (3, 3, 3)), Material(5000.0, 0.45, 1000.0),
                             geometric=geometric,
@@ -142,7 +145,7 @@ def test_processes_compiling_different_models_at_once_share_one_cache(tmp_path):
     env.update(NUMBA_CACHE_DIR=str(tmp_path / 'cache'), TISSUE_SIM_ROS_COMPILE_PROCESS='1',
                PYTHONPATH=os.pathsep.join([str(ROOT)] + [p for p in [os.environ.get('PYTHONPATH')] if p]))
     models = ('000', '101')           # linear; geometric with viscosity
-    code = 'import sys; from tissue_sim_ros.engine.compile_cache import compile_element_pass; ' \
+    code = 'import sys; from tissue_sim_ros.engine.compiled.cache import compile_element_pass; ' \
            'compile_element_pass(*(c == "1" for c in sys.argv[1]))'
     processes = [subprocess.Popen([sys.executable, '-c', code, flags], env=env, cwd=str(ROOT),
                                   stderr=subprocess.PIPE, text=True) for flags in models]
@@ -180,7 +183,7 @@ def test_every_probed_kernel_is_refused_not_only_the_first():
     (a second model, or a cache made stale by new sources) was compiled here, unseen. Small
     uncached functions stand in for the element passes."""
     from numba import njit
-    from tissue_sim_ros.engine import compile_cache
+    from tissue_sim_ros.engine.compiled import cache as compile_cache
     for offset in (1.0, 2.0, 3.0):
         probed = njit(lambda x, offset=offset: x + offset)
         found, _ = compile_cache._from_cache(probed, (1.0,), 'float64')

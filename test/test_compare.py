@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tissue_sim_ros.analysis import compare
+from tissue_sim_ros.analysis.compare import compare
 from tissue_sim_ros.analysis.insertion import run_insertion
-from tissue_sim_ros.engine.scene import Scene
+from tissue_sim_ros.engine.scene.scene import Scene
 
 # the tests' own tissue (the default scene's cutting and friction are calibrated, and move)
 SETS = ['mesh.generator=box', 'mesh.divisions=[8,8,6]', 'regions[0].cutting_force_n=0.94',
@@ -102,7 +102,7 @@ def test_every_sample_of_every_repeat_is_reached_by_its_speeds_simulation(tmp_pa
     clock of their own contact. With jittered sampling, and one repeat recorded 0.3 s longer (the
     needle out, the sensor still logging), every sample from contact on has a simulated force:
     a sample left out is a miss the calibration would score whatever the parameters."""
-    from tissue_sim_ros.io.data_spec import DataSpec, load_trials
+    from tissue_sim_ros.io.trials.data_spec import DataSpec, load_trials
     run, spec = write_study(tmp_path / 'data', SETS + NO_MEMBRANE)
     longer = tmp_path / 'data' / 'trial_3p0_3.csv'      # not the median repeat the simulation follows
     rows = np.loadtxt(longer, delimiter=',', skiprows=1)
@@ -164,8 +164,8 @@ def test_a_process_pool_gives_what_a_serial_run_gives():
     """Two simulations of two motions in two spawned worker processes (one numba thread each)
     against the same two in this process: the same forces, to rounding (1e-12: the contact's
     pseudo-inverse goes through LAPACK, whose sums another process may order otherwise)."""
-    from tissue_sim_ros.analysis.job_runner import run_jobs
-    from tissue_sim_ros.analysis.trial_simulation import SimulationJob, simulate
+    from tissue_sim_ros.analysis.jobs import run_jobs
+    from tissue_sim_ros.analysis.compare.trial_simulation import SimulationJob, simulate
     scene = Scene.from_file(None, sets=SETS)
     start, axis = scene.needle_pose[0], scene.needle.axis.copy()
     jobs = []

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from numba import njit, types
 
-from tissue_sim_ros.engine.compiled_call import call_compiled, compiled_address, signature_check
+from tissue_sim_ros.engine.compiled.call import call_compiled, compiled_address, signature_check
 
 _STEP = types.Tuple((types.float64, types.float64, types.int64))
 

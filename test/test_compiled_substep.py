@@ -6,10 +6,10 @@ import pytest
 
 from test_needle_tips import COARSE_FAR
 from tissue_sim_ros.analysis.insertion import run_insertion
-from tissue_sim_ros.engine import compiled_substep
-from tissue_sim_ros.engine.compiled_call import compiled_address
-from tissue_sim_ros.engine.scene import Scene
-from tissue_sim_ros.engine.solver import SimulationDiverged
+from tissue_sim_ros.engine.compiled import substeps as compiled_substep
+from tissue_sim_ros.engine.compiled.call import compiled_address
+from tissue_sim_ros.engine.scene.scene import Scene
+from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
 
 #: a capsule, then a second layer with its own membrane under a plane (the apex's layer decided
 #: in the compiled call) and a box region with other laws below it

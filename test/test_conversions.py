@@ -20,7 +20,7 @@ from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
 from shape_msgs.msg import Mesh, MeshTriangle  # noqa: E402
 from visualization_msgs.msg import Marker  # noqa: E402
 
-from tissue_sim_ros.ros import conversions as cv  # noqa: E402
+from tissue_sim_ros.ros.messages import conversions as cv  # noqa: E402
 
 
 @pytest.fixture

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import yaml
 
-from tissue_sim_ros.io.data_spec import (DataSpec, file_name_labels, group_by_speed, load_trials,
+from tissue_sim_ros.io.trials.data_spec import (DataSpec, file_name_labels, group_by_speed, load_trials,
                                          speed_from_text)
-from tissue_sim_ros.io.data_spec_keys import DataSpecError
-from tissue_sim_ros.io.trial import DataError, Trial
+from tissue_sim_ros.io.trials.data_spec_keys import DataSpecError
+from tissue_sim_ros.io.trials.trial import DataError, Trial
 
 PATTERN = r'sample_(?P<speed>\d+(?:[_p]\d+)?)_(?P<repeat>\d+)_(?P<date>\d{8})'
 SPEC = {

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.engine.degradation_ladder import DegradationLadder
+from tissue_sim_ros.engine.ladder import DegradationLadder
 from tissue_sim_ros.engine.ladder_probe import probe_errors
-from tissue_sim_ros.engine.scene import Scene
+from tissue_sim_ros.engine.scene.scene import Scene
 
 
 def test_a_mass_rung_keeps_the_damping_force_and_lengthens_the_step_by_the_square_root():
@@ -42,7 +42,7 @@ def test_the_rungs_are_ordered_by_error_and_the_mass_rungs_cost_little_with_the_
     assert kept[0] == 0.0 and np.all(np.diff(kept) >= -1e-3)
     assert kept[3] < 0.02
 
-    from tissue_sim_ros.engine import solver
+    from tissue_sim_ros.engine.solver import explicit as solver
     original = solver.Simulation.rescale_masses
 
     def damping_scaled_along(self, mass_scaling):
@@ -59,7 +59,7 @@ def test_the_rungs_are_ordered_by_error_and_the_mass_rungs_cost_little_with_the_
 def test_no_mass_rung_steps_longer_than_the_cap():
     """The default scene's x4 and x16 steps (2.5, 4.9 ms) are within the cap and offered; a coarse
     box's (17.8, 35.6 ms from 8.9) are not, and its ladder goes from threshold 0.1 to 0.5."""
-    from tissue_sim_ros.engine.degradation_ladder import MAX_RUNG_TIME_STEP_S
+    from tissue_sim_ros.engine.ladder import MAX_RUNG_TIME_STEP_S
     for sets, offered in ((None, {4.0, 16.0}), ({'generator': 'box', 'divisions': [6, 6, 4]}, set())):
         scene = Scene.from_file(None, mesh=sets) if sets else Scene.from_file(None)
         ladder = DegradationLadder(scene)
@@ -76,7 +76,7 @@ def test_a_scene_set_up_at_a_higher_mass_scaling_equals_one_rescaled_at_run_time
     ladder's and predictions' rule) are one rule: the same masses and damping force. The step:
     the run-time one grows as sqrt(mass) (the elastic limit), the scene's own estimate faster
     (the Kelvin-Voigt limit grows with the mass itself), so the run-time step stays stable."""
-    from tissue_sim_ros.engine.scene_overrides import with_mass_scaling
+    from tissue_sim_ros.engine.scene.keys import with_mass_scaling
     scene = Scene.from_file(None)
     scaling = scene.simulation.mass_scaling
     heavier = Scene(with_mass_scaling(scene.spec, 4.0 * scaling)).simulation

@@ -4,7 +4,7 @@ import pytest
 import yaml
 from pathlib import Path
 
-from tissue_sim_ros.ros.drive import insertion_trajectory, scene_start
+from tissue_sim_ros.ros.clients.drive import insertion_trajectory, scene_start
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -79,7 +79,7 @@ class _RecordingPublisher:
 def test_publish_trajectory_sends_each_pose_on_its_schedule():
     pytest.importorskip('geometry_msgs')
     import time
-    from tissue_sim_ros.ros.drive import pose_message, publish_trajectory
+    from tissue_sim_ros.ros.clients.drive import pose_message, publish_trajectory
     times = np.array([0.0, 0.02, 0.04, 0.05])
     positions = np.arange(12, dtype=float).reshape(4, 3) * 1e-3
     clock = iter(range(7_000_000_000, 8_000_000_000, 1_000))
@@ -95,7 +95,7 @@ def test_publish_trajectory_sends_each_pose_on_its_schedule():
 def test_publish_trajectory_repeats_the_schedule_for_a_duration():
     pytest.importorskip('geometry_msgs')
     import time
-    from tissue_sim_ros.ros.drive import pose_message, publish_trajectory
+    from tissue_sim_ros.ros.clients.drive import pose_message, publish_trajectory
     times = np.array([0.0, 0.01, 0.02])
     positions = np.array([[0.0, 0.0, 0.1], [0.0, 0.0, 0.2], [0.0, 0.0, 0.3]])
     pub = _RecordingPublisher()

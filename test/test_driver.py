@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.engine.driver import SimulationDriver
-from tissue_sim_ros.engine.needle import NeedleInputError
-from tissue_sim_ros.engine.solver import SimulationDiverged
-from tissue_sim_ros.ros.engine_pacing import (COALESCE_MARGIN_S, COALESCE_MAX_SPAN_S, COALESCE_MIN_WAIT_S, COALESCE_SAFETY,
+from tissue_sim_ros.engine.needle.interaction import NeedleInputError
+from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+from tissue_sim_ros.ros.loop.pacing import (COALESCE_MARGIN_S, COALESCE_MAX_SPAN_S, COALESCE_MIN_WAIT_S, COALESCE_SAFETY,
                                              RATIO_TRUST, EnginePacing, LadderControl)
 
 COARSE = {'generator': 'box', 'divisions': [6, 6, 4]}
@@ -14,7 +14,7 @@ MS = 1_000_000
 
 
 def make_scene():
-    from tissue_sim_ros.engine.scene import Scene
+    from tissue_sim_ros.engine.scene.scene import Scene
     return Scene.from_file(None, mesh=COARSE)
 
 

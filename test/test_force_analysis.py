@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tissue_sim_ros.analysis.alignment import best_time_shift, resample
-from tissue_sim_ros.analysis.force_events import (PHASES, Puncture, detect_contact,
+from tissue_sim_ros.analysis.compare.alignment import best_time_shift, resample
+from tissue_sim_ros.analysis.compare.force_events import (PHASES, Puncture, detect_contact,
                                                   detect_punctures, segment_phases)
-from tissue_sim_ros.analysis.force_metrics import (curve_errors, event_errors, peak_force,
+from tissue_sim_ros.analysis.compare.force_metrics import (curve_errors, event_errors, peak_force,
                                                    per_phase_errors, retraction_minimum)
 
 RATES = {'88-100 Hz': (88.0, 100.0), '1 kHz': (1000.0, 1000.0)}
@@ -375,7 +375,7 @@ def test_resample_is_linear_inside_and_nan_outside():
 def test_a_recording_that_starts_just_above_the_tissue_keeps_its_noise_and_its_puncture():
     """The first 10 % of such a recording holds the loading's rise; taken as noise, it set the
     puncture threshold (8 noise) above a 0.4 N drop. Truth: the noise added and the drop made."""
-    from tissue_sim_ros.analysis.force_events import baseline_and_noise, detect_contact, detect_punctures
+    from tissue_sim_ros.analysis.compare.force_events import baseline_and_noise, detect_contact, detect_punctures
     rng = np.random.default_rng(3)
     inserting = np.arange(0.0, 0.019, 3e-5)                   # 3 mm/s at 100 Hz, 1 mm gap
     travel = np.concatenate([inserting, np.full(50, 0.019), inserting[::-1]])   # hold, retract

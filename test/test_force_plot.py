@@ -47,8 +47,8 @@ def test_the_bovine_liver_compared_with_itself_has_no_error_and_the_same_punctur
     """compare_with_reference, given the reference's own trace as the 'simulation' (time, travel
     with another origin, force): NRMSE 0 over the insertion, every puncture at the same depth, and
     the plot draws the data and the curve on one depth axis."""
-    from tissue_sim_ros.analysis.compare import compare_with_reference
-    from tissue_sim_ros.analysis.reference_data import SPEED_M_S, bovine_liver_trace
+    from tissue_sim_ros.analysis.compare.compare import compare_with_reference
+    from tissue_sim_ros.analysis.compare.reference_data import SPEED_M_S, bovine_liver_trace
     depth, force = bovine_liver_trace()
     comparison = compare_with_reference(depth / SPEED_M_S, depth + 0.004, force,
                                         plot=tmp_path / 'self.png', label='itself')
@@ -63,7 +63,7 @@ def test_the_bovine_liver_compared_with_itself_has_no_error_and_the_same_punctur
 def test_the_committed_bovine_liver_study_is_what_the_digitized_file_makes(tmp_path):
     """data/okamura2004_bovine_liver/{study.yaml, liver_3mm_s_trace1.csv} are written by
     reference_data from the digitized file: made afresh, they are byte for byte the same."""
-    from tissue_sim_ros.analysis.reference_data import DATA_DIR, write_bovine_liver_study
+    from tissue_sim_ros.analysis.compare.reference_data import DATA_DIR, write_bovine_liver_study
     made = write_bovine_liver_study(tmp_path)
     for name in ('study.yaml', 'liver_3mm_s_trace1.csv'):
         assert (tmp_path / name).read_bytes() == (DATA_DIR / name).read_bytes(), name

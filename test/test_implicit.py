@@ -1,4 +1,4 @@
-"""Implicit integrators (engine/implicit.py): backward Euler against the dense recursion and the
+"""Implicit integrators (engine/solver/implicit.py): backward Euler against the dense recursion and the
 analytic modal step response, the static answer against the explicit solver's, stability far
 past the explicit limit, and a needle insertion against the explicit run."""
 import numpy as np
@@ -6,8 +6,8 @@ import pytest
 
 import tissue_sim_ros as ts
 from tissue_sim_ros.engine.driver import SimulationDriver
-from tissue_sim_ros.engine.implicit_bonds import BondRows
-from tissue_sim_ros.engine.scene import Scene, SceneError
+from tissue_sim_ros.engine.solver.implicit_bonds import BondRows
+from tissue_sim_ros.engine.scene.scene import Scene, SceneError
 
 COARSE = ['mesh.fine_size_m=0.003', 'mesh.divisions=[6,6,5]']
 
@@ -145,8 +145,8 @@ def test_no_root_at_the_nonlinearity_threshold_is_a_stall_not_a_failure(cube, li
     step now ends, those as stalls. Measured at each stalled state on the free DOFs, by flipping
     the elements within 1e-4 below the threshold: the residual left is within that jump, and the
     jump within the step's estimate."""
-    from tissue_sim_ros.engine import forces
-    from tissue_sim_ros.engine.solver import SimulationDiverged
+    from tissue_sim_ros.engine.model import kernels as forces
+    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
 
     def jump(model, x, free):
         both = []
@@ -242,7 +242,7 @@ class _Bonds:
 
 @pytest.mark.parametrize('integrator', ['quasi_static', 'implicit'])
 def test_bonds_held_in_the_solve_are_prescribed_displacements(cube, liver, integrator):
-    """Bonding four top nodes to targets 1 mm down and sideways (engine/implicit_bonds.py) gives
+    """Bonding four top nodes to targets 1 mm down and sideways (engine/solver/implicit_bonds.py) gives
     the same step as prescribing those nodes' displacements: the same field (1e-9 relative) and
     the bonds' forces equal to the force that holds the prescribed nodes (its reaction: the
     internal force it balances, quasi-static, or the full unbalance, backward Euler)."""
@@ -304,7 +304,7 @@ def test_barycentric_bond_held_exactly_and_in_balance(cube, liver):
 
 def test_needle_insertion_implicit_against_explicit():
     """The coarse default scene's insertion through the capsule, at 4x the explicit step: the
-    capsule's bonded contact is held inside the implicit solve (engine/implicit_bonds.py), so it
+    capsule's bonded contact is held inside the implicit solve (engine/solver/implicit_bonds.py), so it
     loads and ruptures as the explicit run does (same tip depth within 1 %, axial force before
     the puncture within 1 % of its range; 0.0016 is seen, and 2.5 mm earlier with the bonds
     applied after the step). After the puncture the shaft's and the tip's forces still act

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from test_needle import small_scene
-from tissue_sim_ros.analysis.mass_scaling_rule import MAX_PROBES, MAX_SCALING, choose_mass_scaling
+from tissue_sim_ros.analysis.charting.mass_scaling_rule import MAX_PROBES, MAX_SCALING, choose_mass_scaling
 from tissue_sim_ros.engine.driver import SimulationDriver
-from tissue_sim_ros.engine.inertia_estimate import InertiaEstimate, inertia_line, weighted_body_force
+from tissue_sim_ros.engine.solver.inertia_estimate import InertiaEstimate, inertia_line, weighted_body_force
 
 
 def test_weighted_body_force_equals_numpy():
@@ -152,8 +152,8 @@ def test_auto_scene_takes_the_rule_and_caches_it(tmp_path, monkeypatch):
     """`solver.mass_scaling: auto` on the small sample: the mass scaling of the largest probe within
     the bound, whose error measured afresh against the reference scaling is the recorded one; its
     time step the critical step's fraction at it; a second load takes the cache (no probe runs)."""
-    from tissue_sim_ros.analysis.chart import force_nrmse, make_job, simulate_job
-    from tissue_sim_ros.analysis.mass_scaling_rule import REFERENCE_SCALING
+    from tissue_sim_ros.analysis.charting.chart import force_nrmse, make_job, simulate_job
+    from tissue_sim_ros.analysis.charting.mass_scaling_rule import REFERENCE_SCALING
     monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path))
     solver = {'mass_scaling': 'auto', 'design_speed_m_s': 0.01}
     region = {'membrane': {'criterion': 'force', 'rupture_force_n': 0.3}}
@@ -173,7 +173,7 @@ def test_auto_scene_takes_the_rule_and_caches_it(tmp_path, monkeypatch):
     assert measured == pytest.approx(next(p['error'] for p in within if p['mass_scaling'] == chosen), rel=1e-9)
     assert measured <= record['inertia_error_bound']
 
-    import tissue_sim_ros.analysis.chart as chart
+    import tissue_sim_ros.analysis.charting.chart as chart
     monkeypatch.setattr(chart, 'simulate_job', lambda job: pytest.fail('probed again'))
     again = small_scene(solver=solver, region=region)
     assert again.simulation.mass_scaling == chosen
@@ -194,8 +194,8 @@ def test_the_bench_sets_each_estimate_beside_the_error_measured_without_mass_sca
     puncture it moves) is within 25 % of the measured error (0.95 and 0.91 of it were seen). At
     400x and 1600x the capsule punctures 0.39 and 1.32 mm early, 4 and 13 force samples: the
     measured error does not hang on where one sample falls, as it does below a sample (README)."""
-    from tissue_sim_ros.analysis.chart import force_nrmse
-    from tissue_sim_ros.analysis.inertia_bench import run_bench
+    from tissue_sim_ros.analysis.charting.chart import force_nrmse
+    from tissue_sim_ros.bench.inertia import run_bench
     result = run_bench(None, ['mesh.fine_size_m=0.004', 'mesh.divisions=[5,5,4]'], scalings=(400.0, 1600.0),
                        travel=0.012, out=tmp_path, workers=1, quiet=True)
     runs = [json.loads(line) for line in (tmp_path / 'runs.jsonl').read_text().splitlines()]

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import tissue_sim_ros as ts
-from tissue_sim_ros.engine.forces import STRETCH_CLAMP
+from tissue_sim_ros.engine.model.kernels import STRETCH_CLAMP
 
 
 def test_untriggered_elements_are_exact_st_venant_kirchhoff(jittered_block, liver):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from test_needle import NU, axial, drive_down, push, small_scene, stiff_scene
-from tissue_sim_ros.engine.region_selectors import RegionSelectors
+from tissue_sim_ros.engine.mesh.selectors import RegionSelectors
 
 
 def second_puncture_travel(fine, plane):

@@ -30,8 +30,8 @@ from rosbags.rosbag2.metadata import QosDurability, QosReliability  # noqa: E402
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E402
 
 import tissue_sim_ros  # noqa: E402
-from tissue_sim_ros.io import mcap_log as ml  # noqa: E402
-from tissue_sim_ros.ros import conversions as cv  # noqa: E402
+from tissue_sim_ros.io import mcap as ml  # noqa: E402
+from tissue_sim_ros.ros.messages import conversions as cv  # noqa: E402
 
 T0 = 1_700_000_000_000_000_000  # ns
 PERIOD = 20_000_000  # 50 Hz
@@ -544,8 +544,8 @@ def test_the_writer_thread_wakes_per_batch_not_per_message(tmp_path):
 _CHILD = textwrap.dedent('''
     import sys, time
     from rclpy.serialization import serialize_message
-    from tissue_sim_ros.io import mcap_log as ml
-    from tissue_sim_ros.ros import conversions as cv
+    from tissue_sim_ros.io import mcap as ml
+    from tissue_sim_ros.ros.messages import conversions as cv
     path, mode = sys.argv[1], sys.argv[2]
     T0, PERIOD = {T0}, {PERIOD}
     rec = ml.McapRecorder(path, metadata={{'scene': 'kill test'}}, chunk_interval_s=1.0)

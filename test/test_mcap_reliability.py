@@ -23,9 +23,9 @@ from rclpy.serialization import serialize_message  # noqa: E402
 from rosbags.highlevel import AnyReader  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
-from tissue_sim_ros import cli  # noqa: E402
-from tissue_sim_ros.io import mcap_log as ml  # noqa: E402
-from tissue_sim_ros.ros import conversions as cv  # noqa: E402
+from tissue_sim_ros.cli import app as cli  # noqa: E402
+from tissue_sim_ros.io import mcap as ml  # noqa: E402
+from tissue_sim_ros.ros.messages import conversions as cv  # noqa: E402
 from tissue_sim_ros.units import NS_PER_S  # noqa: E402
 
 T0 = 1_700_000_000_000_000_000
@@ -248,8 +248,8 @@ def test_recover_command_default_output_and_refusals(complete_log, tmp_path):
 _WRITER = textwrap.dedent('''
     import sys, time
     from rclpy.serialization import serialize_message
-    from tissue_sim_ros.io.mcap_log import McapRecorder
-    from tissue_sim_ros.ros import conversions as cv
+    from tissue_sim_ros.io.mcap import McapRecorder
+    from tissue_sim_ros.ros.messages import conversions as cv
     rec = McapRecorder(sys.argv[1], metadata={'scene': 'kill'}, chunk_interval_s=float(sys.argv[2]))
     rec.add_topic('needle/wrench', 'geometry_msgs/msg/WrenchStamped', {})
     period, start, i = 0.02, time.monotonic(), 0
@@ -317,8 +317,12 @@ def test_sigkill_just_before_a_chunk_closes_loses_less_than_the_interval(tmp_pat
 _NO_NUMBA = textwrap.dedent('''
     import os, sys
     import tissue_sim_ros
-    from tissue_sim_ros.io import mcap_log, mcap_reader, mcap_recovery, mcap_writer
-    from tissue_sim_ros.io import ros_message_definitions, rosbag2_qos
+    from tissue_sim_ros.io import mcap as mcap_log
+    from tissue_sim_ros.io.mcap import reader as mcap_reader
+    from tissue_sim_ros.io.mcap import recovery as mcap_recovery
+    from tissue_sim_ros.io.mcap import writer as mcap_writer
+    from tissue_sim_ros.io.mcap import message_definitions as ros_message_definitions
+    from tissue_sim_ros.io.mcap import rosbag2_qos
     path = sys.argv[1]
     with mcap_log.McapRecorder(path, metadata={'scene': 'x'}) as rec:
         rec.add_topic('t', 'std_msgs/msg/UInt8', {})
@@ -360,8 +364,8 @@ def test_numba_imported_before_the_engine_still_gets_the_threading_policy():
 
 
 def test_one_parser_for_ros_type_names():
-    from tissue_sim_ros.io.ros_message_definitions import parse_type_name
-    from tissue_sim_ros.ros.message_yaml import message_type
+    from tissue_sim_ros.io.mcap.message_definitions import parse_type_name
+    from tissue_sim_ros.ros.messages.from_yaml import message_type
     from geometry_msgs.msg import PoseStamped
     from std_srvs.srv import Trigger
     assert tuple(parse_type_name('geometry_msgs/msg/Pose')) == ('geometry_msgs', 'msg', 'Pose')

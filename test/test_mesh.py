@@ -1,4 +1,4 @@
-"""Tests of tissue_sim_ros.engine.mesh and mesh_generators against independent truth:
+"""Tests of tissue_sim_ros.engine.mesh.tetmesh and mesh_generators against independent truth:
 closed-form volumes, areas and counts of a box, the divergence theorem, Euler's formula, a
 hand-evaluated mean ratio, and face/edge counts computed here with plain Python sets (not with
 the module's numpy code). Files: test_mesh_io.py."""
@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.engine.mesh import (MeshError, MeshOrientationWarning, TetMesh, make_mesh, mean_ratio,
+from tissue_sim_ros.engine.mesh.tetmesh import (MeshError, MeshOrientationWarning, TetMesh, make_mesh, mean_ratio,
                                         signed_volumes, surface_triangles)
-from tissue_sim_ros.engine.mesh_generators import box_mesh, graded_box_mesh
+from tissue_sim_ros.engine.mesh.generators import box_mesh, graded_box_mesh
 
 UNIT_CORNER = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
 # Regular tetrahedron with edge 2 sqrt(2), positively oriented (checked in a test below).
@@ -266,7 +266,7 @@ def test_characteristic_lengths_of_kuhn_elements_in_cubes():
 
 def test_surface_extraction_for_very_large_node_counts_matches(box):
     # beyond ~1.6e6 nodes face keys no longer fit one int64 and a lexicographic sort is used
-    from tissue_sim_ros.engine.mesh import _faces_seen_once
+    from tissue_sim_ros.engine.mesh.tetmesh import _faces_seen_once
     faces = box.tetrahedra[:, [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]]].reshape(-1, 3)
     np.testing.assert_array_equal(_faces_seen_once(faces, 10 ** 7),
                                   _faces_seen_once(faces, box.n_nodes))

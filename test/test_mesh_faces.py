@@ -7,10 +7,10 @@ import meshio
 import numpy as np
 import pytest
 
-from tissue_sim_ros.engine.mesh import (MeshError, MeshOrientationWarning, face_elements, make_mesh,
+from tissue_sim_ros.engine.mesh.tetmesh import (MeshError, MeshOrientationWarning, face_elements, make_mesh,
                                         signed_volumes)
-from tissue_sim_ros.engine.mesh_generators import box_mesh, graded_box_mesh
-from tissue_sim_ros.engine.mesh_io import load_mesh, save_mesh
+from tissue_sim_ros.engine.mesh.generators import box_mesh, graded_box_mesh
+from tissue_sim_ros.engine.mesh.files import load_mesh, save_mesh
 
 
 def test_load_mesh_says_once_how_many_elements_it_reoriented_and_which(tmp_path):

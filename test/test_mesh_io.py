@@ -1,4 +1,4 @@
-"""Tests of tissue_sim_ros.engine.mesh_io: meshes round-tripped through every format meshio
+"""Tests of tissue_sim_ros.engine.mesh.files: meshes round-tripped through every format meshio
 writes (positions, elements and region tags back unchanged), data written beside them, and each
 bad file or argument refused with a MeshError naming it. Truth: the mesh written (built here),
 volumes from signed_volumes, and files written by meshio directly."""
@@ -8,9 +8,9 @@ import meshio
 import numpy as np
 import pytest
 
-from tissue_sim_ros.engine.mesh import MeshError, MeshOrientationWarning, make_mesh, mean_ratio, signed_volumes
-from tissue_sim_ros.engine.mesh_generators import box_mesh
-from tissue_sim_ros.engine.mesh_io import load_mesh, save_mesh
+from tissue_sim_ros.engine.mesh.tetmesh import MeshError, MeshOrientationWarning, make_mesh, mean_ratio, signed_volumes
+from tissue_sim_ros.engine.mesh.generators import box_mesh
+from tissue_sim_ros.engine.mesh.files import load_mesh, save_mesh
 
 from test_mesh import UNIT_CORNER
 

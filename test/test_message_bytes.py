@@ -17,9 +17,9 @@ from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension  # noqa: E402
 from visualization_msgs.msg import Marker  # noqa: E402
 
-from tissue_sim_ros.ros import conversions as cv  # noqa: E402
-from tissue_sim_ros.ros.engine_trace import COLUMNS, HEADER_SIZE, RESET, advance_row, decode, event_row  # noqa: E402
-from tissue_sim_ros.ros.message_bytes import CloudBytes, SurfaceMarkerBytes, TraceBytes, WrenchBytes  # noqa: E402
+from tissue_sim_ros.ros.messages import conversions as cv  # noqa: E402
+from tissue_sim_ros.ros.loop.trace import COLUMNS, HEADER_SIZE, RESET, advance_row, decode, event_row  # noqa: E402
+from tissue_sim_ros.ros.messages.cdr_bytes import CloudBytes, SurfaceMarkerBytes, TraceBytes, WrenchBytes  # noqa: E402
 
 STAMPS = (0, 7, 1_700_000_000_123_456_789, 2**31 * 1_000_000_000 - 1)
 
@@ -100,7 +100,7 @@ def test_trace_bytes_decode_to_the_trace_message():
 def test_marker_bytes_decode_to_the_marker_message_at_each_stamp_and_state():
     """SurfaceMarkerBytes writes corners and stamp into bytes serialized once: decoded, they are
     the message surface_marker_msg builds object by object."""
-    from tissue_sim_ros.engine.mesh_generators import box_mesh
+    from tissue_sim_ros.engine.mesh.generators import box_mesh
     rng = np.random.default_rng(5)
     mesh = box_mesh((0.02, 0.03, 0.01), (4, 5, 3))
     triangles = mesh.surface_triangles()

@@ -11,8 +11,8 @@ rclpy = pytest.importorskip('rclpy')
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
 
-from tissue_sim_ros.ros import conversions as cv  # noqa: E402
-from tissue_sim_ros.ros.message_yaml import load_example, message_from_dict, message_type  # noqa: E402
+from tissue_sim_ros.ros.messages import conversions as cv  # noqa: E402
+from tissue_sim_ros.ros.messages.from_yaml import load_example, message_from_dict, message_type  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = sorted((ROOT / 'msg_examples').glob('*.yaml'))
@@ -41,7 +41,7 @@ def _by_name(name):
 @pytest.fixture(scope='module')
 def node_facts(tmp_path_factory):
     """What a real node declares: its topics, services and diagnostics keys."""
-    from tissue_sim_ros.engine.scene import Scene
+    from tissue_sim_ros.engine.scene.scene import Scene
     from tissue_sim_ros.ros.node import TissueSimNode
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     ctx = rclpy.Context()

@@ -6,8 +6,8 @@ import time
 import numpy as np
 import pytest
 
-from tissue_sim_ros.engine.needle import NeedleInputError, rotation_matrix, validate_pose
-from tissue_sim_ros.engine.scene import Scene, SceneError
+from tissue_sim_ros.engine.needle.interaction import NeedleInputError, rotation_matrix, validate_pose
+from tissue_sim_ros.engine.scene.scene import Scene, SceneError
 
 DOWN = [1.0, 0.0, 0.0, 0.0]          # needle axis (+z of its frame) along world -z
 E, NU = 16000.0, 0.45
@@ -366,7 +366,7 @@ def test_insert_command_writes_the_csv_and_plot(tmp_path):
 
     import yaml
 
-    from tissue_sim_ros import cli
+    from tissue_sim_ros.cli import app as cli
     from tissue_sim_ros.analysis.insertion import CSV_HEADER
     spec = small_scene(region={'membrane': {'criterion': 'force', 'rupture_force_n': 0.1},
                                'cutting_force_n': 0.2}).spec

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.analysis.insertion import run_insertion
-from tissue_sim_ros.engine.scene import Scene
+from tissue_sim_ros.engine.scene.scene import Scene
 
 COARSE_FAR = ['mesh.divisions=[6,6,5]']          # the default fine zone near the needle, coarser far away
 NO_PUNCTURE = ['regions[0].membrane.rupture_force_n=100']
@@ -85,7 +85,7 @@ def test_the_compiled_inside_step_is_the_general_path_bit_for_bit(shape, integra
     general path runs the same kernels one by one from Python. An insertion through the capsule,
     a hold and the retraction give the same wrench at every tick and the same final tissue state
     either way, and the compiled call did run (on most steps)."""
-    from tissue_sim_ros.engine.needle import NeedleTissue
+    from tissue_sim_ros.engine.needle.interaction import NeedleTissue
     calls = []
     compiled_step = NeedleTissue._inserted_step
 
@@ -120,10 +120,10 @@ def test_engaging_samples_finds_the_hits_a_ray_test_of_every_triangle_finds(seed
     """engage_samples tries, per sample, only the near triangles whose box across the axis holds
     it: the same hits (triangle, barycentric weights) as the ray test against the whole deformed
     surface, on a dented, jittered box under a tilted tip."""
-    from tissue_sim_ros.engine.mesh import surface_triangles
-    from tissue_sim_ros.engine.mesh_generators import box_mesh
-    from tissue_sim_ros.engine.needle_kernels import cell_boxes, first_surface_hit
-    from tissue_sim_ros.engine.needle_tip import engage_samples
+    from tissue_sim_ros.engine.mesh.tetmesh import surface_triangles
+    from tissue_sim_ros.engine.mesh.generators import box_mesh
+    from tissue_sim_ros.engine.needle.kernels import cell_boxes, first_surface_hit
+    from tissue_sim_ros.engine.needle.tip import engage_samples
     rng = np.random.default_rng(seed)
     mesh = box_mesh(size=(0.04, 0.04, 0.02), divisions=(12, 12, 6))
     rest = mesh.rest_positions
@@ -163,9 +163,9 @@ def test_the_near_surface_test_finds_what_testing_every_triangle_finds(seed):
     """near_surface_hit skips triangles whose rest box, grown by the largest displacement, misses
     the segment: on a dented, jittered box, rays from above (hits and misses, some along edges)
     give the same triangle, t and weights as first_surface_hit over every triangle."""
-    from tissue_sim_ros.engine.mesh import surface_triangles
-    from tissue_sim_ros.engine.mesh_generators import box_mesh
-    from tissue_sim_ros.engine.needle_kernels import cell_boxes, first_surface_hit, near_surface_hit
+    from tissue_sim_ros.engine.mesh.tetmesh import surface_triangles
+    from tissue_sim_ros.engine.mesh.generators import box_mesh
+    from tissue_sim_ros.engine.needle.kernels import cell_boxes, first_surface_hit, near_surface_hit
     rng = np.random.default_rng(seed)
     mesh = box_mesh(size=(0.04, 0.04, 0.02), divisions=(10, 10, 5))
     rest = mesh.rest_positions
@@ -197,9 +197,9 @@ def test_the_search_near_the_tip_finds_what_a_search_of_every_element_finds(seed
     on a dented, jittered box the candidates are exactly the elements whose deformed box is in
     reach (numpy over every element), and a point with no walk to start from is found in the
     element locate_point's search of every element finds (points inside, outside, on nodes)."""
-    from tissue_sim_ros.engine.mesh import element_neighbours
-    from tissue_sim_ros.engine.mesh_generators import box_mesh
-    from tissue_sim_ros.engine.needle_kernels import cell_boxes, cells_near, follow_rigid_samples, locate_point
+    from tissue_sim_ros.engine.mesh.tetmesh import element_neighbours
+    from tissue_sim_ros.engine.mesh.generators import box_mesh
+    from tissue_sim_ros.engine.needle.kernels import cell_boxes, cells_near, follow_rigid_samples, locate_point
     rng = np.random.default_rng(seed)
     mesh = box_mesh(size=(0.04, 0.04, 0.02), divisions=(8, 8, 4))
     rest, tetrahedra = mesh.rest_positions, np.ascontiguousarray(mesh.tetrahedra, dtype=np.int64)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.engine.driver import SimulationDriver
-from tissue_sim_ros.engine.scene import Scene, SceneError
+from tissue_sim_ros.engine.scene.scene import Scene, SceneError
 
 MESH = {'generator': 'graded_box', 'divisions': [8, 8, 6], 'fine_size_m': 0.002, 'focus_radius_m': 0.006}
 DOWN = np.array([0.0, 0.0, -1.0])

@@ -31,10 +31,10 @@ from std_srvs.srv import SetBool, Trigger  # noqa: E402
 from visualization_msgs.msg import Marker  # noqa: E402
 
 from conftest import call_service, diag_values, subscribe_node_outputs  # noqa: E402
-from tissue_sim_ros.ros import conversions as cv  # noqa: E402
+from tissue_sim_ros.ros.messages import conversions as cv  # noqa: E402
 from tissue_sim_ros.ros import node as node_mod  # noqa: E402
 from tissue_sim_ros.ros.node_main import make_executor  # noqa: E402
-from tissue_sim_ros.ros.pose_input import BAD_INPUT_KINDS  # noqa: E402
+from tissue_sim_ros.ros.loop.pose_input import BAD_INPUT_KINDS  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DOMAIN_ID = 60 + os.getpid() % 50
@@ -49,7 +49,7 @@ COARSE = {'generator': 'box', 'divisions': [6, 6, 4]}
 
 
 def make_scene():
-    from tissue_sim_ros.engine.scene import Scene
+    from tissue_sim_ros.engine.scene.scene import Scene
     return Scene.from_file(None, mesh=COARSE)
 
 
@@ -292,8 +292,8 @@ def test_unwritable_recording_directory_is_refused(tmp_path):
 
 def node_log(path):
     """(wrench stamps ns, wrench values (k, 6), engine traces) from a node's MCAP log."""
-    from tissue_sim_ros.io.mcap_log import read_log
-    from tissue_sim_ros.ros.engine_trace import decode
+    from tissue_sim_ros.io.mcap import read_log
+    from tissue_sim_ros.ros.loop.trace import decode
     stamps, values, traces = [], [], []
     for m in read_log(path, topics=['/needle/wrench', '/tissue_sim/engine_trace']):
         if m.topic == '/needle/wrench':
@@ -307,9 +307,9 @@ def node_log(path):
 
 def replayed_wrenches(traces, threads, frame='needle'):
     """The wrench each traced tick published, from a fresh scene run through the trace."""
-    from tissue_sim_ros.engine.degradation_ladder import DegradationLadder
+    from tissue_sim_ros.engine.ladder import DegradationLadder
     from tissue_sim_ros.engine.driver import SimulationDriver
-    from tissue_sim_ros.ros.engine_trace import TraceReplayer
+    from tissue_sim_ros.ros.loop.trace import TraceReplayer
     scene = make_scene()
     scene.model.set_threads(threads)
     replayer = TraceReplayer(SimulationDriver(scene, wrench_frame=frame, on_divergence='reset'),
@@ -367,8 +367,8 @@ def test_targets_published_every_tick_recorded_and_in_diagnostics(harness, tmp_p
     """A target under the needle: tissue/targets every tick (world frame, finite), pushed down by
     the needle, the same messages in the log; the diagnostics' tip distance, lateral miss and
     distance ahead of the tip satisfy distance^2 = miss^2 + ahead^2 (one tick's figures)."""
-    from tissue_sim_ros.engine.scene import Scene
-    from tissue_sim_ros.io.mcap_log import read_log
+    from tissue_sim_ros.engine.scene.scene import Scene
+    from tissue_sim_ros.io.mcap import read_log
     scene = Scene.from_file(None, mesh=COARSE, targets=[{'name': 'tumour', 'position_m': [0.002, 0.0, -0.012]}])
     h = harness(scene=scene, **{'recording.directory': str(tmp_path)})
     start = h.scene.needle_pose[0]
@@ -559,7 +559,7 @@ def test_surface_is_latched_and_follows_topology(harness):
 
 def test_recording_holds_every_message_in_and_out(harness, tmp_path):
     from rosbags.highlevel import AnyReader
-    from tissue_sim_ros.io import mcap_log as ml
+    from tissue_sim_ros.io import mcap as ml
     h = harness(**{'recording.directory': str(tmp_path), 'recording.chunk_interval_s': 0.2,
                    'recording.nodes_rate_hz': 50.0})
     path = h.node.recording_path
@@ -649,7 +649,7 @@ def test_node_insertion_gives_the_axial_force_curve_of_tissue_sim_insert(harness
     tick's wrench: with sim time the node is lock-step (each tick waits until the engine reached
     it), so a busy machine cannot make the node drop time."""
     from tissue_sim_ros.analysis.insertion import run_insertion
-    from tissue_sim_ros.engine.scene import Scene
+    from tissue_sim_ros.engine.scene.scene import Scene
     speed, travel, period = 0.02, 0.024, 0.02  # 9 mm to the surface, 15 mm in, and back
     reference = run_insertion(Scene.from_file(), speed, travel, retract=True, tick=period)
     h = harness(Scene.from_file(), use_sim_time=True, **{'wrench.frame_id': 'world'})
@@ -714,7 +714,7 @@ def test_a_malformed_pose_payload_is_skipped_counted_and_the_log_stays_readable(
     message cut short) killed the node (an RMWError from deserialize_message) and then the log's
     own reader. Now it is counted as malformed, the node ticks on, and the log reads back."""
     from rclpy.serialization import serialize_message
-    from tissue_sim_ros.io import mcap_log as ml
+    from tissue_sim_ros.io import mcap as ml
     h = harness(**{'recording.directory': str(tmp_path), 'diagnostics_rate_hz': 0.01})
     if payload is None:  # a valid message cut short
         good = PoseStamped()
@@ -737,7 +737,7 @@ def test_a_malformed_pose_payload_is_skipped_counted_and_the_log_stays_readable(
 def test_the_cloud_is_recorded_at_its_own_rate(harness, tmp_path):
     """tissue/nodes is most of a log's bytes: recorded every k-th tick (recording.nodes_rate_hz)
     while it is published every tick."""
-    from tissue_sim_ros.io import mcap_log as ml
+    from tissue_sim_ros.io import mcap as ml
     h = harness(**{'recording.directory': str(tmp_path), 'recording.nodes_rate_hz': 10.0})
     h.wait_for('nodes', 60)
     h.node.close()

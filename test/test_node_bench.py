@@ -12,8 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tissue_sim_ros.analysis import node_bench, node_bench_figures
-from tissue_sim_ros.analysis.background_load import SPIN, BackgroundLoad
+from tissue_sim_ros.bench import node_bench
+from tissue_sim_ros.bench import node_bench_figures
+from tissue_sim_ros.bench.background_load import SPIN, BackgroundLoad
 
 MS = 1_000_000  # ns
 
@@ -127,7 +128,7 @@ def test_thread_groups_by_os_name_with_the_main_thread_as_the_executor():
 
 def test_a_node_that_refuses_its_parameters_is_one_error_naming_the_reason(tmp_path):
     pytest.importorskip('rclpy')
-    from tissue_sim_ros.ros.node_process import NodeProcess, NodeProcessError
+    from tissue_sim_ros.ros.clients.node_process import NodeProcess, NodeProcessError
     with NodeProcess(['publish_rate_hz:=-5.0'], tmp_path / 'node.log') as node:
         assert node.env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
         assert node.env['ROS_DOMAIN_ID'] == str(node.domain_id) != os.environ.get('ROS_DOMAIN_ID')
@@ -223,7 +224,7 @@ def _stand_in_node():
     from geometry_msgs.msg import WrenchStamped
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import PointCloud2
-    from tissue_sim_ros.ros.node_process import client_context, private_domain_id, private_ros_env
+    from tissue_sim_ros.ros.clients.node_process import client_context, private_domain_id, private_ros_env
     domain = private_domain_id()
     reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
     with client_context(domain) as context:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tissue_sim_ros.analysis import node_bench_paired as paired
+from tissue_sim_ros.bench import node_bench_paired as paired
 
 ROOT = Path(__file__).resolve().parents[1]
 needs_git = pytest.mark.skipif(not (ROOT / '.git').exists(), reason='needs a git checkout')

@@ -18,7 +18,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 from test_node import (_private_ros, harness, make_scene, publish_at_stamps,  # noqa: E402,F401 - fixtures
                        straight_descent)
 from tissue_sim_ros import SimulationDiverged  # noqa: E402
-from tissue_sim_ros.ros import conversions as cv  # noqa: E402
+from tissue_sim_ros.ros.messages import conversions as cv  # noqa: E402
 
 
 def test_engine_refusal_holds_the_needle_and_is_counted(harness):
@@ -123,12 +123,12 @@ def test_a_slow_engine_costs_no_tick_and_the_ladder_steps_down_and_back_up(harne
     the substeps: the thresholds do not change a sleep per substep), and back up once the
     engine is fast again.
     The ladder's timings are shortened (the same rules, quicker) to keep the test short."""
-    from tissue_sim_ros.ros import engine_pacing
+    from tissue_sim_ros.ros.loop import pacing as engine_pacing
     monkeypatch.setattr(engine_pacing, 'DOWN_AFTER_S', 0.5)
     monkeypatch.setattr(engine_pacing, 'UP_AFTER_S', 1.0)
     monkeypatch.setattr(engine_pacing, 'SETTLE_S', 0.5)
     monkeypatch.setattr(engine_pacing, 'START_GRACE_S', 0.5)
-    from tissue_sim_ros.engine.scene import Scene
+    from tissue_sim_ros.engine.scene.scene import Scene
     slow = {'on': True}
     # finer than make_scene's box: its 8.9 ms step x4 is past the mass rungs' cap (no mass rung)
     scene = Scene.from_file(None, mesh={'generator': 'box', 'divisions': [10, 10, 8]})

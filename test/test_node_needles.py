@@ -19,7 +19,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 
-from tissue_sim_ros.engine.scene import Scene  # noqa: E402
+from tissue_sim_ros.engine.scene.scene import Scene  # noqa: E402
 from tissue_sim_ros.ros.node import TissueSimNode, needle_topics  # noqa: E402
 from tissue_sim_ros.ros.node_main import make_executor  # noqa: E402
 

@@ -17,8 +17,8 @@ from trajectory_msgs.msg import JointTrajectory  # noqa: E402
 
 from test_node import DOMAIN_ID, DOWN, harness, make_scene  # noqa: E402,F401 - the fixture
 from tissue_sim_ros.engine.prediction import check_path, predict  # noqa: E402
-from tissue_sim_ros.ros.node_predictions import path_msg  # noqa: E402
-from tissue_sim_ros.ros.topics import PLAN_QOS  # noqa: E402
+from tissue_sim_ros.ros.predictions import path_msg  # noqa: E402
+from tissue_sim_ros.ros.messages.topics import PLAN_QOS  # noqa: E402
 
 SPEED = 0.004
 STEP_S = 0.05
@@ -135,7 +135,7 @@ def test_the_readme_planner_gets_its_answer(harness, monkeypatch, capfd):
 
 
 def test_max_error_runs_predictions_on_the_cheapest_rung_within_it(harness):
-    from tissue_sim_ros.engine.degradation_ladder import DegradationLadder
+    from tissue_sim_ros.engine.ladder import DegradationLadder
     h = harness(**{'prediction.workers': 1, 'prediction.threads': 1, 'prediction.max_error': 1.0})
     ladder = h.node.engine.ladder
     deadline = time.monotonic() + 60

@@ -31,11 +31,11 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
 from conftest import call_service, diag_values, subscribe_node_outputs  # noqa: E402
-from tissue_sim_ros.io import mcap_log as ml  # noqa: E402
-from tissue_sim_ros.ros import conversions as cv  # noqa: E402
-from tissue_sim_ros.ros.drive import insertion_trajectory, scene_start  # noqa: E402
+from tissue_sim_ros.io import mcap as ml  # noqa: E402
+from tissue_sim_ros.ros.messages import conversions as cv  # noqa: E402
+from tissue_sim_ros.ros.clients.drive import insertion_trajectory, scene_start  # noqa: E402
 from tissue_sim_ros.ros.node import PARAMETERS  # noqa: E402
-from tissue_sim_ros.ros.pose_input import BAD_INPUT_KINDS  # noqa: E402
+from tissue_sim_ros.ros.loop.pose_input import BAD_INPUT_KINDS  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent

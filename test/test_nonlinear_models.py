@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import tissue_sim_ros as ts
-from tissue_sim_ros.engine.reference import all_shape_gradients, picinbono_forces
+from tissue_sim_ros.engine.model.reference import all_shape_gradients, picinbono_forces
 
 
 def _rotation(axis, angle):

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from tissue_sim_ros.os_thread_name import name_os_thread, os_thread_name
+from tissue_sim_ros.system.thread_names import name_os_thread, os_thread_name
 
 
 def test_names_are_shortened_to_what_linux_keeps():

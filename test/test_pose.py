@@ -5,12 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.engine.needle_parameters import NeedleGeometry
-from tissue_sim_ros.engine.pose import (DEFAULT_MAX_JUMP_M, DEFAULT_MAX_JUMP_RAD, QUATERNION_NORM_TOLERANCE,
+from tissue_sim_ros.engine.needle.parameters import NeedleGeometry
+from tissue_sim_ros.engine.needle.pose import (DEFAULT_MAX_JUMP_M, DEFAULT_MAX_JUMP_RAD, QUATERNION_NORM_TOLERANCE,
                                         NeedleInputError, needle_axis, pose_jump, rotation_angle,
                                         rotation_matrix, slerp, unit_quaternion, validate_pose)
-from tissue_sim_ros.ros.drive import _axis
-from tissue_sim_ros.ros.pose_input import PoseInputLimits
+from tissue_sim_ros.ros.clients.drive import _axis
+from tissue_sim_ros.ros.loop.pose_input import PoseInputLimits
 
 
 def hamilton(a, b):

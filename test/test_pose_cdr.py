@@ -8,8 +8,8 @@ import pytest
 from geometry_msgs.msg import PoseStamped
 from rclpy.serialization import deserialize_message, serialize_message
 
-from tissue_sim_ros.ros.conversions import pose_from_msg
-from tissue_sim_ros.ros.pose_cdr import decode_pose, pose_from_cdr
+from tissue_sim_ros.ros.messages.conversions import pose_from_msg
+from tissue_sim_ros.ros.messages.pose_cdr import decode_pose, pose_from_cdr
 
 
 def _message(frame_id, sec, nanosec, values):

@@ -12,8 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.engine.scene import Scene
-from tissue_sim_ros.ros.pose_input import BAD_INPUT_KINDS, RESYNC_STEP_MAX_S, PoseInput, PoseInputLimits
+from tissue_sim_ros.engine.scene.scene import Scene
+from tissue_sim_ros.ros.loop.pose_input import BAD_INPUT_KINDS, RESYNC_STEP_MAX_S, PoseInput, PoseInputLimits
 from tissue_sim_ros.units import NS_PER_S
 
 DOWN = np.array([1.0, 0.0, 0.0, 0.0])  # needle axis (base +z) along world -z

@@ -14,10 +14,10 @@ import pytest
 
 from tissue_sim_ros.analysis.predict import main as predict_main, read_path_csv
 from tissue_sim_ros.engine.driver import SimulationDriver
-from tissue_sim_ros.engine.pose import NeedleInputError
+from tissue_sim_ros.engine.needle.pose import NeedleInputError
 from tissue_sim_ros.engine.prediction import (WRENCH_COLUMNS, check_path, predict, predict_snapshot,
                                               scene_snapshot, write_snapshot)
-from tissue_sim_ros.engine.scene import Scene
+from tissue_sim_ros.engine.scene.scene import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
 COARSE = {'generator': 'box', 'divisions': [6, 6, 4]}
@@ -157,7 +157,7 @@ def test_predict_with_a_max_error_runs_on_the_cheapest_rung_within_it(tmp_path, 
     """--max-error: the rung the ladder's probe measured within it (the probe's errors, cached in
     a directory of the test's; a mass rung here), fewer substeps for the same path, and the answer
     within about that error of the live settings' (the probe is another path: twice it)."""
-    from tissue_sim_ros.engine.degradation_ladder import DegradationLadder
+    from tissue_sim_ros.engine.ladder import DegradationLadder
     from tissue_sim_ros.engine.ladder_probe import probe_errors
     scene = _scene()
     stamps, positions, orientations = _down(scene, 0.0, 2.4)
@@ -181,7 +181,7 @@ def test_predict_with_a_max_error_runs_on_the_cheapest_rung_within_it(tmp_path, 
 
 
 def test_a_path_csv_without_a_column_or_with_a_word_is_refused_by_line(tmp_path):
-    from tissue_sim_ros.io.trial import DataError
+    from tissue_sim_ros.io.trials.trial import DataError
     bad = tmp_path / 'bad.csv'
     bad.write_text('t,x,y,z,qx,qy,qz\n0,0,0,0.159,1,0,0\n')
     with pytest.raises(DataError, match="no column 'qw'"):
@@ -202,8 +202,8 @@ def test_the_shipped_candidate_path_starts_at_the_default_needle():
 def test_the_prediction_example_is_what_the_engine_answers():
     """msg_examples/plan_prediction.yaml answers plan_candidate.yaml on the default scene."""
     rclpy = pytest.importorskip('rclpy')  # noqa: F841 - message_yaml needs the message types
-    from tissue_sim_ros.ros.message_yaml import load_example
-    from tissue_sim_ros.ros.node_predictions import path_arrays
+    from tissue_sim_ros.ros.messages.from_yaml import load_example
+    from tissue_sim_ros.ros.predictions import path_arrays
     request = load_example(ROOT / 'msg_examples' / 'plan_candidate.yaml')['messages']['message']
     answer = load_example(ROOT / 'msg_examples' / 'plan_prediction.yaml')['messages']['message']
     scene = Scene.from_file(None, targets=[{'name': 'tumour', 'position_m': [0.002, 0.0, -0.015]}])

@@ -1,4 +1,4 @@
-"""Stopping process pools now (tissue_sim_ros.process_pools): the node's prediction workers and
+"""Stopping process pools now (tissue_sim_ros.system.process_pools): the node's prediction workers and
 the analyses' runner. Truth: what concurrent.futures does without it (the exit, or the failed
 batch, waits for the running item), measured in the same run."""
 import os
@@ -9,11 +9,11 @@ import time
 
 import pytest
 
-from tissue_sim_ros.analysis.job_runner import run_jobs
+from tissue_sim_ros.analysis.jobs import run_jobs
 
 SCRIPT = '''import multiprocessing, os, sys, time
 from concurrent.futures import ProcessPoolExecutor
-from tissue_sim_ros.process_pools import stop_pool
+from tissue_sim_ros.system.process_pools import stop_pool
 if __name__ == "__main__":
     pool = ProcessPoolExecutor(1, multiprocessing.get_context("spawn"))
     assert pool.submit(os.getpid).result(timeout=60) > 0      # the worker is up
@@ -61,7 +61,7 @@ def test_a_failed_job_ends_the_batch_without_waiting_for_the_others(own_pool):
     """One job fails at once (time.sleep of a string) while another sleeps 60 s: run_jobs raises
     the failure within seconds, in its own pool and in a WorkerPool kept open across batches,
     instead of waiting for the sleeper at the pool's shutdown."""
-    from tissue_sim_ros.analysis.job_runner import WorkerPool
+    from tissue_sim_ros.analysis.jobs import WorkerPool
     t0 = time.monotonic()
     with pytest.raises(TypeError):
         if own_pool:

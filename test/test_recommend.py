@@ -1,12 +1,13 @@
-"""tissue-sim recommend (analysis/recommend.py): the choice rule against the rows, and the
+"""tissue-sim recommend (analysis/charting/recommend.py): the choice rule against the rows, and the
 recommended scene's error measured afresh within the tolerance."""
 import json
 
 import pytest
 import yaml
 
-from tissue_sim_ros.analysis import chart, recommend
-from tissue_sim_ros.engine.scene import Scene
+from tissue_sim_ros.analysis.charting import chart
+from tissue_sim_ros.analysis.charting import recommend
+from tissue_sim_ros.engine.scene.scene import Scene
 
 MEDIUM = chart.MESHES['medium']
 
@@ -65,8 +66,8 @@ def test_recommended_scene_measured_afresh_within_tolerance(tmp_path):
 def test_model_auto_uses_the_cached_recommendation(tmp_path, monkeypatch):
     """`model: auto`: the scene is the recommendation's (its study stood in for here by one that
     picks the linear model on the medium mesh), found once and then read from the cache."""
-    import tissue_sim_ros.user_cache
-    monkeypatch.setattr(tissue_sim_ros.user_cache, 'user_cache_dir', lambda name: str(tmp_path / 'cache' / name))
+    import tissue_sim_ros.system.user_cache
+    monkeypatch.setattr(tissue_sim_ros.system.user_cache, 'user_cache_dir', lambda name: str(tmp_path / 'cache' / name))
     calls = []
 
     def study(scene_file, sets, *, tolerance, out, **options):

@@ -1,4 +1,4 @@
-"""Stress relaxation (Prony series on the deviatoric stress, engine/relaxation.py): a uniaxial hold
+"""Stress relaxation (Prony series on the deviatoric stress, engine/model/relaxation.py): a uniaxial hold
 against the analytic standard-linear-solid answer, no decay without it, the energy a strain cycle
 dissipates against the Maxwell branch's own ODE, objectivity under rigid rotation, the scene keys,
 and a needle held in the default scene.
@@ -16,9 +16,9 @@ from scipy.optimize import curve_fit
 
 import tissue_sim_ros as ts
 from tissue_sim_ros.analysis.insertion import run_insertion
-from tissue_sim_ros.engine.relaxation import PronySeries
-from tissue_sim_ros.engine.scene import Scene
-from tissue_sim_ros.engine.scene_schema import SCHEMA, SceneError, apply_schema
+from tissue_sim_ros.engine.model.relaxation import PronySeries
+from tissue_sim_ros.engine.scene.scene import Scene
+from tissue_sim_ros.engine.scene.schema import SCHEMA, SceneError, apply_schema
 
 SIDE = 0.01                        # block edge [m]
 MATERIAL = ts.Material(young_modulus=5e3, poisson_ratio=0.3, density=1000.0)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tissue_sim_ros.analysis.repeat_statistics import (ForceCurve, common_grid, mean_and_spread,
+from tissue_sim_ros.analysis.compare.repeat_statistics import (ForceCurve, common_grid, mean_and_spread,
                                                        nearest_speed_baseline, noise_floor_nrmse)
-from tissue_sim_ros.io.trial import Trial
+from tissue_sim_ros.io.trials.trial import Trial
 
 SPEED, DEPTH, HOLD_S, REST_S = 2e-3, 20e-3, 1.0, 0.5
 

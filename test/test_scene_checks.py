@@ -1,7 +1,7 @@
 """Scene values refused at load, each naming its path in the scene, the value and the bound."""
 import pytest
 
-from tissue_sim_ros.engine.scene import Scene, SceneError
+from tissue_sim_ros.engine.scene.scene import Scene, SceneError
 
 COARSE = {'generator': 'box', 'divisions': [6, 6, 4]}
 
@@ -43,7 +43,7 @@ def test_a_scene_file_that_is_not_a_mapping_is_refused_by_name(tmp_path):
 def test_set_overrides_reach_the_scene_as_the_file_would():
     """--set KEY=VALUE: the same scene as writing the value in the file (the keys compared, and
     the model built from them), regions picked by index or by name."""
-    from tissue_sim_ros.engine.scene_overrides import apply_overrides
+    from tissue_sim_ros.engine.scene.keys import apply_overrides
     regions = [{'name': 'liver'}, {'name': 'capsule', 'select': {'above_z_m': -0.002}}]
     by_set = Scene.from_file(None, mesh=COARSE, regions=regions, sets=[
         'regions[capsule].membrane.rupture_force_n=2.1', 'regions[0].young_modulus_pa=20000',

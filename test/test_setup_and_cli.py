@@ -22,7 +22,7 @@ def test_readme_python_example_runs():
 
 
 def test_cli_version_and_help():
-    from tissue_sim_ros import cli
+    from tissue_sim_ros.cli import app as cli
     with pytest.raises(SystemExit) as version:
         cli.main(['--version'])
     assert version.value.code == 0
@@ -35,9 +35,9 @@ def test_cli_version_and_help():
 def test_cli_reports_a_bad_scene_and_a_divergence_in_one_line(tmp_path, capsys, monkeypatch):
     """A scene with an unknown key, and a run whose simulation diverges: one error line naming
     it and exit status 2, no traceback."""
-    from tissue_sim_ros import cli
+    from tissue_sim_ros.cli import app as cli
     from tissue_sim_ros.analysis import insertion
-    from tissue_sim_ros.engine.solver import SimulationDiverged
+    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
     bad = tmp_path / 'bad.yaml'
     bad.write_text('needle:\n  diameter_mm: 2.4\n')
     assert cli.main(['insert', '--scene', str(bad), '--out', str(tmp_path)]) == 2
@@ -55,7 +55,7 @@ def test_insert_without_a_puncture_says_so_instead_of_nan(tmp_path, capsys):
     """The default scene's needle starts 9 mm above the surface: 12 mm of travel indents the
     capsule without puncturing it. The comparison with the bovine liver says there is no puncture
     to compare, not '+nan mm and +nan N off'."""
-    from tissue_sim_ros import cli
+    from tissue_sim_ros.cli import app as cli
     assert cli.main(['insert', '--travel-mm', '12', '--speed-mm-s', '10', '--set', 'mesh.fine_size_m=0.003',
                      '--set', 'mesh.divisions=[6,6,5]', '--out', str(tmp_path)]) == 0
     out = capsys.readouterr().out
@@ -111,7 +111,7 @@ def test_bootstrap_names_what_it_needs_when_no_312(tmp_path):
 
 
 def test_compress_demo_writes_plot_and_tracks_E_A_strain(tmp_path, capsys):
-    from tissue_sim_ros import cli
+    from tissue_sim_ros.cli import app as cli
     cli.main(['compress', '--out', str(tmp_path), '--strain', '0.03', '--speed-mm-s', '5'])
     assert (tmp_path / 'compression.png').stat().st_size > 10_000
     out = capsys.readouterr().out
@@ -123,7 +123,7 @@ def test_compress_demo_writes_plot_and_tracks_E_A_strain(tmp_path, capsys):
 def _error_line(capsys, argv):
     """Run ``tissue-sim argv`` in this process; the one stderr line it printed, after checking
     exit status 2 and no traceback."""
-    from tissue_sim_ros import cli
+    from tissue_sim_ros.cli import app as cli
     try:
         status = cli.main(argv)
     except SystemExit as exc:  # argparse refusing a value exits from parse_args

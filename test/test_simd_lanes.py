@@ -5,11 +5,12 @@ import numpy as np
 import pytest
 from numba import njit
 
-from tissue_sim_ros.engine import forces, simd_lanes
-from tissue_sim_ros.engine.forces import BLOCK, _at
-from tissue_sim_ros.engine.material import Material, MeanRatioLaw, Viscosity
-from tissue_sim_ros.engine.mesh_generators import box_mesh
-from tissue_sim_ros.engine.model import TensorMassModel
+from tissue_sim_ros.engine.model import kernels as forces
+from tissue_sim_ros.engine.model import simd_lanes
+from tissue_sim_ros.engine.model.kernels import BLOCK, _at
+from tissue_sim_ros.engine.model.material import Material, MeanRatioLaw, Viscosity
+from tissue_sim_ros.engine.mesh.generators import box_mesh
+from tissue_sim_ros.engine.model.tensor_mass import TensorMassModel
 
 N_NODES = 50
 N_ELEMENTS = 5 * BLOCK

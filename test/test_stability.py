@@ -1,4 +1,4 @@
-"""tissue-sim stability (analysis/stability.py): the measured largest stable step against the
+"""tissue-sim stability (analysis/charting/stability.py): the measured largest stable step against the
 solver's estimate, every induced failure caught or survived with no NaN, and the outputs and
 resume of the command."""
 import csv
@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from tissue_sim_ros.analysis import stability
+from tissue_sim_ros.analysis.charting import stability
 
 
 def _job(**selection):

@@ -12,7 +12,7 @@ import numpy as np
 
 from conftest import static_solve
 from tissue_sim_ros.engine.driver import SimulationDriver
-from tissue_sim_ros.engine.scene import Scene
+from tissue_sim_ros.engine.scene.scene import Scene
 
 MESH = {'generator': 'graded_box', 'divisions': [8, 8, 6], 'fine_size_m': 0.002, 'focus_radius_m': 0.006}
 LINEAR = {'geometric': False, 'physical': {'law': 'none'}, 'viscosity_mu_pa_s': 0.0,

@@ -1,4 +1,4 @@
-"""Targets carried by the tissue (engine/targets.py): exact under an affine displacement, the tip
+"""Targets carried by the tissue (engine/scene/targets.py): exact under an affine displacement, the tip
 distance and lateral miss against their definitions, refusals by name, and insert's columns."""
 import csv
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.analysis.insertion import run_insertion, target_columns, write_csv
-from tissue_sim_ros.engine.scene import Scene, SceneError
+from tissue_sim_ros.engine.scene.scene import Scene, SceneError
 
 COARSE = ['mesh.fine_size_m=0.003', 'mesh.divisions=[6,6,5]']
 TARGETS = 'targets=[{name: tumour, position_m: [0.002, 0.0, -0.015]}, {name: fiducial, position_m: [0.012, -0.007, -0.031]}]'

@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from tissue_sim_ros.ros.tick_thread import TickThread
+from tissue_sim_ros.ros.loop.tick_thread import TickThread
 
 PERIOD = 0.01
 

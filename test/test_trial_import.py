@@ -9,10 +9,10 @@ import sys
 import numpy as np
 import pytest
 
-from tissue_sim_ros.io.data_spec_keys import DataSpecError
-from tissue_sim_ros.io.measurement_units import UnitError, to_si, unit_factor
-from tissue_sim_ros.io.text_trials import read_text_trial
-from tissue_sim_ros.io.trial import DataError
+from tissue_sim_ros.io.trials.data_spec_keys import DataSpecError
+from tissue_sim_ros.io.trials.measurement_units import UnitError, to_si, unit_factor
+from tissue_sim_ros.io.trials.text_files import read_text_trial
+from tissue_sim_ros.io.trials.trial import DataError
 
 # Independent definitions: standard gravity, the avoirdupois pound, the inch.
 G0 = 9.80665
@@ -251,7 +251,7 @@ def test_unknown_unit_in_column_options_names_the_key(tmp_path):
 
 def test_io_modules_import_no_numba_and_no_rclpy():
     code = ('import sys\n'
-            'import tissue_sim_ros.io.data_spec, tissue_sim_ros.io.mcap_trials\n'
+            'import tissue_sim_ros.io.trials.data_spec, tissue_sim_ros.io.trials.mcap_files\n'
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numba', 'rclpy')))")
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == '[]'
@@ -283,7 +283,7 @@ def write_robot_log(path, *, rotation_xyzw, base_at, force_at, wrench_frame, pos
     from geometry_msgs.msg import PoseStamped, TransformStamped, WrenchStamped
     from rclpy.serialization import serialize_message
 
-    from tissue_sim_ros.io.mcap_writer import McapRecorder
+    from tissue_sim_ros.io.mcap.writer import McapRecorder
     pose_ns = T0_NS + np.arange(101) * 20_000_000
     wrench_ns = T0_NS + 1_300_000 + np.arange(390) * 5_000_000
     header_ns = wrench_ns.copy()
@@ -340,7 +340,7 @@ def downward_log(path, wrench_frame='world', swap_stamps=()):
 
 
 def test_mcap_round_trip_world_frame_wrench(tmp_path):
-    from tissue_sim_ros.io.mcap_trials import read_mcap_trial
+    from tissue_sim_ros.io.trials.mcap_files import read_mcap_trial
     path = tmp_path / 'robot.mcap'
     wrench_ns, forces, torques = downward_log(path, swap_stamps=(10, 200))
     trial = read_mcap_trial(path, WRENCH_TOPIC, POSE_TOPIC)
@@ -353,7 +353,7 @@ def test_mcap_round_trip_world_frame_wrench(tmp_path):
 
 
 def test_mcap_tilted_transform_with_wrench_in_the_needle_frame(tmp_path):
-    from tissue_sim_ros.io.mcap_trials import read_mcap_trial
+    from tissue_sim_ros.io.trials.mcap_files import read_mcap_trial
     half = np.radians(30) / 2  # needle turned 30 deg about y: axis (sin 30, 0, cos 30)
     axis = np.array([np.sin(2 * half), 0.0, np.cos(2 * half)])
     path = tmp_path / 'tilted.mcap'
@@ -370,7 +370,7 @@ def test_mcap_tilted_transform_with_wrench_in_the_needle_frame(tmp_path):
 
 
 def test_mcap_wrench_in_another_frame_is_refused_unless_named(tmp_path):
-    from tissue_sim_ros.io.mcap_trials import read_mcap_trial
+    from tissue_sim_ros.io.trials.mcap_files import read_mcap_trial
     path = tmp_path / 'sensor_frame.mcap'
     wrench_ns, _, _ = downward_log(path, wrench_frame='ft_sensor')
     with pytest.raises(DataError, match="'ft_sensor' is neither the needle frame.*'world'.*"
@@ -384,7 +384,7 @@ def test_mcap_wrench_in_another_frame_is_refused_unless_named(tmp_path):
 
 
 def test_mcap_missing_topic_names_the_topics_the_file_has(tmp_path):
-    from tissue_sim_ros.io.mcap_trials import read_mcap_trial
+    from tissue_sim_ros.io.trials.mcap_files import read_mcap_trial
     path = tmp_path / 'robot.mcap'
     downward_log(path)
     with pytest.raises(DataError) as err:
@@ -402,7 +402,7 @@ def still_log(path, **options):
 
 
 def test_mcap_repeated_stamp_names_the_message_and_log_time_reads_it(tmp_path):
-    from tissue_sim_ros.io.mcap_trials import read_mcap_trial
+    from tissue_sim_ros.io.trials.mcap_files import read_mcap_trial
     path = tmp_path / 'robot.mcap'
     still_log(path, repeat_stamp=100)
     with pytest.raises(DataError) as err:
@@ -414,7 +414,7 @@ def test_mcap_repeated_stamp_names_the_message_and_log_time_reads_it(tmp_path):
 
 
 def test_mcap_nan_wrenches_refused_or_dropped_and_counted(tmp_path):
-    from tissue_sim_ros.io.mcap_trials import read_mcap_trial
+    from tissue_sim_ros.io.trials.mcap_files import read_mcap_trial
     path = tmp_path / 'robot.mcap'
     wrench_ns, _, _ = still_log(path)
     time_s = (wrench_ns - T0_NS) * 1e-9
@@ -430,7 +430,7 @@ def test_mcap_nan_wrenches_refused_or_dropped_and_counted(tmp_path):
 
 
 def test_not_an_mcap_file(tmp_path):
-    from tissue_sim_ros.io.mcap_trials import read_mcap_trial
+    from tissue_sim_ros.io.trials.mcap_files import read_mcap_trial
     text = tmp_path / 'not.mcap'
     text.write_text('time,fz\n')
     with pytest.raises(DataError, match=f'{text}: not an MCAP file'):

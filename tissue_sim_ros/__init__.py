@@ -11,13 +11,14 @@ from importlib import import_module
 
 #: public name -> the engine module that defines it
 _ENGINE_NAMES = {
-    'Material': 'material', 'MaterialError': 'material', 'MeanRatioLaw': 'material',
-    'Viscosity': 'material',
-    'MeshError': 'mesh', 'TetMesh': 'mesh', 'make_mesh': 'mesh', 'mean_ratio': 'mesh',
-    'box_mesh': 'mesh_generators', 'graded_box_mesh': 'mesh_generators',
-    'load_mesh': 'mesh_io', 'save_mesh': 'mesh_io',
-    'TensorMassModel': 'model',
-    'Simulation': 'solver', 'SimulationDiverged': 'solver',
+    'Material': 'model.material', 'MaterialError': 'model.material', 'MeanRatioLaw': 'model.material',
+    'Viscosity': 'model.material',
+    'MeshError': 'mesh.tetmesh', 'TetMesh': 'mesh.tetmesh', 'make_mesh': 'mesh.tetmesh',
+    'mean_ratio': 'mesh.tetmesh',
+    'box_mesh': 'mesh.generators', 'graded_box_mesh': 'mesh.generators',
+    'load_mesh': 'mesh.files', 'save_mesh': 'mesh.files',
+    'TensorMassModel': 'model.tensor_mass',
+    'Simulation': 'solver.explicit', 'SimulationDiverged': 'solver.explicit',
 }
 
 __all__ = [*_ENGINE_NAMES, '__version__']

@@ -18,8 +18,8 @@ def _wrench_and_travel(log):
     """(time s, travel m, axial force N) per wrench: the pose log gives the needle's travel along
     its axis from the first pose (interpolated at the wrench stamps); the wrench is in the needle
     frame (axial = -F_z) or the world frame (axial = -F . axis)."""
-    from tissue_sim_ros.io.mcap_log import read_log
-    from tissue_sim_ros.engine.needle import rotation_matrix
+    from tissue_sim_ros.io.mcap import read_log
+    from tissue_sim_ros.engine.needle.interaction import rotation_matrix
     poses, wrenches = [], []
     for m in read_log(log, topics=['/needle/pose', '/needle/wrench']):
         stamp = m.message.header.stamp.sec + m.message.header.stamp.nanosec / NS_PER_S
@@ -41,7 +41,7 @@ def _wrench_and_travel(log):
 def _drive_node(out, logs, speed_mm_s, depth_mm):
     """Start the node recording into ``logs``, wait for it, run ``tissue-sim drive`` against it,
     stop it with SIGINT; the drive's exit status and the node's."""
-    from tissue_sim_ros.ros.node_process import NodeProcess, console_script
+    from tissue_sim_ros.ros.clients.node_process import NodeProcess, console_script
     print(f'starting tissue_sim_node (recording to {logs}) ...', flush=True)
     with NodeProcess([f'recording.directory:={logs}'], out / 'node.log') as node:
         node.wait_for_subscriber('needle/pose')
@@ -54,9 +54,9 @@ def _drive_node(out, logs, speed_mm_s, depth_mm):
 
 def run(out='out', speed_mm_s=5.0, depth_mm=15.0):
     """Node, scripted insertion, log read back: print the figures, plot, return them."""
-    from tissue_sim_ros.analysis.compare import compare_with_reference
+    from tissue_sim_ros.analysis.compare.compare import compare_with_reference
     from tissue_sim_ros.analysis.force_plot import plot_force_against_travel
-    from tissue_sim_ros.io.mcap_log import summarize_log
+    from tissue_sim_ros.io.mcap import summarize_log
     out = Path(out).resolve()
     logs = out / 'logs'
     logs.mkdir(parents=True, exist_ok=True)

@@ -1,6 +1,6 @@
 """Axial force against needle travel of a run: the plot ``tissue-sim insert`` (a run without ROS)
 and ``tissue-sim demo`` (the node's MCAP log) draw. A comparison with measured data goes through
-``tissue-sim compare``'s machinery (:func:`tissue_sim_ros.analysis.compare.compare_with_reference`)."""
+``tissue-sim compare``'s machinery (:func:`tissue_sim_ros.analysis.compare.compare.compare_with_reference`)."""
 from __future__ import annotations
 
 import numpy as np

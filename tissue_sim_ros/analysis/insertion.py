@@ -133,7 +133,7 @@ def main(scene_file, speed_mm_s, out, *, travel_mm=None, depth_mm=None, hold_s=0
     """The `tissue-sim insert` command: run, print a summary, write insertion.csv and .png.
     ``travel_mm``: tip travel from the start pose, or ``depth_mm``: depth below the surface (the
     scene's start gap added); ``sets``: ``KEY=VALUE`` scene overrides."""
-    from tissue_sim_ros.engine.scene import Scene
+    from tissue_sim_ros.engine.scene.scene import Scene
     stream = sys.stdout if stream is None else stream
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -153,7 +153,7 @@ def main(scene_file, speed_mm_s, out, *, travel_mm=None, depth_mm=None, hold_s=0
     write_csv(result, out / 'insertion.csv')
     plot_insertion(result, out / 'insertion.png', title=f'insertion at {speed_mm_s:g} mm/s, {kind} model')
     if scene_file is None:              # the default scene models the bovine liver: compare with it
-        from tissue_sim_ros.analysis.compare import compare_with_reference
+        from tissue_sim_ros.analysis.compare.compare import compare_with_reference
         comparison = compare_with_reference(result.time, result.depth, result.axial_force,
                                             plot=out / 'insertion_vs_bovine_liver.png')
         e = comparison.errors
@@ -177,7 +177,7 @@ def main(scene_file, speed_mm_s, out, *, travel_mm=None, depth_mm=None, hold_s=0
     print(f'peak axial force {result.axial_force.max():.3f} N; simulated {result.time[-1]:.2f} s in '
           f'{result.wall_time:.2f} s wall: real-time factor {result.real_time_factor:.2f} '
           f'({result.steps} steps)', file=stream)
-    from tissue_sim_ros.engine.inertia_estimate import inertia_line
+    from tissue_sim_ros.engine.solver.inertia_estimate import inertia_line
     print(inertia_line(scene.simulation.mass_scaling, result.inertia_error, result.inertia_rms_n,
                        scene.simulation.integrator), file=stream)
     if scene.simulation.integrator != 'explicit':

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_sim_ros.io.trial import DataError
+from tissue_sim_ros.io.trials.trial import DataError
 
 __all__ = ['PATH_COLUMNS', 'read_path_csv', 'write_prediction', 'main']
 
@@ -114,7 +114,7 @@ def _figures(prediction) -> dict:
 def _rung(scene, max_error) -> dict:
     """Set ``scene`` to its ladder's cheapest rung within ``max_error`` (the probe's errors,
     measured once per scene and cached); its name and error."""
-    from tissue_sim_ros.engine.degradation_ladder import DegradationLadder
+    from tissue_sim_ros.engine.ladder import DegradationLadder
     from tissue_sim_ros.engine.ladder_probe import cached_probe_errors
     ladder = DegradationLadder(scene)
     ladder.predicted_errors = cached_probe_errors(scene, DegradationLadder)
@@ -131,7 +131,7 @@ def main(scene_file, path_file, out, *, sets=(), wrench_frame='needle', max_erro
     ``prediction.max_error`` (the rung and its error in the outputs). Returns the Prediction."""
     from tissue_sim_ros.engine.driver import SimulationDriver
     from tissue_sim_ros.engine.prediction import check_path
-    from tissue_sim_ros.engine.scene import Scene
+    from tissue_sim_ros.engine.scene.scene import Scene
     stream = sys.stdout if stream is None else stream
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

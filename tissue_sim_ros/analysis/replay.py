@@ -75,7 +75,7 @@ class NodeRun:
 
 def read_node_run(path) -> NodeRun:
     """The run of a node log (ReplayError for a log that has no wrench)."""
-    from tissue_sim_ros.io.mcap_reader import read_metadata, summarize_log
+    from tissue_sim_ros.io.mcap.reader import read_metadata, summarize_log
     path = Path(path)
     topics = {name: entry['type'] for name, entry in summarize_log(path)['topics'].items()}
     meta = read_metadata(path)
@@ -114,8 +114,8 @@ class ReplayResult:
 
 def _recorded(run: NodeRun):
     """(wrench stamps, wrenches (k, 6), traces, poses [(stamp, position, orientation)])."""
-    from tissue_sim_ros.io.mcap_reader import read_log
-    from tissue_sim_ros.ros.engine_trace import decode
+    from tissue_sim_ros.io.mcap.reader import read_log
+    from tissue_sim_ros.ros.loop.trace import decode
     stamps, values, traces, poses = [], [], [], []
     wanted = [t for t in (run.wrench_topic, run.trace_topic, run.pose_topic) if t]
     for m in read_log(run.path, topics=wanted):
@@ -136,8 +136,8 @@ def _recorded(run: NodeRun):
 def _node_scene(run: NodeRun, scene_file=None, sets=()):
     """The scene to replay with: the log's own (its keys as the engine used them), or the one
     given, with the ``--set`` overrides; laid out for the node's engine threads."""
-    from tissue_sim_ros.engine.scene import Scene
-    from tissue_sim_ros.engine.scene_overrides import apply_overrides
+    from tissue_sim_ros.engine.scene.scene import Scene
+    from tissue_sim_ros.engine.scene.keys import apply_overrides
     from tissue_sim_ros.ros.parameters import AUTO_THREADS_ELEMENTS
     if scene_file is not None:
         scene = Scene.from_file(scene_file, sets=sets)
@@ -157,9 +157,9 @@ def _node_scene(run: NodeRun, scene_file=None, sets=()):
 
 
 def _replay_trace(run, scene, stamps, traces, every_cloud):
-    from tissue_sim_ros.engine.degradation_ladder import DegradationLadder
+    from tissue_sim_ros.engine.ladder import DegradationLadder
     from tissue_sim_ros.engine.driver import SimulationDriver
-    from tissue_sim_ros.ros.engine_trace import TraceReplayer
+    from tissue_sim_ros.ros.loop.trace import TraceReplayer
     driver = SimulationDriver(scene, wrench_frame=run.wrench_frame,
                               on_divergence=run.parameters.get('on_divergence', 'reset'))
     replayer = TraceReplayer(driver, DegradationLadder(scene), keep_displacement=every_cloud > 0)
@@ -193,7 +193,7 @@ def _motion(traces, poses):
 
 def _replay_motion(run, scene, stamps, traces, poses, every_cloud):
     from tissue_sim_ros.engine.driver import SimulationDriver
-    from tissue_sim_ros.engine.pose import slerp
+    from tissue_sim_ros.engine.needle.pose import slerp
     clock, positions, orientations, resets = _motion(traces, poses)
     if len(clock) == 0:
         raise ReplayError(f'{run.path}: no needle motion in the log (no engine trace, no pose on '
@@ -227,7 +227,7 @@ def _replay_motion(run, scene, stamps, traces, poses, every_cloud):
 def replay(log, scene_file=None, sets=()) -> tuple[ReplayResult, NodeRun, object]:
     """Replay ``log``: exact with its own scene and trace, else by its motion. Returns the
     result, the run and the scene."""
-    from tissue_sim_ros.ros.node_recording import every_kth_tick
+    from tissue_sim_ros.ros.recording import every_kth_tick
     run = read_node_run(log)
     stamps, recorded, traces, poses = _recorded(run)
     scene = _node_scene(run, scene_file, sets)
@@ -249,10 +249,10 @@ def _write_mcap(path: Path, run: NodeRun, result: ReplayResult, scene) -> None:
     """The replayed wrench, clouds and a summary diagnostic, with the node's topics and types."""
     from rclpy.serialization import serialize_message
 
-    from tissue_sim_ros.io.mcap_writer import McapRecorder
-    from tissue_sim_ros.ros import conversions as cv
-    from tissue_sim_ros.ros.message_bytes import CloudBytes, WrenchBytes
-    from tissue_sim_ros.ros.topics import DIAGNOSTICS_QOS, NODES_QOS, WRENCH_QOS
+    from tissue_sim_ros.io.mcap.writer import McapRecorder
+    from tissue_sim_ros.ros.messages import conversions as cv
+    from tissue_sim_ros.ros.messages.cdr_bytes import CloudBytes, WrenchBytes
+    from tissue_sim_ros.ros.messages.topics import DIAGNOSTICS_QOS, NODES_QOS, WRENCH_QOS
     p = run.parameters
     frame_id = p.get('frame_id') or scene.mesh_frame_id
     wrench_frame_id = p.get('wrench.frame_id', 'needle')

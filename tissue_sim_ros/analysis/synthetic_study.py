@@ -23,7 +23,7 @@ def write_synthetic_study(directory, scene_sets, speeds_mm_s, *, travel_m=0.02, 
                           noise_n=0.005, seed=1, scene_file=None) -> Path:
     """Write the study into ``directory``; returns its data description's path."""
     from tissue_sim_ros.analysis.insertion import run_insertion
-    from tissue_sim_ros.engine.scene import Scene
+    from tissue_sim_ros.engine.scene.scene import Scene
     rng = np.random.default_rng(seed)
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)

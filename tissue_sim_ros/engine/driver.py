@@ -19,7 +19,7 @@ checks its health itself. The driver owns:
   needles (``scene.needles``) one wrench per needle (``forces``, ``torques``; ``force`` and
   ``torque`` are the first needle's), ``others`` giving the other needles' poses;
 - the estimate of the force error the mass scaling adds (``inertia``, an
-  :class:`~tissue_sim_ros.engine.inertia_estimate.InertiaEstimate` on the first needle's axis,
+  :class:`~tissue_sim_ros.engine.solver.inertia_estimate.InertiaEstimate` on the first needle's axis,
   updated after every advance, restarted by a reset), which every run reports.
 
 A pose schedule (times, positions, orientations) is followed by :meth:`follow`, which samples the
@@ -32,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tissue_sim_ros.engine.inertia_estimate import InertiaEstimate
-from tissue_sim_ros.engine.needle import NeedleInputError
-from tissue_sim_ros.engine.solver import SimulationDiverged
+from tissue_sim_ros.engine.solver.inertia_estimate import InertiaEstimate
+from tissue_sim_ros.engine.needle.interaction import NeedleInputError
+from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
 
 __all__ = ['ON_DIVERGENCE', 'AdvanceOutcome', 'SimulationDriver', 'Samples']
 

@@ -4,7 +4,7 @@ The probe is a standard indentation: the scene's needle is brought along its axi
 the tissue surface under its tip (quickly: nothing touches yet), then driven at
 ``PROBE_SPEED_M_S`` to ``PROBE_PAST_CONTACT_M`` past the surface, the loading a puncture needs.
 It is run at level 0 and at every lower level of the scene's
-:class:`~tissue_sim_ros.engine.degradation_ladder.DegradationLadder`; a level's error is the RMS
+:class:`~tissue_sim_ros.engine.ladder.DegradationLadder`; a level's error is the RMS
 of its axial force minus level 0's over the slow part, divided by level 0's force range there
 (NRMSE), the measure the comparison with load-cell data uses. A level that diverges scores inf.
 
@@ -33,7 +33,7 @@ _TICK_S = 0.02
 
 def _surface_gap(scene) -> float:
     """Distance [m] from the needle tip, along its axis, to the tissue surface (inf: none)."""
-    from tissue_sim_ros.engine.needle_kernels import first_surface_hit
+    from tissue_sim_ros.engine.needle.kernels import first_surface_hit
     needle = scene.needle
     hit, t, _, _, _ = first_surface_hit(scene.rest_positions, scene.displacement,
                                         needle.surface_triangles, needle.tip.copy(),
@@ -59,7 +59,7 @@ def probe_errors(scene, ladder) -> list[float]:
     """Each level's NRMSE against level 0 over the probe (see the module docstring). Runs on
     ``scene`` (a scene of its own: it is reset and left at level 0 and rest)."""
     from tissue_sim_ros.engine.driver import SimulationDriver
-    from tissue_sim_ros.engine.solver import SimulationDiverged
+    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
     driver = SimulationDriver(scene, on_divergence='raise')
     gap = _surface_gap(scene)
     if not np.isfinite(gap):
@@ -89,7 +89,7 @@ def scene_hash(scene) -> str:
     """A hash of what the probe's result depends on: the scene's keys, its mesh file's bytes,
     the package version, what the rungs change and the probe's constants."""
     from tissue_sim_ros import __version__
-    from tissue_sim_ros.engine.degradation_ladder import RUNG_RULES
+    from tissue_sim_ros.engine.ladder import RUNG_RULES
     digest = hashlib.sha256()
     digest.update(json.dumps(scene.spec, sort_keys=True, default=str).encode())
     if scene.spec['mesh']['generator'] == 'file':
@@ -104,7 +104,7 @@ def scene_hash(scene) -> str:
 def cached_probe_errors(scene, make_ladder, cache_dir=None) -> list[float]:
     """The probe's errors for ``scene``'s ladder, from the cache or measured on a copy of the
     scene (``make_ladder(scene) -> DegradationLadder``) and written there."""
-    from tissue_sim_ros.user_cache import user_cache_dir
+    from tissue_sim_ros.system.user_cache import user_cache_dir
     directory = Path(cache_dir or user_cache_dir('ladder') or '.')
     path = directory / f'{scene_hash(scene)}.json'
     try:

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tissue_sim_ros.engine.pose import NeedleInputError, pose_jump, validate_pose
+from tissue_sim_ros.engine.needle.pose import NeedleInputError, pose_jump, validate_pose
 
 __all__ = ['WRENCH_COLUMNS', 'DEFAULT_MAX_DURATION_S', 'CandidatePath', 'Prediction',
            'prediction_columns', 'check_path', 'scene_snapshot', 'scene_from_snapshot', 'predict',

@@ -5,19 +5,19 @@
     tissue_sim_node --ros-args --params-file config/tissue_sim.yaml
     tissue_sim_node --help            # the parameters, their defaults, ranges and meaning
 
-Node ``tissue_sim``; its topics, their types and QoS: :mod:`tissue_sim_ros.ros.topics`.
+Node ``tissue_sim``; its topics, their types and QoS: :mod:`tissue_sim_ros.ros.messages.topics`.
 
 Predictions: a candidate path on ``plan/candidate`` is simulated from a copy of the current state
 by worker processes, off the live loop, and answered on ``plan/prediction``
-(:mod:`~tissue_sim_ros.ros.node_predictions`).
+(:mod:`~tissue_sim_ros.ros.predictions`).
 
 Services: ``~/reset`` (std_srvs/srv/Trigger) puts the tissue at rest and the needle at its
 initial pose; ``~/pause`` (std_srvs/srv/SetBool) freezes (true) or resumes (false) the
 simulation; while paused the node keeps publishing the frozen state.
 
-Timing: the engine runs on its own thread (:mod:`~tissue_sim_ros.ros.engine_loop`), advancing
+Timing: the engine runs on its own thread (:mod:`~tissue_sim_ros.ros.loop.engine_thread`), advancing
 toward the newest pose within a budget of each tick period (``engine.budget_fraction``). The
-tick (:mod:`~tissue_sim_ros.ros.tick_thread`: its own thread on the monotonic clock, started by
+tick (:mod:`~tissue_sim_ros.ros.loop.tick_thread`: its own thread on the monotonic clock, started by
 the executor's first spin; with ``use_sim_time`` a timer on the node clock) publishes the latest
 state every period, whatever the engine's progress: the tick never waits for the physics. When
 the engine cannot keep real time its lag is reported and bounded (``engine.max_lag_s``; the
@@ -27,7 +27,7 @@ excess is dropped), and the degradation ladder (``engine.ladder``) steps down an
 to rest or held until ``~/reset`` (the last finite wrench republished).
 
 Bad input never stops the node and never reaches a topic as NaN: see ``BAD_INPUT_KINDS`` in
-:mod:`~tissue_sim_ros.ros.pose_input`, plus ``malformed`` (a payload that does not decode as a
+:mod:`~tissue_sim_ros.ros.loop.pose_input`, plus ``malformed`` (a payload that does not decode as a
 PoseStamped); each kind logged once and counted in diagnostics. Input work is bounded: received
 poses are queued as bytes and the engine decodes at most ``MAX_POSES_PER_CYCLE`` of the newest
 per cycle (the rest counted as backlog), so no rate of input can hold up a tick.
@@ -37,7 +37,7 @@ only while the topic has a subscriber (counted by the publisher's matched events
 second with the diagnostics) and, at its own rate, for the log. ``use_sim_time`` is read at
 start; a change at run time is refused.
 
-Recording: see :mod:`~tissue_sim_ros.ros.node_recording`. The file is closed with its summary on a
+Recording: see :mod:`~tissue_sim_ros.ros.recording`. The file is closed with its summary on a
 normal exit, SIGINT and SIGTERM; after SIGKILL only the last chunk is lost.
 """
 from __future__ import annotations
@@ -61,24 +61,24 @@ from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import Marker
 
-from tissue_sim_ros.engine.degradation_ladder import DegradationLadder
+from tissue_sim_ros.engine.ladder import DegradationLadder
 from tissue_sim_ros.engine.driver import SimulationDriver
 from tissue_sim_ros.engine.ladder_probe import cached_probe_errors
-from tissue_sim_ros.ros import conversions as cv
-from tissue_sim_ros.ros.engine_loop import EngineLoop
-from tissue_sim_ros.ros.message_bytes import CloudBytes, SurfaceMarkerBytes, TraceBytes, WrenchBytes
-from tissue_sim_ros.ros.node_diagnostics import NodeStats, diagnostics_statuses
-from tissue_sim_ros.ros.node_predictions import PredictionService
-from tissue_sim_ros.ros.node_targets import targets_msg, targets_status
-from tissue_sim_ros.ros.node_recording import (every_kth_tick, node_log_topics, open_node_log,
+from tissue_sim_ros.ros.messages import conversions as cv
+from tissue_sim_ros.ros.loop.engine_thread import EngineLoop
+from tissue_sim_ros.ros.messages.cdr_bytes import CloudBytes, SurfaceMarkerBytes, TraceBytes, WrenchBytes
+from tissue_sim_ros.ros.diagnostics import NodeStats, diagnostics_statuses
+from tissue_sim_ros.ros.predictions import PredictionService
+from tissue_sim_ros.ros.targets import targets_msg, targets_status
+from tissue_sim_ros.ros.recording import (every_kth_tick, node_log_topics, open_node_log,
                                                record_service_call)
 from tissue_sim_ros.ros.parameter_declaration import declare_parameters
 from tissue_sim_ros.ros.parameters import (NODE_NAME, PARAMETERS, ConfigError, NodeConfig,
                                            help_text as _help_text, load_scene, make_config)
-from tissue_sim_ros.ros.pose_input import PoseInput
-from tissue_sim_ros.ros.pose_cdr import decode_pose
-from tissue_sim_ros.ros.tick_thread import TickThread
-from tissue_sim_ros.ros.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODES_QOS, PLAN_QOS,
+from tissue_sim_ros.ros.loop.pose_input import PoseInput
+from tissue_sim_ros.ros.messages.pose_cdr import decode_pose
+from tissue_sim_ros.ros.loop.tick_thread import TickThread
+from tissue_sim_ros.ros.messages.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODES_QOS, PLAN_QOS,
                                        SURFACE_QOS, WRENCH_QOS, pose_qos)
 from tissue_sim_ros.units import NS_PER_S
 
@@ -456,7 +456,7 @@ class TissueSimNode(Node):
                                    f'{self.predictions.refused} with no points')
         if self.engine is not None:
             self.engine.stop()
-            from tissue_sim_ros.engine.inertia_estimate import inertia_line
+            from tissue_sim_ros.engine.solver.inertia_estimate import inertia_line
             inertia = self.engine.driver.inertia
             simulation = self.engine.driver.scene.simulation
             self.get_logger().info(inertia_line(simulation.mass_scaling, inertia.error, inertia.rms_n,

@@ -12,8 +12,8 @@ from typing import Any
 
 import yaml
 
-from tissue_sim_ros.engine.pose import DEFAULT_MAX_JUMP_M, DEFAULT_MAX_JUMP_RAD, QUATERNION_NORM_TOLERANCE
-from tissue_sim_ros.ros.pose_input import PoseInputLimits
+from tissue_sim_ros.engine.needle.pose import DEFAULT_MAX_JUMP_M, DEFAULT_MAX_JUMP_RAD, QUATERNION_NORM_TOLERANCE
+from tissue_sim_ros.ros.loop.pose_input import PoseInputLimits
 
 __all__ = ['AUTO_THREADS_ELEMENTS', 'NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'make_config', 'load_scene',
            'parameters_yaml', 'help_text']
@@ -253,7 +253,7 @@ def help_text(summary: str = '') -> str:
 
 def load_scene(scene_file: str):
     """The scene of ``scene_file`` (empty: the packaged default), or ConfigError naming it."""
-    from tissue_sim_ros.engine.scene import Scene, default_scene_path
+    from tissue_sim_ros.engine.scene.scene import Scene, default_scene_path
     path = scene_file or default_scene_path()
     try:
         return Scene.from_file(path)

@@ -1,0 +1,127 @@
+"""The parameters a calibration fits: ``--fit KEY=LOW:HIGH[:log]``, and where each acts.
+
+KEY is any scene key ``--set`` accepts (``regions[liver].young_modulus_pa``,
+``model.physical.mu_amplitude``, ``regions[0].membrane.rupture_force_n``). The search works on
+unit coordinates u in [0, 1] per key: ``value = low + u (high - low)``, or with ``log``
+``value = low (high / low)^u`` (for keys that span decades: moduli, viscosities), so one
+finite-difference step means the same relative change for every key.
+
+Each key belongs to the phase of the curve where it acts, which the staged start fits it on
+(:data:`PHASE_RULES`, first match on the key's name): stiffness and law coefficients on the
+loading before the first puncture, the puncture threshold on the peaks, cutting and insertion
+friction on the steady part after the puncture, retraction friction on the retraction,
+relaxation on the hold.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+
+__all__ = ['FittedKey', 'PHASE_RULES', 'parse_fit', 'phase_of', 'read_key', 'overrides_for', 'yaml_number']
+
+#: (pattern on the key, the phase it is fitted on in the staged start); the first match wins
+PHASE_RULES = (
+    (r'membrane|rupture|puncture', 'puncture'),
+    (r'friction\.retraction', 'retraction'),
+    (r'cutting|friction', 'inserted'),
+    (r'relaxation|prony', 'hold'),
+    (r'.', 'loading'),
+)
+
+
+def phase_of(key: str) -> str:
+    """The phase of the curve where ``key`` acts (see :data:`PHASE_RULES`)."""
+    return next(phase for pattern, phase in PHASE_RULES if re.search(pattern, key))
+
+
+@dataclass(frozen=True)
+class FittedKey:
+    """A fitted scene key, its bounds and its scale."""
+
+    key: str
+    low: float
+    high: float
+    log: bool = False
+
+    @property
+    def phase(self) -> str:
+        return phase_of(self.key)
+
+    def value(self, u: float) -> float:
+        """The value at unit coordinate ``u`` (clipped to [0, 1])."""
+        u = min(1.0, max(0.0, float(u)))
+        if self.log:
+            return self.low * (self.high / self.low) ** u
+        return self.low + u * (self.high - self.low)
+
+    def unit(self, value: float) -> float:
+        """The unit coordinate of ``value`` (clipped to the bounds)."""
+        value = min(self.high, max(self.low, float(value)))
+        if self.log:
+            return math.log(value / self.low) / math.log(self.high / self.low)
+        return (value - self.low) / (self.high - self.low)
+
+    def value_per_unit(self, u: float) -> float:
+        """d value / d u at ``u``: converts a unit-coordinate standard error to the key's unit."""
+        if self.log:
+            return self.value(u) * math.log(self.high / self.low)
+        return self.high - self.low
+
+
+def parse_fit(text: str) -> FittedKey:
+    """``KEY=LOW:HIGH[:log]`` -> FittedKey; a clear error naming the option otherwise."""
+    from tissue_sim_ros.engine.scene.keys import parse_override
+    from tissue_sim_ros.engine.scene.schema import SceneError
+    if '=' not in text:
+        raise SceneError(f'--fit {text!r}: expected KEY=LOW:HIGH[:log], e.g. '
+                         'regions[0].young_modulus_pa=5000:50000:log')
+    key, bounds = text.split('=', 1)
+    parts = bounds.split(':')
+    log = len(parts) == 3 and parts[2].strip().lower() == 'log'
+    if len(parts) not in (2, 3) or (len(parts) == 3 and not log):
+        raise SceneError(f'--fit {text!r}: the bounds must read LOW:HIGH or LOW:HIGH:log')
+    try:
+        low, high = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise SceneError(f'--fit {text!r}: LOW and HIGH must be numbers, got {parts[0]!r} and '
+                         f'{parts[1]!r}') from None
+    if not (math.isfinite(low) and math.isfinite(high) and low < high):
+        raise SceneError(f'--fit {text!r}: expected finite bounds with LOW < HIGH, got {low} and {high}')
+    if log and low <= 0:
+        raise SceneError(f'--fit {text!r}: a log scale needs LOW > 0, got {low}')
+    parse_override(f'{key.strip()}=0')          # the key's syntax, with --set's message
+    return FittedKey(key.strip(), low, high, log)
+
+
+def read_key(spec: dict, key: str):
+    """The value of the dotted scene ``key`` in ``spec`` (a scene's keys with their defaults,
+    ``Scene.spec``); a SceneError naming the key when the scene has no such key."""
+    from tissue_sim_ros.engine.scene.keys import parse_override, select_region
+    from tissue_sim_ros.engine.scene.schema import SceneError
+    parts, _ = parse_override(f'{key}=0')
+    node = spec
+    for name, selector in parts:
+        if not isinstance(node, dict) or name not in node:
+            raise SceneError(f'--fit {key}: the scene has no key {name!r} here')
+        node = node[name]
+        if isinstance(node, list):
+            node = select_region(node, selector, f'--fit {key}', name)
+    if isinstance(node, bool) or not isinstance(node, (int, float)):
+        raise SceneError(f'--fit {key}: its value {node!r} is not a number')
+    return float(node)
+
+
+def yaml_number(value: float) -> str:
+    """``value`` with every digit (repr), written so that YAML reads a number: PyYAML (YAML 1.1)
+    reads ``1e-10`` as text, ``1.0e-10`` as a float."""
+    text = repr(float(value))
+    mantissa, e, exponent = text.partition('e')
+    if e and '.' not in mantissa:
+        text = f'{mantissa}.0e{exponent}'
+    return text
+
+
+def overrides_for(keys, values) -> list[str]:
+    """``--set`` texts giving each key its value."""
+    return [f'{k.key}={yaml_number(v)}' for k, v in zip(keys, values)]

@@ -1,0 +1,264 @@
+"""What ``tissue-sim calibrate`` writes into ``--out DIR``.
+
+- ``calibrated.yaml``: the complete scene at the optimum (every key, the mass scaling it ran
+  with), the fitted values with their standard errors, the data and the command in comments;
+  every command that takes ``--scene`` accepts it.
+- ``report.json``: ``parameters`` (per fitted key: ``value``, ``stderr``, ``start``, ``low``,
+  ``high``, ``log``, ``phase``), ``correlation`` (``keys`` and ``matrix``), ``fit``
+  (``nrmse_mean`` and ``nrmse_mean_start`` over the fitted trials, ``speeds``), ``validation``
+  (the same over the held-out trials, when given), ``cross_validation`` (with leave-one-speed-out:
+  ``nrmse_mean`` and per speed its prediction by the calibration without it, as the ``speeds`` rows
+  with that calibration's ``parameters`` and ``report``), ``speeds`` (per speed and role: model NRMSE
+  at the start and at the optimum, the data's noise floor, the nearest other speed's mean curve
+  as a prediction), ``inertia`` (the mass scaling's measured error), ``finish`` (per step of the
+  fine finish: ``objective_before``, ``predicted`` by its linear model, ``objective`` run), ``warnings``,
+  ``evaluations`` (``partial_evaluations`` of them ran the simulations only as far as a stage of
+  the search needed), ``simulations``, ``wall_s``, ``outputs``.
+- ``report.md``: the same for a person; ``calibration.csv``: one row per speed and role (fit,
+  held out, left out);
+  ``evaluations.jsonl``: every evaluation of the search (written as it ran);
+  ``calibration_<speed>.png``: per speed the data (trials, mean and one standard deviation), the
+  starting scene and the calibrated scene, force against time since contact.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ['speed_label', 'write_report']
+
+
+def _number(value):
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def speed_label(speed) -> str:
+    return 'unknown speed' if speed is None else f'{speed * 1e3:g} mm/s'
+
+
+def _studies(trials, scene, **options):
+    from tissue_sim_ros.analysis.compare.compare import compare_trials
+    return compare_trials(trials, scene, quiet=True, **options) if trials else None
+
+
+def _study_of(evaluation, objective) -> dict:
+    """The fitted trials' comparisons as compare's study (the search already simulated them)."""
+    from tissue_sim_ros.analysis.compare.compare import speed_groups
+    return {'comparisons': evaluation.comparisons,
+            'speeds': speed_groups(objective.trials, objective.plan.motions, evaluation.comparisons)}
+
+
+def _speed_rows(study_start, study_final, role, baseline) -> list[dict]:
+    rows = []
+    for start, final in zip(study_start['speeds'], study_final['speeds']):
+        speed = final['speed_m_s']
+        near = baseline.get(None if speed is None else round(speed, 9), {})
+        rows.append({'role': role, 'speed_m_s': speed, 'trials': final['trials'],
+                     'nrmse_start': _number(start['nrmse_mean']), 'nrmse_calibrated': _number(final['nrmse_mean']),
+                     'noise_floor_nrmse': _number(final['noise_floor_nrmse']),
+                     'nearest_speed_m_s': near.get('nearest_speed_m_s'),
+                     'nearest_speed_nrmse': _number(near.get('nrmse', float('nan')))})
+    return rows
+
+
+def _nearest_baseline(trials) -> dict:
+    from tissue_sim_ros.analysis.compare.measured_motion import measured_motion
+    from tissue_sim_ros.analysis.compare.repeat_statistics import ForceCurve, nearest_speed_baseline
+    groups: dict = {}
+    for trial in trials:
+        if trial.speed_m_s is None:
+            continue
+        motion = measured_motion(trial)
+        groups.setdefault(round(trial.speed_m_s, 9), []).append(
+            ForceCurve(motion.time_s, trial.axial_force_n, motion.travel_m, motion.contact_index))
+    return nearest_speed_baseline(groups) if len(groups) >= 2 else {}
+
+
+def _nan(value) -> float:
+    return float('nan') if value is None else float(value)
+
+
+def _mean(comparisons) -> float:
+    scores = [c.errors.get('nrmse', np.nan) for c in comparisons]
+    return _number(np.nanmean(scores)) if np.isfinite(scores).any() else None
+
+
+def _warnings(fit, rows, spread) -> list[str]:
+    out = [f'{a} and {b} are correlated at {rho:+.3f}: the data cannot tell them apart; fix one or '
+           'add data where they differ' for a, b, rho in spread['correlated_pairs']]
+    out += [f'{key} does not change the fitted curves (zero sensitivity): its value is the start'
+            for key in spread['insensitive']]
+    from tissue_sim_ros.analysis.calibration.fine import linear_model_warning
+    nonlinear = linear_model_warning(fit.get('finish', []))
+    if nonlinear:
+        out.append(nonlinear)
+    failed = fit['failed']
+    if failed:
+        out.append(f'{len(failed)} evaluation(s) failed and scored as misses (first: {failed[0].failures[0][:160]})')
+    inertia = fit['inertia']
+    if (inertia.get('error_at_optimum') or 0) > inertia['bound']:
+        out.append(f"mass scaling {inertia['mass_scaling_at_optimum']:g} brings an inertia error of "
+                   f"{inertia['error_at_optimum']:.3f} of the force range, above the bound {inertia['bound']}")
+    for row in rows:
+        if row['nrmse_calibrated'] is None or row['nearest_speed_nrmse'] is None \
+                or not row['nrmse_calibrated'] > row['nearest_speed_nrmse']:
+            continue
+        other = f"the measured {speed_label(row['nearest_speed_m_s'])} curve ({row['nearest_speed_nrmse']:.3f})"
+        if row['role'] in ('held out', 'left out'):
+            out.append(f"{'held-out' if row['role'] == 'held out' else 'left out (calibrated without it)'} "
+                       f"{speed_label(row['speed_m_s'])}: the model (NRMSE {row['nrmse_calibrated']:.3f}) "
+                       f"predicts worse than reusing {other}")
+        else:   # a curve it was fitted to: another speed's data is closer than the fit
+            out.append(f"fitted {speed_label(row['speed_m_s'])}: the calibrated model (NRMSE "
+                       f"{row['nrmse_calibrated']:.3f}) is farther from the data than {other}: the search "
+                       'may have stopped short, or the scene cannot take the data\'s shape')
+    return out
+
+
+def _calibrated_yaml(path, spec, report, *, scene_file, sets, data_spec, base_dir) -> None:
+    from tissue_sim_ros.engine.scene.scene import scene_yaml
+    lines = ['A scene calibrated by tissue-sim calibrate (every key; `tissue-sim scene-keys` explains them).',
+             f'data: {data_spec}; starting scene: {scene_file or "the packaged default"}'
+             + (f' with {" ".join("--set " + s for s in sets)}' if sets else ''),
+             f"fit NRMSE {report['fit']['nrmse_mean']:.4f} (start {report['fit']['nrmse_mean_start']:.4f})",
+             f"fitted values (standard error from the Jacobian of {report['jacobian']}; a lower bound):"]
+    lines += [f"  {key} = {p['value']:.6g} +- {p['stderr']:.2g}" for key, p in report['parameters'].items()]
+    path.write_text(scene_yaml(spec, base_dir, lines))
+
+
+def _plot(out, study_start, study_final, role) -> dict:
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    from tissue_sim_ros.analysis.compare.repeat_statistics import ForceCurve, mean_and_spread
+    written = {}
+    for group in study_final['speeds']:
+        speed = group['speed_m_s']
+        members = [i for i, c in enumerate(study_final['comparisons']) if str(c.file) in group['files']]
+        fig, ax = plt.subplots(figsize=(7, 4.2))
+        comparisons = [study_final['comparisons'][i] for i in members]
+        for c in comparisons:
+            ax.plot(c.time_since_contact_s, c.measured_n, color='0.75', lw=0.6)
+        if len(comparisons) >= 2:
+            curves = [ForceCurve(c.time_since_contact_s, c.measured_n,
+                                 contact_index=int(np.argmin(np.abs(c.time_since_contact_s)))) for c in comparisons]
+            grid, mean, std, _ = mean_and_spread(curves, by='time_since_contact')
+            ax.fill_between(grid, mean - std, mean + std, color='C0', alpha=0.25, label='data: mean ± 1 s.d.')
+        for study, style, label in ((study_start, '--', 'starting scene'), (study_final, '-', 'calibrated')):
+            c = study['comparisons'][members[0]]
+            ax.plot(c.time_since_contact_s, c.simulated_n, style, color='C3' if style == '-' else 'C1',
+                    lw=1.3, label=f"{label} (NRMSE {_number(np.nanmean([study['comparisons'][i].errors.get('nrmse', np.nan) for i in members])) or float('nan'):.3f})")
+        ax.set_title(f'{role}: {speed_label(speed)}, {len(members)} trial(s)', fontsize=9)
+        ax.set_xlabel('time since contact [s]')
+        ax.set_ylabel('axial force [N]')
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        name = f"calibration_{role.replace(' ', '_')}_{'unknown' if speed is None else f'{speed * 1e3:g}mm_s'}.png"
+        fig.savefig(out / name, dpi=110)
+        plt.close(fig)
+        written[name] = str(out / name)
+    return written
+
+
+def _markdown(report) -> str:
+    def f(value, digits=4):
+        return 'n/a' if value is None else f'{value:.{digits}f}'
+    lines = ['# Calibration', '', f"Data: {report['data_spec']}" + (f"; held out: {report['validate_spec']}"
+                                                                  if report['validate_spec'] else ''),
+             f"Scene: {report['scene']}; {report['evaluations']} evaluations, {report['simulations']} "
+             f"simulations, {report['wall_s']:.1f} s", '',
+             '| key | start | calibrated | standard error | bounds |', '|---|---|---|---|---|']
+    lines += [f"| `{k}` | {p['start']:.6g} | {p['value']:.6g} | {p['stderr']:.2g} | {p['low']:g} to {p['high']:g}"
+              f"{' (log)' if p['log'] else ''} |" for k, p in report['parameters'].items()]
+    lines += ['', f"Standard errors from the Jacobian of {report['jacobian']} (a lower bound: neighbouring "
+                  'force samples are correlated).']
+    lines += ['', '| role | speed | trials | NRMSE start | NRMSE calibrated | noise floor | nearest other speed\'s data |',
+              '|---|---|---|---|---|---|---|']
+    lines += [f"| {r['role']} | {speed_label(r['speed_m_s'])} | {r['trials']} | {f(r['nrmse_start'])} | "
+              f"{f(r['nrmse_calibrated'])} | {f(r['noise_floor_nrmse'])} | {f(r['nearest_speed_nrmse'])} |"
+              for r in report['speeds']]
+    if report.get('cross_validation'):
+        lines += ['', '## Leave one speed out', '', 'Each speed predicted by a calibration that did not see it '
+                  '(its outputs in `leave_out_<speed>/`):', '',
+                  '| speed | trials | NRMSE start | NRMSE predicted | noise floor | nearest other speed\'s data |',
+                  '|---|---|---|---|---|---|']
+        lines += [f"| {speed_label(r['speed_m_s'])} | {r['trials']} | {f(r['nrmse_start'])} | "
+                  f"{f(r['nrmse_calibrated'])} | "
+                  f"{f(r['noise_floor_nrmse'])} | {f(r['nearest_speed_nrmse'])} |"
+                  for r in report['cross_validation']['speeds']]
+    inertia = report['inertia']
+    lines += ['', f"Mass scaling: {inertia['mass_scaling_at_optimum']:g} at the optimum; its inertia error "
+              f"{f(_number(inertia.get('error_at_optimum', float('nan'))), 3)} of the force range (bound "
+              f"{inertia['bound']}; measured {f(_number(inertia.get('error_at_start', float('nan'))), 3)} at "
+              f"{inertia['mass_scaling']:g})."]
+    if report['warnings']:
+        lines += ['', '## Warnings', ''] + [f'- {w}' for w in report['warnings']]
+    return '\n'.join(lines) + '\n'
+
+
+def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_file, sets, data_spec,
+                 validate_spec, align, gap_m, tick_s, workers=None, scheduler=None, cross_validation=None) -> dict:
+    """Write every output (see the module docstring); the report dict. ``cross_validation``: per
+    speed, its prediction by the calibration without it (the held-out row of that fold's report,
+    with its ``parameters`` and ``report``)."""
+    from tissue_sim_ros.analysis.calibration.calibrate import calibrated_spec
+    from tissue_sim_ros.analysis.compare.trial_simulation import ResultStore
+    out.mkdir(parents=True, exist_ok=True)
+    options = dict(align=align, gap_m=gap_m, tick_s=tick_s, store=ResultStore(out / 'simulations'),
+                   workers=workers, scheduler=scheduler)
+    baseline = _nearest_baseline(list(fit['objective'].trials) + list(held_out))
+    objective = fit['objective']
+    studies = {'fit': (_study_of(fit['start'], objective), _study_of(fit['best'], objective))}
+    if held_out:
+        studies['held out'] = (_studies(held_out, start_scene, **options), _studies(held_out, final_scene, **options))
+    rows = [row for role, pair in studies.items() for row in _speed_rows(*pair, role, baseline)]
+    spread = fit['uncertainty']
+    keys = fit['keys']
+    parameters = {k.key: {'value': k.value(x), 'stderr': float(se), 'start': k.value(x0), 'low': k.low,
+                          'high': k.high, 'log': k.log, 'phase': k.phase}
+                  for k, x, x0, se in zip(keys, fit['u'], fit['u0'], spread['stderr'])}
+    report = {'data_spec': str(data_spec), 'validate_spec': str(validate_spec) if validate_spec else None,
+              'scene': str(scene_file or 'the packaged default'), 'sets': list(sets), 'align': align,
+              'parameters': parameters,
+              'correlation': {'keys': [k.key for k in keys], 'matrix': np.round(spread['correlation'], 4).tolist()},
+              'jacobian': spread['jacobian'],
+              'fit': {'nrmse_mean': _mean(studies['fit'][1]['comparisons']),
+                      'nrmse_mean_start': _mean(studies['fit'][0]['comparisons']),
+                      'speeds': [r for r in rows if r['role'] == 'fit']},
+              'speeds': rows,
+              'inertia': {k: (_number(v) if isinstance(v, float) else v) for k, v in fit['inertia'].items()},
+              'finish': fit.get('finish', []),
+              'evaluations': fit['evaluations'], 'partial_evaluations': fit['partial_evaluations'],
+              'simulations': fit['simulations'], 'wall_s': fit['search_wall_s']}
+    if held_out:
+        report['validation'] = {'nrmse_mean': _mean(studies['held out'][1]['comparisons']),
+                                'nrmse_mean_start': _mean(studies['held out'][0]['comparisons']),
+                                'speeds': [r for r in rows if r['role'] == 'held out']}
+    if cross_validation:
+        report['cross_validation'] = {'method': 'leave one speed out',
+                                      'nrmse_mean': _number(np.nanmean([_nan(r['nrmse_calibrated'])
+                                                                        for r in cross_validation])),
+                                      'speeds': cross_validation}
+    rows = rows + list(cross_validation or [])   # the CSV and the warnings; report['speeds'] keeps its roles
+    report['warnings'] = _warnings(fit, rows, spread)
+    outputs = {name: str(out / name) for name in ('calibrated.yaml', 'report.json', 'report.md',
+                                                  'calibration.csv', 'evaluations.jsonl')}
+    for role, (start, final) in studies.items():
+        outputs.update(_plot(out, start, final, role))
+    report['outputs'] = outputs
+    _calibrated_yaml(out / 'calibrated.yaml', calibrated_spec(fit), report, scene_file=scene_file, sets=sets,
+                     data_spec=data_spec, base_dir=start_scene.base_dir)
+    (out / 'report.json').write_text(json.dumps(report, indent=2, default=float))
+    (out / 'report.md').write_text(_markdown(report))
+    with (out / 'calibration.csv').open('w', newline='') as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(rows[0]), extrasaction='ignore')
+        writer.writeheader()
+        writer.writerows(rows)
+    return report

@@ -1,0 +1,244 @@
+"""Events in one axial force curve: contact, punctures, and the phases of an insertion.
+
+One detector serves measured load-cell curves and simulated ones alike, so that the events
+compared between them are found by the same rule. Force is positive while the tissue resists.
+The rules (module constants, SI units):
+
+- Pre-contact level: the median (``baseline``) and the robust standard deviation (``noise``,
+  1.4826 x the median absolute deviation) of the first 10 % of the samples (at least 10): robust
+  to a few spikes, and zero for a noiseless simulated curve. A recording that starts just above
+  the tissue has the loading's rise in its first 10 %: taken as noise it hid a 0.4 N puncture
+  behind an 8-noise threshold of 0.87 N, and raising the median it put the contact 1 mm late.
+  So the baseline is the smaller of that median and the median of the first third of those
+  samples, and with 20 samples or more the noise is the smaller of that spread and the spread
+  about a quadratic fit to them.
+- Contact: found where the force stays above ``baseline + 5 noise + 1 mN`` for ``sustain_s`` (and
+  the travel, when given, rises meanwhile by more than 3 travel-noise: the median of the last
+  quarter of that window above the median of its first quarter); the index returned is the onset
+  of that rise: the first sample after the last one where the force averaged over
+  ``sustain_s / 2`` (w samples) is at or below ``baseline + 2 noise / sqrt(w) + 1 mN``. The 5
+  noise make a false start unlikely (3e-7 a sample) and the sustain excludes spikes; the walk
+  back on the averaged force puts the onset near where the force leaves the noise, not 5 noise
+  later, and closer to it the more samples a second the record holds.
+- Puncture: the force is smoothed by a running median over 0.1 mm of travel (a puncture's step
+  survives a median; spikes and noise do not); a local maximum of prominence >= ``min_drop_n``
+  (scipy.signal.find_peaks) during insertion is a puncture when the force falls by at least
+  ``max(min_drop_fraction x peak, min_drop_n)`` within ``window_m`` of further travel, before it
+  climbs back above the peak. Lower tops between that peak and the lowest point of its fall (a
+  double top) belong to the same puncture, reported at the higher top. ``min_drop_n`` defaults
+  to ``8 noise + 10 mN``: the range of a thousand Gaussian samples rarely reaches 8 sigma, and
+  10 mN keeps a noiseless simulation's numerical ripples out.
+- At depth (hold): the travel smoothed by a 5-sample running median is within
+  ``max(4 travel-noise, 10 um)`` of its maximum, from the first such sample to the last.
+  Travel noise is the robust standard deviation of the travel's second differences / sqrt(6): zero
+  for a uniform motion, the sensor's noise for a noisy one, barely touched by jittered sampling.
+- Phases: 'approach' before contact, 'loading' from contact through the first puncture's peak,
+  'inserted' after it until the hold, 'hold' at depth, 'retraction' from the hold's end on (a rest
+  at the end of the record included).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import median_filter, uniform_filter1d
+from scipy.signal import find_peaks
+
+from tissue_sim_ros.analysis.compare.alignment import increasing_time, sample_array
+
+__all__ = ['PHASES', 'Puncture', 'baseline_and_noise', 'depth_bounds', 'detect_contact',
+           'detect_punctures', 'segment_phases', 'travel_noise_m']
+
+PHASES = ('approach', 'loading', 'inserted', 'hold', 'retraction')
+MAD_TO_SIGMA = 1.4826
+HEAD_FRACTION, MIN_HEAD_SAMPLES = 0.1, 10
+CONTACT_NOISE_MULTIPLE, ONSET_NOISE_MULTIPLE, CONTACT_FLOOR_N = 5.0, 2.0, 1e-3
+CONTACT_TRAVEL_NOISE_MULTIPLE = 3.0
+PUNCTURE_NOISE_MULTIPLE, PUNCTURE_FLOOR_N = 8.0, 1e-2
+PUNCTURE_SMOOTHING_M, MAX_SMOOTHING_HALF_WIDTH = 1e-4, 100
+DEPTH_NOISE_MULTIPLE, DEPTH_TOLERANCE_FLOOR_M, TRAVEL_MEDIAN_SAMPLES = 4.0, 1e-5, 5
+#: the travel within which a peak's force must fall to count as a puncture (``window_m``)
+PUNCTURE_WINDOW_M = 0.0015
+
+
+@dataclass(frozen=True)
+class Puncture:
+    """A puncture: ``index`` and ``travel_m`` of the peak sample, ``force_n`` the smoothed force
+    at the peak, ``drop_n`` the smoothed fall after it [N]."""
+
+    index: int
+    travel_m: float
+    force_n: float
+    drop_n: float
+
+
+def baseline_and_noise(force_n) -> tuple[float, float]:
+    """The pre-contact ``(baseline, noise)`` [N] of a force curve (rule in the module docstring)."""
+    force = sample_array('force_n', force_n, finite=True)
+    n_head = min(len(force), max(MIN_HEAD_SAMPLES, int(round(HEAD_FRACTION * len(force)))))
+    if n_head == 0:
+        raise ValueError('force_n is empty; expected a force curve')
+    head = force[:n_head]
+    baseline = float(min(np.median(head), np.median(head[:max(MIN_HEAD_SAMPLES, n_head // 3)])))
+    noise = MAD_TO_SIGMA * np.median(np.abs(head - np.median(head)))
+    if n_head >= 2 * MIN_HEAD_SAMPLES:      # a head that reaches into the loading: its trend is not noise
+        k = np.arange(n_head, dtype=float)
+        trend = np.polyval(np.polyfit(k, head, 2), k)
+        noise = min(noise, MAD_TO_SIGMA * np.median(np.abs(head - trend)))
+    return baseline, float(noise)
+
+
+def travel_noise_m(travel_m) -> float:
+    """The robust noise of a travel trace [m] (rule in the module docstring)."""
+    travel = sample_array('travel_m', travel_m, finite=True)
+    if len(travel) < 3:
+        return 0.0
+    second = np.diff(travel, 2)
+    return float(MAD_TO_SIGMA * np.median(np.abs(second - np.median(second))) / np.sqrt(6.0))
+
+
+def depth_bounds(travel_m) -> tuple[int, int]:
+    """The first and the last index at the deepest travel (the hold; rule in the module
+    docstring). Before the first the needle advances; after the last it retracts."""
+    travel = sample_array('travel_m', travel_m, finite=True)
+    smoothed = median_filter(travel, size=TRAVEL_MEDIAN_SAMPLES, mode='nearest')
+    tolerance = max(DEPTH_NOISE_MULTIPLE * travel_noise_m(travel), DEPTH_TOLERANCE_FLOOR_M)
+    at_depth = np.flatnonzero(smoothed >= smoothed.max() - tolerance)
+    return int(at_depth[0]), int(at_depth[-1])
+
+
+def detect_contact(time_s, force_n, travel_m=None, *, noise_n: float | None = None,
+                   sustain_s: float = 0.1) -> int | None:
+    """The index where the force starts its first sustained rise above the pre-contact noise,
+    or None (rule in the module docstring). ``noise_n``: the force noise [N] when known (else
+    estimated from the first part of the record); ``travel_m``: when given, a rise while the
+    needle does not advance is not contact."""
+    time = increasing_time('time_s', time_s)
+    force = sample_array('force_n', force_n, len(time), finite=True)
+    travel = (None if travel_m is None
+              else sample_array('travel_m', travel_m, len(time), finite=True))
+    if not (np.isfinite(sustain_s) and sustain_s >= 0):
+        raise ValueError(f'sustain_s = {sustain_s!r}; expected a finite time >= 0 s')
+    baseline, noise = baseline_and_noise(force)
+    if noise_n is not None:
+        if not (np.isfinite(noise_n) and noise_n >= 0):
+            raise ValueError(f'noise_n = {noise_n!r}; expected a finite force >= 0 N')
+        noise = float(noise_n)
+    above = force > baseline + CONTACT_NOISE_MULTIPLE * noise + CONTACT_FLOOR_N
+    window_last = np.searchsorted(time, time + sustain_s, side='right') - 1
+    below = np.append(np.flatnonzero(~above), len(time))
+    next_below = below[np.searchsorted(below, np.arange(len(time)))]
+    sustained = above & (next_below > window_last) & (time[-1] >= time + sustain_s)
+    min_rise = 0.0 if travel is None else CONTACT_TRAVEL_NOISE_MULTIPLE * travel_noise_m(travel)
+    for start in np.flatnonzero(sustained):
+        if travel is None or _rises(travel[start:max(window_last[start], start + 1) + 1], min_rise):
+            return _onset(time, force, start, baseline, noise, sustain_s)
+    return None
+
+
+def _onset(time, force, detected, baseline, noise, sustain_s) -> int:
+    """The first sample after the last one, before ``detected``, where the force averaged over
+    ``sustain_s / 2`` (w samples) is at or below ``baseline + 2 noise / sqrt(w) + floor``."""
+    width = max(1, int(round(0.5 * sustain_s / np.median(np.diff(time)))))
+    smoothed = uniform_filter1d(force, size=width, mode='nearest')
+    level = baseline + ONSET_NOISE_MULTIPLE * noise / np.sqrt(width) + CONTACT_FLOOR_N
+    quiet = np.flatnonzero(smoothed[:detected] <= level)
+    return int(quiet[-1]) + 1 if quiet.size else 0
+
+
+def _rises(travel: np.ndarray, min_rise: float) -> bool:
+    quarter = max(1, len(travel) // 4)
+    return bool(np.median(travel[-quarter:]) - np.median(travel[:quarter]) > min_rise)
+
+
+def detect_punctures(travel_m, force_n, *, min_drop_fraction: float = 0.15,
+                     min_drop_n: float | None = None, window_m: float = PUNCTURE_WINDOW_M,
+                     inserting=None) -> list[Puncture]:
+    """The punctures of an insertion, in order of travel (rule in the module docstring).
+    ``inserting``: a boolean mask of the samples where the needle advances (default: those
+    before the deepest travel); peaks and drops are searched within each stretch of it."""
+    travel = sample_array('travel_m', travel_m, finite=True)
+    force = sample_array('force_n', force_n, len(travel), finite=True)
+    if not 0.0 <= min_drop_fraction < 1.0:
+        raise ValueError(f'min_drop_fraction = {min_drop_fraction!r}; expected 0 <= value < 1')
+    if not (np.isfinite(window_m) and window_m > 0):
+        raise ValueError(f'window_m = {window_m!r}; expected a finite distance > 0 m')
+    if min_drop_n is None:
+        min_drop_n = PUNCTURE_NOISE_MULTIPLE * baseline_and_noise(force)[1] + PUNCTURE_FLOOR_N
+    elif not (np.isfinite(min_drop_n) and min_drop_n >= 0):
+        raise ValueError(f'min_drop_n = {min_drop_n!r}; expected a finite force >= 0 N')
+    if inserting is None:
+        mask = np.arange(len(travel)) < depth_bounds(travel)[0]
+    else:
+        mask = np.asarray(inserting, dtype=bool)
+        if mask.shape != travel.shape:
+            raise ValueError(f'inserting has shape {mask.shape}; expected {travel.shape}')
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    punctures = []
+    for start, stop in zip(edges[::2], edges[1::2]):
+        punctures += _punctures_in_stretch(travel[start:stop], force[start:stop], start,
+                                           min_drop_fraction, float(min_drop_n), window_m)
+    return punctures
+
+
+def _punctures_in_stretch(travel, force, offset, min_drop_fraction, min_drop_n, window_m):
+    n_samples = len(force)
+    if n_samples < 3:
+        return []
+    travel_step = (travel[-1] - travel[0]) / (n_samples - 1)
+    half = 0 if travel_step <= 0 else int(min(MAX_SMOOTHING_HALF_WIDTH,
+                                              PUNCTURE_SMOOTHING_M / travel_step // 2))
+    smoothed = median_filter(force, size=2 * half + 1, mode='nearest')
+    peaks, _ = find_peaks(smoothed, prominence=min_drop_n)
+    found, fallen_at = [], -1
+    for peak in peaks:
+        peak_force = smoothed[peak]
+        after = slice(peak + 1, n_samples)
+        beyond = np.flatnonzero((travel[after] > travel[peak] + window_m)
+                                | (smoothed[after] > peak_force))
+        end = peak + 1 + (int(beyond[0]) if beyond.size else n_samples - peak - 1)
+        if peak <= fallen_at or peak_force <= 0 or end == peak + 1:
+            continue
+        lowest = peak + 1 + int(np.argmin(smoothed[peak + 1:end]))
+        drop = peak_force - smoothed[lowest]
+        if drop >= max(min_drop_fraction * peak_force, min_drop_n):
+            low = max(0, peak - half)
+            index = low + int(np.argmax(force[low:peak + half + 1]))
+            found.append(Puncture(offset + index, float(travel[index]), float(peak_force),
+                                  float(drop)))
+            fallen_at = lowest
+    return found
+
+
+def segment_phases(time_s, travel_m, force_n, *, first_puncture: int | None = None,
+                   contact: int | None = None) -> np.ndarray:
+    """The phase of each sample, one of :data:`PHASES`: 'approach' before ``contact``,
+    'loading' from it to ``first_puncture`` (inclusive), 'inserted' after that while the needle
+    advances, 'hold' at depth (:func:`depth_bounds`), 'retraction' after the hold. ``contact``
+    and ``first_puncture`` are sample indices, detected (:func:`detect_contact`,
+    :func:`detect_punctures` on the advancing samples after contact) when not given; without a
+    contact everything before the hold is 'approach', without a puncture 'loading'."""
+    time = increasing_time('time_s', time_s)
+    travel = sample_array('travel_m', travel_m, len(time), finite=True)
+    force = sample_array('force_n', force_n, len(time), finite=True)
+    for name, index in (('contact', contact), ('first_puncture', first_puncture)):
+        if index is not None and not 0 <= index < len(time):
+            raise ValueError(f'{name} = {index!r}; expected a sample index in [0, {len(time)})')
+    hold_start, hold_end = depth_bounds(travel)
+    phases = np.full(len(time), 'retraction', dtype='<U10')
+    phases[:hold_start] = 'approach'
+    phases[hold_start:hold_end + 1] = 'hold'
+    if contact is None:
+        contact = detect_contact(time, force, travel)
+    if contact is None or contact >= hold_start:
+        return phases
+    if first_puncture is None:
+        advancing = (np.arange(len(time)) >= contact) & (np.arange(len(time)) < hold_start)
+        punctures = detect_punctures(travel, force, inserting=advancing)
+        first_puncture = punctures[0].index if punctures else hold_start
+    if first_puncture < contact:
+        raise ValueError(f'first_puncture = {first_puncture} is before contact = {contact}')
+    loading_end = min(first_puncture + 1, hold_start)
+    phases[contact:loading_end] = 'loading'
+    phases[loading_end:hold_start] = 'inserted'
+    return phases

@@ -1,0 +1,17 @@
+"""Benchmarks: each prints its figures (and writes them into ``--out DIR``); none asserts a time.
+
+docs/performance.md gives how to run each and its latest figures.
+
+- :mod:`.speed`: force evaluation and explicit step per model and mesh size (``tissue-sim bench``);
+- :mod:`.cold_start`: a fresh install's first start, compiles included;
+- :mod:`.inertia`: the mass scaling's estimated inertia error against the error it adds;
+- :mod:`.ripple`: how smooth the axial force is after a puncture;
+- :mod:`.study`: replay and compare timings;
+- :mod:`.calibration`: ``calibrate`` on synthetic data with known values;
+- :mod:`.node_bench`, :mod:`.node_bench_figures`, :mod:`.node_bench_paired`: the node's timing
+  from outside, its figures, and paired runs against another revision (``tissue-sim node-bench``);
+- :mod:`.background_load`, :mod:`.prediction_burst`: busy processes and a listener beside the
+  node; a burst of planner requests during a run.
+"""
+__all__ = ['background_load', 'calibration', 'cold_start', 'inertia', 'node_bench', 'node_bench_figures',
+           'node_bench_paired', 'prediction_burst', 'ripple', 'speed', 'study']

@@ -1,0 +1,9 @@
+"""``tissue-sim``, the command line: thin, each command a call into the layers below.
+
+- :mod:`.arguments`: the option types and option groups every command shares;
+- :mod:`.app`: the parser, the dispatch and the one-line error report (exit status 2);
+- :mod:`.node_commands`: the commands that run or drive the node as a process.
+"""
+from tissue_sim_ros.cli.app import main
+
+__all__ = ['main']

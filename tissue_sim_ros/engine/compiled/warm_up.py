@@ -1,0 +1,43 @@
+"""Compile the needle's numba kernels once per process, before the first tick.
+
+Without this a fresh clone compiles each kernel at its first use: seconds in which the node falls
+behind its robot at first contact.
+"""
+import numpy as np
+
+from tissue_sim_ros.engine.compiled import cache as compile_cache
+
+_WARM = []
+
+# The warm-up tissue is linear (small strain, elastic): the needle's kernels do not depend on the
+# model, and the linear element pass is compiled anyway (the critical time step's Lanczos runs it),
+# so the warm-up adds no element-pass variant to a first start (its default geometric model added
+# one: 13-15 s of the default scene's first start, 2 cores).
+WARM_UP_SCENE = {
+    'mesh': {'size_m': [0.01, 0.01, 0.006], 'origin_m': [-0.005, -0.005, -0.006], 'divisions': [3, 3, 2]},
+    'needle': {'initial_position_m': [0.0, 0.0, 0.1505], 'length_m': 0.15,
+               'initial_orientation_xyzw': [1.0, 0.0, 0.0, 0.0]},
+    'regions': [{'name': 'warm-up', 'young_modulus_pa': 2e4, 'cutting_force_n': 0.05,
+                 'membrane': {'criterion': 'force', 'rupture_force_n': 0.02},
+                 'friction': {'insertion_coulomb_n_per_m': 1.0}}],
+    'model': {'geometric': False},
+}
+
+
+def warm_up():
+    """Compile (or load from numba's cache) the kernels of every needle phase once per process,
+    on a tiny scene driven through contact, puncture, cutting with friction and retraction.
+    Otherwise a fresh clone compiles each at its first use: seconds in which the node falls
+    behind its robot at first contact (the demo's engine then refused a 6.4 mm pose jump).
+    On a first start this is what the second compile process runs (compile_cache)."""
+    if _WARM:
+        return
+    _WARM.append(True)
+    compile_cache.wait_for_helper()
+    from tissue_sim_ros.engine.scene.scene import Scene
+    for tip in ({'shape': 'flat'}, {'shape': 'bevel'}):     # the bonded end; a sharp tip's kernels
+        scene = Scene({**WARM_UP_SCENE, 'needle': {**WARM_UP_SCENE['needle'], 'tip': tip}})
+        position, orientation = scene.needle_pose
+        for depth in (0.0015, 0.003, 0.0045, 0.003):     # down through the membrane, then back up
+            scene.advance(0.05, position - np.array([0.0, 0.0, depth]), orientation)
+            scene.reaction_wrench('needle')

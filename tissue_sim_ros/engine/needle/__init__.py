@@ -1,0 +1,11 @@
+"""The needle against the tissue: contact, puncture, cutting, friction and the reaction wrench.
+
+- :mod:`.pose`: quaternions, the needle axis, slerp, the checks every pose meets;
+- :mod:`.parameters`: what a needle and each region bring (geometry, membrane, friction);
+- :mod:`.kernels`: the numba kernels (surface ray casts, point location, constraints);
+- :mod:`.tip`: the tip's shape, its surface samples and their contact;
+- :mod:`.contact`, :mod:`.membrane`: the flat end bonded to the surface; meeting a layer;
+- :mod:`.step`: the step inside the tissue as one compiled call;
+- :mod:`.interaction`: :class:`NeedleTissue`, one needle's state and its step.
+"""
+__all__ = ['contact', 'interaction', 'kernels', 'membrane', 'parameters', 'pose', 'step', 'tip']

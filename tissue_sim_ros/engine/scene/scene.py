@@ -1,0 +1,479 @@
+"""A scene: YAML description -> mesh, regions, model, boundary conditions, solver and needle.
+
+Every key a scene file may hold is in :data:`~tissue_sim_ros.engine.scene.schema.SCHEMA`, with
+its default and meaning (the one place they are documented; ``tissue-sim scene-keys`` prints them). Files are safe-loaded;
+unknown keys are refused with their dotted name; units are SI and every dimensional key says its
+unit in its name. ``config/liver_sample.yaml`` is the default scene.
+
+The scene is the engine's whole-step API: ``advance(duration, position, orientation)`` moves the
+needle base linearly (orientation by slerp) from its current pose to the given one over
+``duration`` seconds, stepping the tissue with the fixed time step ``dt``.
+
+Several needles (scene key ``needles``): each is a NeedleTissue of its own (contact, punctures,
+shaft points, friction) on the same tissue, in ``needles`` (``needle`` is the first, the one
+``advance``'s position and orientation move; ``others`` gives the rest their poses). Each step
+moves every needle, steps the tissue once, then applies each needle's constraints in turn (a
+Gauss-Seidel sweep over the needles), so one needle's push moves the tissue under the others.
+The needles do not touch each other (no needle-needle contact).
+"""
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from tissue_sim_ros.system.paths import shared_file
+from tissue_sim_ros.engine.compiled.clock import AVAILABLE as CLOCKS_IN_COMPILED_CODE
+from tissue_sim_ros.engine.compiled.substeps import CompiledSubsteps
+from tissue_sim_ros.engine.model.material import Material, MaterialError, MeanRatioLaw, Viscosity
+from tissue_sim_ros.engine.mesh.tetmesh import make_mesh
+from tissue_sim_ros.engine.mesh.generators import box_mesh, graded_box_mesh
+from tissue_sim_ros.engine.mesh.files import load_mesh
+from tissue_sim_ros.engine.model.tensor_mass import TensorMassModel
+from tissue_sim_ros.engine.needle.interaction import (Friction, Membrane, NeedleGeometry, NeedleTissue,
+                                          RegionInteraction, TipShape, slerp)
+from tissue_sim_ros.engine.mesh.selectors import RegionSelectors
+from tissue_sim_ros.engine.needle.pose import needle_axis
+from tissue_sim_ros.engine.scene.keys import apply_overrides
+from tissue_sim_ros.engine.scene.schema import SCHEMA, SceneError, apply_schema, describe_keys  # noqa: F401
+from tissue_sim_ros.engine.solver.explicit import Simulation
+from tissue_sim_ros.engine.scene.targets import Targets
+
+
+def default_scene_path():
+    """The packaged default scene, config/liver_sample.yaml (source tree or installed share/)."""
+    return shared_file('config/liver_sample.yaml')
+
+
+# -- building ---------------------------------------------------------------------------------
+def _build_mesh(spec, base_dir):
+    if spec['generator'] == 'file':
+        if not spec['file']:
+            raise SceneError("mesh.file = '': expected a mesh file name with generator: file")
+        path = Path(spec['file'])
+        return load_mesh(path if path.is_absolute() else base_dir / path)
+    divisions = [int(round(d)) for d in spec['divisions']]
+    if spec['generator'] == 'box':
+        return box_mesh(spec['size_m'], divisions, spec['origin_m'])
+    return graded_box_mesh(spec['size_m'], divisions, spec['origin_m'], focus=spec['focus_xy_m'],
+                           focus_radius=spec['focus_radius_m'], growth=spec['growth'],
+                           fine_size=spec['fine_size_m'], grade_z=spec['grade_z'])
+
+
+def _element_regions(mesh, selectors):
+    centroids = mesh.rest_positions[mesh.tetrahedra].mean(axis=1)
+    index = selectors.element_regions(centroids)
+    if np.any(index < 0):
+        raise SceneError(f'regions: {int(np.sum(index < 0))} elements (first {int(np.argmax(index < 0))}) '
+                         f'belong to no region; add a region with select: all first')
+    return index
+
+
+def _fixed_nodes(mesh, faces):
+    x = mesh.rest_positions
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    tol = 1e-9 * float(np.max(hi - lo))
+    on = {'x_min': np.abs(x[:, 0] - lo[0]) <= tol, 'x_max': np.abs(x[:, 0] - hi[0]) <= tol,
+          'y_min': np.abs(x[:, 1] - lo[1]) <= tol, 'y_max': np.abs(x[:, 1] - hi[1]) <= tol,
+          'bottom': np.abs(x[:, 2] - lo[2]) <= tol, 'top': np.abs(x[:, 2] - hi[2]) <= tol}
+    on['walls'] = on['x_min'] | on['x_max'] | on['y_min'] | on['y_max']
+    mask = np.zeros(len(x), dtype=bool)
+    for f in faces:
+        mask |= on[f]
+    return mask
+
+
+def surface_gap(mesh, tip, axis):
+    """Distance [m] from ``tip`` along ``axis`` to the rest surface of ``mesh`` (inf: none)."""
+    from tissue_sim_ros.engine.needle.kernels import first_surface_hit
+    hit, t, _, _, _ = first_surface_hit(mesh.rest_positions, np.zeros_like(mesh.rest_positions),
+                                        np.ascontiguousarray(mesh.surface_triangles(), dtype=np.int64),
+                                        np.asarray(tip, dtype=float), np.asarray(axis, dtype=float),
+                                        0.0, np.inf)
+    return float(t) if hit >= 0 else float('inf')
+
+
+def _start_position(mesh, needle):
+    """needle.initial_position_m, moved along the axis so that the tip is needle.start_gap_m
+    above the surface when that key is given."""
+    position = np.asarray(needle['initial_position_m'], dtype=float)
+    if needle['start_gap_m'] is None:
+        return position
+    from tissue_sim_ros.engine.needle.pose import validate_pose
+    position, orientation = validate_pose(position, needle['initial_orientation_xyzw'], 'needle.initial_pose')
+    axis = needle_axis(orientation)
+    gap = surface_gap(mesh, position + needle['length_m'] * axis, axis)
+    if not np.isfinite(gap):
+        raise SceneError(f"needle.start_gap_m = {needle['start_gap_m']!r}: the needle's axis from "
+                         f'initial_position_m {position.tolist()} meets no tissue surface')
+    return position + (gap - needle['start_gap_m']) * axis
+
+
+def _region_material(k, region):
+    """The region's Material; an impossible value is refused with its path in the scene."""
+    try:
+        return Material(region['young_modulus_pa'], region['poisson_ratio'],
+                        region['density_kg_per_m3'])
+    except MaterialError as exc:
+        text = str(exc)
+        for field, key in (('young_modulus', 'young_modulus_pa'), ('poisson_ratio', 'poisson_ratio'),
+                           ('density', 'density_kg_per_m3')):
+            if text.startswith(field + ' ='):
+                text = f'regions[{k}].{key}' + text[len(field):]
+        raise SceneError(text) from None
+
+
+def _check_time_step(simulation, solver):
+    """A fixed time step above the estimated critical step diverges within steps: refused at load,
+    naming both (the node otherwise diverged and reset over and over)."""
+    dt = solver['time_step_s']
+    if solver['integrator'] != 'explicit':
+        return            # unconditionally stable: any step, accuracy is the user's choice
+    if dt is None and solver['time_step_safety'] > 1:
+        raise SceneError(f"solver.time_step_safety = {solver['time_step_safety']!r}: expected at most "
+                         f'1 (the step would be above the estimated critical step '
+                         f'{simulation.critical_time_step():.4g} s)')
+    if dt is not None and dt > simulation.critical_time_step():
+        raise SceneError(
+            f'solver.time_step_s = {dt!r}: above the estimated critical (largest stable) step '
+            f'{simulation.critical_time_step():.4g} s of this mesh and material (mass scaling '
+            f"{solver['mass_scaling']:g}); use at most that, raise solver.mass_scaling, or leave it "
+            f'null for time_step_safety x the critical step')
+
+
+def _physical_law(spec):
+    if spec['law'] == 'none':
+        return None
+    if spec['law'] == 'polynomial':
+        return MeanRatioLaw.polynomial(spec['lambda_coefficients'], spec['mu_coefficients'])
+    return MeanRatioLaw.exponential(spec['lambda_amplitude'], spec['lambda_rate'],
+                                    spec['mu_amplitude'], spec['mu_rate'])
+
+
+def _region_interaction(region):
+    membrane = region['membrane']
+    return RegionInteraction(
+        name=region['name'],
+        membrane=None if membrane['criterion'] == 'none' else Membrane(
+            membrane['criterion'], membrane['rupture_force_n'], membrane['toughness_j_per_m2'],
+            membrane['rate_exponent'], membrane['reference_speed_m_s']),
+        cutting_force_n=region['cutting_force_n'],
+        friction=Friction(**region['friction']))
+
+
+def _tip_shape(tip):
+    """The needle's TipShape; an angle out of (0, 90) degrees is refused by its key."""
+    for key in ('half_angle_deg', 'bevel_angle_deg'):
+        if not 0.0 < tip[key] < 90.0:
+            raise SceneError(f'needle.tip.{key} = {tip[key]!r}: expected an angle in (0, 90) degrees')
+    return TipShape(tip['shape'], tip['half_angle_deg'], tip['bevel_angle_deg'], tip['bevel_orientation_deg'])
+
+
+class Scene:
+    """A ready-to-run needle insertion scene (see the module docstring)."""
+
+    def __init__(self, spec, text='', base_dir='.', mesh_frame_id='world'):
+        self.spec = apply_schema('', _auto_model_section(spec), SCHEMA)
+        self.recommended_from = None
+        if self.spec['model']['auto']:
+            # the one place the engine calls up into analysis: the recommendation runs the chart
+            from tissue_sim_ros.analysis.charting.recommend import auto_spec
+            self.recommended_from = self.spec
+            self.spec = apply_schema('', auto_spec(self.spec, base_dir), SCHEMA)
+        self.mass_scaling_rule = None
+        if self.spec['solver']['mass_scaling'] == 'auto':
+            # the rule probes the scene's insertion (analysis.mass_scaling_rule); cached
+            from tissue_sim_ros.analysis.charting.mass_scaling_rule import auto_mass_scaling
+            chosen, self.mass_scaling_rule = auto_mass_scaling(self.spec, base_dir)
+            self.spec['solver']['mass_scaling'] = chosen
+        self.text = text
+        self.base_dir = Path(base_dir)
+        self.mesh_frame_id = mesh_frame_id
+        s = self.spec
+        try:
+            raw_mesh = _build_mesh(s['mesh'], Path(base_dir))
+            self.selectors = RegionSelectors(s['regions'], raw_mesh.element_tags)
+            element_region = _element_regions(raw_mesh, self.selectors)
+            self.mesh = make_mesh(raw_mesh.rest_positions, raw_mesh.tetrahedra, element_region)
+            materials = {k: _region_material(k, r) for k, r in enumerate(s['regions'])
+                         if np.any(element_region == k)}
+            m = s['model']
+            viscosity = None
+            if m['viscosity_lambda_pa_s'] > 0 or m['viscosity_mu_pa_s'] > 0:
+                viscosity = Viscosity(m['viscosity_lambda_pa_s'], m['viscosity_mu_pa_s'])
+            self.model = TensorMassModel(self.mesh, materials, geometric=m['geometric'],
+                                         physical=_physical_law(m['physical']), viscosity=viscosity,
+                                         nonlinearity_threshold=m['nonlinearity_threshold'],
+                                         inversion_safeguard=m['inversion_safeguard'],
+                                         relaxation=m['relaxation'], precision=m['precision'])
+            sol = s['solver']
+            self.simulation = Simulation(self.model, damping=sol['damping_per_s'],
+                                         fixed=_fixed_nodes(self.mesh, s['boundary']['fixed']),
+                                         dt=sol['time_step_s'], time_step_safety=sol['time_step_safety'],
+                                         mass_scaling=sol['mass_scaling'], integrator=sol['integrator'],
+                                         newton_tolerance=sol['newton_tolerance'])
+            _check_time_step(self.simulation, sol)
+            interactions = [_region_interaction(r) for r in s['regions']]
+            self.needle_names, self.needles = [], []
+            for i, (name, n) in enumerate(needle_sections(s)):
+                geometry = NeedleGeometry(n['diameter_m'], n['length_m'], n['shaft_point_spacing_m'],
+                                          n['max_jump_m'], _tip_shape(n['tip']))
+                self.needle_names.append(name)
+                self.needles.append(NeedleTissue(self.simulation, element_region, interactions, geometry,
+                                                 _start_position(self.mesh, n), n['initial_orientation_xyzw'],
+                                                 selectors=self.selectors,
+                                                 name=f'needles[{i}]' if s['needles'] else 'needle'))
+            self.needle = self.needles[0]
+            self.targets = Targets(self.mesh.rest_positions, self.mesh.tetrahedra, s['targets'])
+        except SceneError:
+            raise
+        except ValueError as exc:        # MaterialError, MeshError, NeedleInputError...
+            raise SceneError(str(exc)) from exc
+        self._target_time = 0.0
+        #: run the substeps of a needle outside, at the outer membrane or inside in compiled
+        #: slices (engine.compiled_substep; False: the Python calls, the same arithmetic)
+        self.compiled_substeps = True
+        self._compiled = None
+        self.element_region = element_region
+        self.region_names = [r['name'] for r in s['regions']]
+        from tissue_sim_ros.engine.compiled.warm_up import warm_up
+        warm_up()
+
+    @classmethod
+    def from_file(cls, path=None, sets=(), **overrides):
+        """Load a scene YAML (default: the packaged liver sample); ``overrides`` replace top-level
+        sections key by key, e.g. model={'viscosity_mu_pa_s': 0.0}; ``sets``: ``KEY=VALUE``
+        strings applied after them (the ``--set`` of the commands, :mod:`.scene_overrides`)."""
+        path = Path(path) if path is not None else default_scene_path()
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise SceneError(f'scene_file = {str(path)!r}: {exc.strerror}') from exc
+        try:
+            spec = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise SceneError(f'scene_file = {str(path)!r}: not valid YAML ({exc})') from exc
+        if spec is not None and not isinstance(spec, dict):
+            raise SceneError(f'scene_file = {str(path)!r}: expected a mapping of scene keys at the top '
+                             f'level, found a {type(spec).__name__}')
+        spec = apply_overrides(merge(_auto_model_section(spec or {}), overrides), sets)
+        return cls(spec, text=text, base_dir=path.parent)
+
+    def copy(self):
+        """A new scene from the same keys (at rest, its own arrays)."""
+        return Scene(self.spec, text=self.text, base_dir=self.base_dir, mesh_frame_id=self.mesh_frame_id)
+
+    # -- stepping ---------------------------------------------------------------------------------
+    @property
+    def dt(self):
+        return self.simulation.dt
+
+    @property
+    def time(self):
+        return self.simulation.time
+
+    def advance(self, duration, position, orientation, deadline=None, max_steps=None, others=None):
+        """Move the needle to the given base pose over ``duration`` [s]; returns the substeps run.
+
+        Runs the whole steps that end by the running target time (the sum of all durations since
+        reset, ``target_time``); the needle ends on its way to the pose, less than one step before
+        it, and reaches it in the next call. ``deadline`` (a time.perf_counter() value): no step
+        starts that would, by the last step's wall time, end past it; the steps left are run by
+        the next call (duration 0 runs just those), so a real-time caller keeps its slots.
+        ``max_steps`` stops the same way after that many steps (a replay of a run that a deadline
+        stopped). ``others``: with several needles, a (position, orientation) or None (held) for
+        each of ``needles[1:]``, moved the same way.
+        Raises NeedleInputError (before any state changes) for a bad pose, SimulationDiverged if
+        the tissue diverges.
+        """
+        if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration >= 0):
+            raise SceneError(f'duration = {duration!r}: expected a finite time >= 0 s')
+        sim = self.simulation
+        targets = [(position, orientation)] + list(others if others is not None else [None] * (len(self.needles) - 1))
+        if len(targets) != len(self.needles):
+            raise SceneError(f'others: {len(targets) - 1} poses for {len(self.needles) - 1} other needle(s)')
+        moves = []
+        for k, (needle, target) in enumerate(zip(self.needles, targets)):
+            if target is None:
+                target = needle.position.copy(), needle.orientation.copy()
+            field_name = 'pose' if k == 0 else f'needles[{self.needle_names[k]}].pose'
+            p, q = needle.check_pose(target[0], target[1], field_name)
+            start_p, start_q = needle.position.copy(), needle.orientation.copy()
+            moves.append((needle, start_p, p, p - start_p, np.empty(3), start_q, q, start_q.tolist() != q.tolist()))
+        # whole steps toward a running target time, so the remainders of successive calls add up
+        # instead of being dropped (20 ms calls with a 1.7 ms step would otherwise run 20.6 ms).
+        # No step ends past the target: a step that did would hold the needle at the target for
+        # part of it, a velocity dip whose inertial force the bonded contact reports at exactly
+        # the step a caller samples (-0.06 N at 10 mm/s, 25x mass scaling, every third tick).
+        # The needle stays on its segment at the pose for the simulation's time, and the next
+        # call goes on from there at the same speed.
+        start_t, end_t = sim.time, self._target_time + duration
+        self._target_time = end_t
+        steps = 0
+        step_wall = 0.0
+        # one needle translating, explicit, nothing prescribed: the substeps it allows run in
+        # compiled slices (engine.compiled_substep); the same arithmetic
+        compiled = None
+        if self.compiled_substeps and CLOCKS_IN_COMPILED_CODE and len(moves) == 1 and not moves[0][7] \
+                and sim.integrator == 'explicit' and not sim.has_prescribed:
+            if self._compiled is None:
+                self._compiled = CompiledSubsteps(self)
+            compiled = self._compiled
+            compiled.begin(moves[0][1], moves[0][3])
+        while sim.time + sim.dt <= end_t + 1e-9 * sim.dt:
+            if max_steps is not None and steps >= max_steps:
+                return steps
+            if deadline is not None:
+                now = time.perf_counter()
+                if now + step_wall > deadline:
+                    return steps
+            if compiled is not None and compiled.ready():
+                ran, step_wall = compiled.run(start_t, end_t, None if max_steps is None else max_steps - steps,
+                                              deadline, step_wall)
+                steps += ran
+                continue
+            s = min(1.0, (sim.time + sim.dt - start_t) / (end_t - start_t))
+            for needle, start_p, _, move, position, start_q, q, turning in moves:
+                np.multiply(move, s, out=position)     # start + s * move, no array made a step
+                position += start_p
+                needle.set_pose(position, slerp(start_q, q, s) if turning else None)
+            sim.step(1)
+            for needle in self.needles:
+                needle.after_step(sim.dt)
+            if compiled is not None:
+                compiled.invalidate()
+            steps += 1
+            if deadline is not None:
+                step_wall = time.perf_counter() - now
+        if duration == 0 and steps == 0:
+            for needle, _, p, _, _, _, q, _ in moves:
+                needle.set_pose(p, q)
+                needle.set_pose(p, q)   # no step: no velocity from a pose change
+        return steps
+
+    def drop_behind(self, max_behind_s):
+        """Owe the simulation at most ``max_behind_s`` [s]: a running target time further ahead
+        of it is pulled back (the needle then reaches its pose in that much less simulated time).
+        Returns the simulated seconds dropped. The node's rule when its engine cannot keep up."""
+        excess = self._target_time - self.simulation.time - max_behind_s
+        if excess <= 0.0:
+            return 0.0
+        self._target_time -= excess
+        return excess
+
+    @property
+    def target_time(self):
+        """The running target time [s]: the sum of the durations asked of ``advance`` since reset
+        (the simulation is less than one step short of it, or more where a deadline stopped it)."""
+        return self._target_time
+
+    def reset(self):
+        """Rest state, needle at its initial pose, time 0."""
+        self.simulation.reset()
+        self.simulation.external_forces[:] = 0.0
+        for needle in self.needles:
+            needle.reset()
+        self._target_time = 0.0
+
+    # -- state ----------------------------------------------------------------------------------
+    def reaction_wrench(self, frame='world', needle=0):
+        """(force, torque) the tissue exerts on needle ``needle`` (its index) [N, N m]."""
+        return self.needles[needle].reaction_wrench(frame)
+
+    @property
+    def phase(self):
+        return self.needle.phase
+
+    @property
+    def tip_depth(self):
+        return self.needle.tip_depth()
+
+    def target_positions(self):
+        """(k, 3) where the scene's targets are now [m] (engine.targets)."""
+        return self.targets.positions(self.simulation.displacement)
+
+    def targets_relative_to_needle(self):
+        """(tip distance, lateral miss, ahead of the tip), each (k,) [m], per target."""
+        return self.targets.relative_to_needle(self.target_positions(), self.needle.tip, self.needle.axis)
+
+    @property
+    def start_gap_m(self):
+        """Tip to tissue surface along the axis at the needle's initial pose [m] (rest mesh)."""
+        position, orientation = self.initial_needle_pose
+        axis = needle_axis(orientation)
+        return surface_gap(self.mesh, position + self.needle.geometry.length_m * axis, axis)
+
+    @property
+    def initial_needle_pose(self):
+        """(position, orientation) the first needle starts from and a reset returns it to (copies)."""
+        return tuple(a.copy() for a in self.needle._initial_pose)
+
+    @property
+    def needle_pose(self):
+        return self.needle.position.copy(), self.needle.orientation.copy()
+
+    @property
+    def rest_positions(self):
+        return self.mesh.rest_positions
+
+    @property
+    def displacement(self):
+        return self.simulation.displacement
+
+    def surface_triangles(self):
+        return self.model.mesh.surface_triangles() if self.model.topology_version == 0 else \
+            _current_surface(self.model)
+
+    @property
+    def topology_version(self):
+        return self.model.topology_version
+
+    @property
+    def puncture_events(self):
+        return self.needle.puncture_events
+
+
+def needle_sections(spec):
+    """[(name, needle section)] of a scene's keys: the ``needle`` section alone, named 'needle',
+    or one per ``needles`` entry, its keys over the needle section's (checked, errors named
+    ``needles[i].key``)."""
+    if not spec['needles']:
+        return [('needle', spec['needle'])]
+    return [(entry['name'], apply_schema(f'needles[{i}]', merge(spec['needle'], {k: v for k, v in entry.items()
+                                                                             if k != 'name'}), SCHEMA['needle']))
+            for i, entry in enumerate(spec['needles'])]
+
+
+def _auto_model_section(spec):
+    """`model: auto` is short for `model: {auto: true}` (the full model's keys at their defaults)."""
+    if isinstance(spec, dict) and spec.get('model') == 'auto':
+        return dict(spec, model={'auto': True})
+    return spec
+
+
+def scene_yaml(spec, base_dir='.', header=()) -> str:
+    """A complete scene file's text: ``header`` as comment lines, then every key of ``spec`` (a
+    mesh file made absolute from ``base_dir``, so the file loads from anywhere)."""
+    import json
+    spec = json.loads(json.dumps(spec))
+    if spec['mesh'].get('file'):
+        spec['mesh']['file'] = str((Path(base_dir) / spec['mesh']['file']).resolve())
+    comments = ''.join(f'# {line}\n' for line in header)
+    return comments + yaml.safe_dump(spec, sort_keys=False)
+
+
+def _current_surface(model):
+    from tissue_sim_ros.engine.mesh.tetmesh import surface_triangles
+    return surface_triangles(model.tetrahedra, model.mesh.rest_positions)
+
+
+def merge(base, overrides):
+    """Recursive dict merge: ``overrides`` wins key by key (lists are replaced whole)."""
+    out = dict(base)
+    for key, value in overrides.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = merge(out[key], value)
+        else:
+            out[key] = value
+    return out

@@ -1,0 +1,418 @@
+"""Explicit time integration of the lumped-mass tensor-mass model, with a stability watchdog.
+
+Each node obeys m_i a_i + gamma_i v_i - f_i(u, v) = f_ext,i (DESIGN.md). We integrate with
+symplectic (semi-implicit) Euler, velocity first:
+
+    v_{n+1} = (v_n + dt (f_n + f_ext) / m) / (1 + dt gamma / m),   u_{n+1} = u_n + dt v_{n+1}
+
+The damping term is taken implicitly, so it never lowers the stable step; the elastic part is
+explicit and stable below dt_crit = 2 / omega_max (see TensorMassModel.critical_time_step).
+Degrees of freedom are free, fixed, or prescribed (a displacement given as a function of time),
+per node and per axis, so a frictionless plate can drive z alone.
+"""
+import math
+import time
+
+import numpy as np
+from numba import njit, prange
+
+from tissue_sim_ros.engine.model.kernels import FASTMATH, take_node_force
+from tissue_sim_ros.engine.solver.implicit import INTEGRATORS, ImplicitStep
+
+FREE, FIXED, PRESCRIBED = 0, 1, 2
+_AXES = {'x': 0, 'y': 1, 'z': 2}
+
+
+class SimulationDiverged(RuntimeError):
+    """The watchdog stopped a run: what diverged, at which step, with which time step."""
+
+    def __init__(self, reason, step, time, time_step, critical_time_step):
+        self.reason = reason
+        self.step = step
+        self.time = time
+        self.time_step = time_step
+        self.critical_time_step = critical_time_step
+        super().__init__(
+            f'simulation diverged at step {step} (t = {time:.6g} s): {reason}; time step '
+            f'{time_step:.4g} s against the estimated critical step {critical_time_step:.4g} s '
+            f'({time_step / critical_time_step:.2f}x)')
+
+
+@njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False, nogil=True)
+def _advance_free(displacement, velocity, buffers, chunk_node_lo, chunk_node_hi, force, external,
+                  inverse_mass, damping_rate, dof_kind, dt, displacement_limit):
+    """Gather each node's force from the element pass's buffers (into ``force``) and advance its
+    free DOFs by symplectic Euler; returns (external work, kinetic energy, count of components
+    that are not finite or whose displacement exceeds ``displacement_limit``)."""
+    work = 0.0
+    kinetic = 0.0
+    bad = 0
+    for i in prange(displacement.shape[0]):
+        force[i, 0], force[i, 1], force[i, 2] = take_node_force(buffers, chunk_node_lo, chunk_node_hi, i)
+        inv_m = inverse_mass[i]
+        damping_factor = 1.0 / (1.0 + dt * damping_rate[i])
+        for r in range(3):
+            if dof_kind[i, r] == FREE:
+                v_old = velocity[i, r]
+                v = (v_old + dt * inv_m * (force[i, r] + external[i, r])) * damping_factor
+                velocity[i, r] = v
+                displacement[i, r] += dt * v
+                work += external[i, r] * dt * v
+                v_mid = 0.5 * (v + v_old)          # velocity at the time of the forces
+                kinetic += 0.5 * v_mid * v_mid / inv_m
+                if not (abs(displacement[i, r]) < displacement_limit and abs(v) < np.inf):
+                    bad += 1
+    return work, kinetic, bad
+
+
+@njit(cache=True)
+def _apply_prescribed(nodes, axes, targets, displacement, velocity, force, external, mass, dt):
+    """Move prescribed DOFs to their targets; return the work the constraint did on the tissue.
+
+    The constraint force r closes m a = f + f_ext + r, so its work over the step is r . du.
+    """
+    work = 0.0
+    kinetic = 0.0
+    for j in range(nodes.shape[0]):
+        i = nodes[j]
+        for r in range(3):
+            if axes[r]:
+                step = targets[j, r] - displacement[i, r]
+                v_new = step / dt
+                reaction = mass[i] * (v_new - velocity[i, r]) / dt - force[i, r] - external[i, r]
+                work += reaction * step
+                v_mid = 0.5 * (v_new + velocity[i, r])
+                velocity[i, r] = v_new
+                displacement[i, r] = targets[j, r]
+                kinetic += 0.5 * mass[i] * v_mid * v_mid
+    return work, kinetic
+
+
+class _Prescribed:
+    def __init__(self, nodes, axes, displacement_at):
+        self.nodes = nodes
+        self.axes = axes
+        self.displacement_at = displacement_at
+        self.targets = np.zeros((len(nodes), 3))
+
+
+def _node_indices(nodes, n_nodes, field):
+    nodes = np.asarray(nodes)
+    if nodes.dtype == bool:
+        if nodes.shape != (n_nodes,):
+            raise ValueError(f'{field}: a boolean mask must have shape ({n_nodes},), got {nodes.shape}')
+        return np.flatnonzero(nodes)
+    nodes = nodes.astype(np.int64).ravel()
+    bad = nodes[(nodes < 0) | (nodes >= n_nodes)]
+    if bad.size:
+        raise ValueError(f'{field}: node indices {bad[:10].tolist()} out of range [0, {n_nodes})')
+    return nodes
+
+
+def _axes_mask(axes, field):
+    if not axes or set(axes) - set(_AXES):
+        raise ValueError(f"{field}: axes = {axes!r}; expected a non-empty combination of 'x', 'y', 'z'")
+    mask = np.zeros(3, dtype=np.bool_)
+    for a in axes:
+        mask[_AXES[a]] = True
+    return mask
+
+
+class Simulation:
+    """Explicit dynamics of a TensorMassModel with constraints, external forces and a watchdog.
+
+    damping: mass-proportional damping rate [1/s] (gamma_i = damping * m_i), or an (n,) array
+    of gamma_i [kg/s]. fixed: nodes fixed on all axes (indices or boolean mask). dt: time step
+    [s]; None picks ``time_step_safety`` times the critical step estimate. mass_scaling: factor
+    (>= 1) on every node mass, for quasi-static runs: the critical step grows as its square
+    root, inertial forces grow by it (measure what that costs before relying on it).
+    """
+
+    def __init__(self, model, *, damping=0.0, fixed=None, dt=None, time_step_safety=0.8,
+                 check_interval=50, energy_growth_factor=2.0, allow_inverted=False, mass_scaling=1.0,
+                 integrator='explicit', newton_tolerance=1e-6):
+        self.model = model
+        if integrator not in INTEGRATORS:
+            raise ValueError(f'integrator = {integrator!r}: expected one of {", ".join(INTEGRATORS)}')
+        self.integrator = integrator
+        if integrator != 'explicit' and getattr(model, 'precision', 'float64') != 'float64':
+            raise ValueError(f'solver.integrator = {integrator!r} needs model.precision = float64, got '
+                             f'{model.precision!r}: its Newton tangent differences forces 1e-8 of the body '
+                             f'size apart, below float32 arithmetic\'s resolution (1e-7)')
+        if not (isinstance(mass_scaling, (int, float)) and math.isfinite(mass_scaling) and mass_scaling >= 1.0):
+            raise ValueError(f'mass_scaling = {mass_scaling!r}: expected a finite factor >= 1')
+        self.mass_scaling = float(mass_scaling)
+        n = model.mesh.n_nodes
+        self.dof_kind = np.zeros((n, 3), dtype=np.int8)
+        self._update_masses()
+        damping_arr = np.asarray(damping, dtype=float)
+        if damping_arr.ndim == 0:
+            if not (math.isfinite(float(damping_arr)) and damping_arr >= 0):
+                raise ValueError(f'damping = {float(damping_arr)!r}: expected a finite rate >= 0 [1/s]')
+            self.damping_rate = np.full(n, float(damping_arr))
+        else:
+            if damping_arr.shape != (n,) or not np.all(np.isfinite(damping_arr)) or np.any(damping_arr < 0):
+                raise ValueError(f'damping: expected a rate >= 0 [1/s] or ({n},) finite gamma >= 0 [kg/s]')
+            self.damping_rate = damping_arr * self.inverse_mass
+        self._prescribed = []
+        if fixed is not None:
+            self.fix(fixed)
+        self._critical = None
+        if dt is None:
+            dt = time_step_safety * self.critical_time_step()
+        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+            raise ValueError(f'dt = {dt!r}: expected a finite time step > 0 s')
+        self.dt = float(dt)
+        self._implicit = None if integrator == 'explicit' else ImplicitStep(
+            self, quasi_static=integrator == 'quasi_static', newton_tolerance=newton_tolerance)
+        self.check_interval = int(check_interval)
+        self.energy_growth_factor = float(energy_growth_factor)
+        self.allow_inverted = allow_inverted
+        # a displacement of 100 body sizes is a blow-up even between two energy checks (a
+        # St Venant-Kirchhoff run can grow from normal to 1e38 m within a few steps)
+        self.displacement_limit = 100.0 * float(np.ptp(model.mesh.rest_positions, axis=0).max())
+        total_stiffness = float(np.sum(model.volume_lambda + 2.0 * model.volume_mu))
+        self.energy_floor = 1e-12 * total_stiffness   # energy of a strain of 1e-6
+        self.displacement = np.zeros((n, 3))
+        self.velocity = np.zeros((n, 3))
+        self.internal_force = np.zeros((n, 3))
+        self.external_forces = np.zeros((n, 3))
+        # CPU time of the calling thread in the force kernel (element pass + node update), all
+        # steps: with more numba threads, theirs is not in it (about this times the threads)
+        self.kernel_s = 0.0
+        # objects whose implicit_bonds() the implicit integrators hold inside each step (needles)
+        self.couplings = []
+        self.reset()
+        self._warm_up()
+
+    def _warm_up(self):
+        """Compile (or load from numba's cache) the step kernels at start-up: one step from rest
+        with no input changes nothing, then the state is reset. On a first start a second process
+        may be compiling them (compile_cache): wait for it, then they load."""
+        from tissue_sim_ros.engine.compiled import cache as compile_cache
+        compile_cache.wait_for_helper()
+        saved = self._prescribed
+        self._prescribed = []
+        self.step()
+        self._prescribed = saved
+        self.reset()
+
+    def _update_masses(self):
+        """Lumped masses from the model's current elements; nodes left without mass are held."""
+        self.mass = self.mass_scaling * self.model.lumped_masses()
+        massless = self.mass <= 0.0
+        self.inverse_mass = np.where(massless, 0.0, 1.0 / np.where(massless, 1.0, self.mass))
+        self.dof_kind[massless] = FIXED
+        self._topology_version = self.model.topology_version
+        # what depends on the masses or on which DOFs are free (compliances, the implicit
+        # solve's diagonals) rebuilds when this changes
+        self.mass_version = getattr(self, 'mass_version', -1) + 1
+
+    # -- set-up -------------------------------------------------------------------------------
+    def fix(self, nodes, axes='xyz'):
+        """Hold the given nodes' displacement at zero along ``axes``."""
+        idx = _node_indices(nodes, self.model.mesh.n_nodes, 'fixed')
+        self.dof_kind[np.ix_(idx, np.flatnonzero(_axes_mask(axes, 'fixed')))] = FIXED
+        self.mass_version += 1          # the held DOFs changed: what depends on them rebuilds
+
+    def prescribe(self, nodes, displacement_at, axes='xyz'):
+        """Drive nodes along ``axes``: displacement_at(t) gives (3,) or (k, 3) metres at time t."""
+        idx = _node_indices(nodes, self.model.mesh.n_nodes, 'prescribed')
+        mask = _axes_mask(axes, 'prescribed')
+        self.dof_kind[np.ix_(idx, np.flatnonzero(mask))] = PRESCRIBED
+        self._prescribed.append(_Prescribed(idx, mask, displacement_at))
+        self.mass_version += 1
+
+    def rescale_masses(self, mass_scaling):
+        """Change the mass scaling at run time (the node's degradation ladder, a prediction's
+        rung): node masses scale by ``mass_scaling`` / the current one and the time step by its
+        square root, so the step keeps its fraction of the critical step (which grows as
+        sqrt(mass)). The damping force is kept: the rate falls by the same ratio, so gamma_i =
+        m_i rate_i is the one the scene was set up (and calibrated) with and only the added
+        inertia changes the response. Scaled with the masses, as it was, the mass-proportional
+        damping dominated the change: on the default insertion (3 mm/s, 30 mm) mass scaling x16
+        moved the axial force by 0.117 of its range from the scene's own, with the damping kept
+        by 0.038 (x4: 0.075 and 0.035). Velocities are kept; the kinetic energy this changes
+        counts as work put in (the watchdog's budget)."""
+        if not (isinstance(mass_scaling, (int, float)) and math.isfinite(mass_scaling) and mass_scaling >= 1.0):
+            raise ValueError(f'mass_scaling = {mass_scaling!r}: expected a finite factor >= 1')
+        ratio = float(mass_scaling) / self.mass_scaling
+        kinetic = 0.5 * float(np.sum(self.mass[:, None] * self.velocity ** 2))
+        self.mass_scaling = float(mass_scaling)
+        self._update_masses()
+        self.damping_rate /= ratio
+        self.input_work += (ratio - 1.0) * kinetic
+        self.dt *= math.sqrt(ratio)
+        self._critical = None
+
+    def advance_arguments(self):
+        """The arguments of the node update ``_advance_free`` after the element pass (the explicit
+        step's, and a compiled substep's, engine.compiled_substep)."""
+        return (self.displacement, self.velocity, *self.model.force_buffers, self.internal_force,
+                self.external_forces, self.inverse_mass, self.damping_rate, self.dof_kind, self.dt,
+                self.displacement_limit)
+
+    @property
+    def has_prescribed(self):
+        """Whether any DOF is driven (``prescribe``)."""
+        return bool(self._prescribed)
+
+    def constraint_compliance(self):
+        """(inverse mass (n, 3) of each DOF, 0 for held ones; force scale (n,)): how a constraint
+        applied after a step (the needle's) moves a DOF and what force that takes, f = scale dx /
+        (inverse mass dt^2). Explicit: the lumped mass and 1 + dt gamma / m (the damping is
+        implicit in the update); the implicit integrators: their own (implicit.ImplicitStep)."""
+        if self._implicit is not None:
+            return self._implicit.constraint_compliance()
+        return np.where(self.dof_kind == 0, self.inverse_mass[:, None], 0.0), 1.0 + self.dt * self.damping_rate
+
+    def implicit_summary(self) -> str:
+        """The implicit integrators' line on their solves so far ('' for the explicit one)."""
+        return '' if self._implicit is None else self._implicit.summary()
+
+    def critical_time_step(self):
+        """Estimated critical (largest stable) time step [s] of the linearised model, cached.
+
+        Elastic limit 2 / omega_max (TensorMassModel.critical_time_step, masses scaled). The
+        Kelvin-Voigt force is explicit too: with C <= tau K (tau the largest ratio lambda_v /
+        lambda, mu_v / mu over the elements), the central-difference limit of a damped mode is
+        dt = (2 / omega) (sqrt(1 + zeta^2) - zeta), zeta = omega tau / 2, smallest at omega_max.
+        """
+        if self._critical is None:
+            elastic = self.model.critical_time_step() * math.sqrt(self.mass_scaling)
+            tau = self.model.viscous_time_constant()
+            omega = 2.0 / elastic
+            zeta = 0.5 * omega * tau
+            self._critical = elastic * (math.sqrt(1.0 + zeta * zeta) - zeta)
+        return self._critical
+
+    def reset(self):
+        """Back to the rest state at t = 0 (the model's relaxation history forgotten too)."""
+        self.model.reset_relaxation()
+        self.displacement[:] = 0.0
+        self.velocity[:] = 0.0
+        self.internal_force[:] = 0.0
+        self.time = 0.0
+        self.step_count = 0
+        self.input_work = 0.0
+        self.kinetic_energy = 0.0
+        self.reference_energy = None   # measured at the first step, after any initial state is set
+        self.safeguarded_elements = 0
+        self.max_safeguarded_elements = 0
+        if self._implicit is not None:
+            self._implicit.reset_counts()
+
+    # -- stepping -------------------------------------------------------------------------------
+    def step(self, n_steps=1):
+        """Advance ``n_steps`` time steps; raises SimulationDiverged when the watchdog trips."""
+        model, dt = self.model, self.dt
+        if model.topology_version != self._topology_version:   # elements were cut away or added
+            self._update_masses()
+        if self.reference_energy is None:
+            self.reference_energy = sum(self.energy())
+        for _ in range(n_steps):
+            check = (self.step_count + 1) % self.check_interval == 0
+            if check:   # energy at u_n, matched with the velocity at t_n from the advance
+                strain, inverted = model.strain_energy(self.displacement)
+            t_next = self.time + dt
+            if self._implicit is not None:
+                kernel0 = time.thread_time()
+                for p in self._prescribed:
+                    np.copyto(p.targets, p.displacement_at(t_next))
+                work, kinetic = self._implicit.step([(p.nodes, p.axes, p.targets) for p in self._prescribed])
+                self.kernel_s += time.thread_time() - kernel0
+                bad = 0
+                free_kinetic = kinetic
+            else:
+                kernel0 = time.thread_time()
+                # the time since the previous step's forces (none before the first): the relaxation's
+                # internal variables advance over it
+                model.accumulate_forces(self.displacement, self.velocity,
+                                        time_step=dt if self.step_count else 0.0)
+                work, kinetic, bad = _advance_free(*self.advance_arguments())
+                self.kernel_s += time.thread_time() - kernel0
+                free_kinetic = kinetic
+                for p in self._prescribed:
+                    np.copyto(p.targets, p.displacement_at(t_next))
+                    w, k = _apply_prescribed(p.nodes, p.axes, p.targets, self.displacement, self.velocity,
+                                             self.internal_force, self.external_forces, self.mass, dt)
+                    work += w
+                    kinetic += k
+            self.input_work += work
+            self.kinetic_energy = kinetic
+            self.time = t_next
+            self.step_count += 1
+            if check:
+                self.watch(bad, None)
+                self._check_energy(strain, inverted)
+            else:
+                self.watch(bad, free_kinetic)
+
+    def watch(self, bad, free_kinetic):
+        """The watchdog after a step: raise SimulationDiverged for ``bad`` components (not
+        finite, or past the displacement limit) or, unless None, free DOFs' kinetic energy above
+        the limit (``_energy_limit``; a compiled substep, engine.compiled_substep, tests the same)."""
+        if bad:
+            self._diverged(f'{bad} displacement or velocity components became NaN or infinite, '
+                           f'or a displacement passed {self.displacement_limit:.3g} m (100 body sizes)')
+        if free_kinetic is not None and not free_kinetic <= self._energy_limit():
+            # every step, the free DOFs' kinetic energy alone (the step computes it anyway): an
+            # unstable step's energy is half kinetic, so it is caught within a step or two of
+            # crossing. Not the prescribed DOFs': a driver's motion is not the tissue's energy
+            # (a driven relaxation cycle gives back its work while its nodes still move)
+            self._diverged(f'energy grew without input: kinetic energy {free_kinetic:.4g} J above the '
+                           f'{self._energy_limit():.4g} J a stable run can hold (initial energy '
+                           f'{self.reference_energy:.4g} J plus work put in {self.input_work:.4g} J)')
+
+    def _check_energy(self, strain, inverted):
+        """Energy (kinetic at t_n + strain at u_n) against the initial energy plus the work put in.
+
+        A stable explicit run's energy still swings by up to 1 / (1 - (dt / dt_crit)^2) (about 5x
+        at 0.9 dt_crit: the discrete modes' kinetic/strain split), so the allowed growth is
+        widened by that factor; a run above the limit grows exponentially and crosses it fast.
+        """
+        self.note_safeguarded()
+        total = self.kinetic_energy + strain
+        budget = self.reference_energy + max(self.input_work, 0.0)
+        if not math.isfinite(total) or total > self._energy_limit():
+            self._diverged(f'energy grew without input: kinetic + strain energy {total:.4g} J against '
+                           f'{budget:.4g} J initial plus work put in')
+        if inverted and self.refuses_inverted():
+            self._diverged(f'{inverted} inverted elements (det F <= 0)')
+
+    def note_safeguarded(self):
+        """At an energy-check step: the elements the inversion safeguard changed in the step's
+        force evaluation (reported, see TensorMassModel), and the most so far."""
+        self.safeguarded_elements = self.model.safeguarded_count
+        self.max_safeguarded_elements = max(self.max_safeguarded_elements, self.safeguarded_elements)
+
+    def refuses_inverted(self):
+        """Whether inverted elements at an energy-check step are a divergence: unless allowed, or
+        the geometric model's inversion safeguard handles them."""
+        return not self.allow_inverted and not (self.model.geometric and self.model.inversion_safeguard)
+
+    def _energy_limit(self):
+        """The most energy [J] a stable run can hold: the growth factor times the initial energy
+        plus the work put in, widened by the discrete swing (the implicit integrators dissipate:
+        none), plus a floor."""
+        budget = self.reference_energy + max(self.input_work, 0.0)
+        return self.energy_limit_factor() * budget + self.energy_floor
+
+    def energy_limit_factor(self):
+        """The growth factor times the discrete swing: the energy limit is this times (initial
+        energy plus work put in) plus ``energy_floor``."""
+        swing = 1.0 if self._implicit is not None else 1.0 / max(1.0 - (self.dt / self.critical_time_step()) ** 2, 0.05)
+        return self.energy_growth_factor * swing
+
+    def _diverged(self, reason):
+        raise SimulationDiverged(reason, self.step_count, self.time, self.dt, self.critical_time_step())
+
+    # -- outputs --------------------------------------------------------------------------------
+    def reaction_force(self, nodes):
+        """Total force (3,) [N] the tissue exerts on whatever holds ``nodes`` (sum of internal forces)."""
+        return self.internal_force[_node_indices(nodes, self.model.mesh.n_nodes, 'nodes')].sum(axis=0)
+
+    def energy(self):
+        """(kinetic, strain) energy [J] of the current state."""
+        kinetic = 0.5 * float(np.sum(self.mass[:, None] * self.velocity ** 2))
+        return kinetic, self.model.strain_energy(self.displacement)[0]
