@@ -31,7 +31,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'tissue_sim_node = tissue_sim_ros.ros.node:main',
+            'tissue_sim_node = tissue_sim_ros.cli.node_script:main',
             'tissue-sim = tissue_sim_ros.cli:main',
         ],
     },

@@ -298,12 +298,15 @@ def test_a_bad_fit_option_is_one_error_line_naming_it(cheap_study, tmp_path, cap
     assert status == 2 and error.startswith('tissue-sim calibrate: error:') and says in error
 
 
-@pytest.mark.parametrize('value', [0.0, 1e-10, 2.5e-7, 1e20, 12345.678, -3e-5])
+@pytest.mark.parametrize('value', [0.0, 1e-10, 2.5e-7, 1e20, 12345.678])
 def test_a_fitted_value_reaches_the_scene_as_the_same_number(value):
-    """YAML 1.1 reads 1e-10 as text; the scene refused such a value mid-search."""
-    import yaml
-    from tissue_sim_ros.analysis.calibration.parameters import yaml_number
-    assert yaml.safe_load(yaml_number(value)) == value
+    """A fitted value is set by its key path as a number (YAML 1.1 would read 1e-10 as text)."""
+    from tissue_sim_ros.engine.scene.checks import apply_schema
+    from tissue_sim_ros.engine.scene.keys import get_key, set_key
+    from tissue_sim_ros.engine.scene.schema import SCHEMA
+    key = 'regions[0].friction.retraction_constant_n'
+    spec = apply_schema('', set_key({}, key, value), SCHEMA)
+    assert get_key(spec, key) == value
 
 
 def test_coarse_to_fine_finishes_on_the_scene_as_asked_and_says_whose_jacobian_the_errors_use(cheap_study, tmp_path):

@@ -13,10 +13,9 @@ from tissue_sim_ros.engine.scene.scene import Scene
 MEDIUM = chart.MESHES['medium']
 
 
-def _config(model, reference=False, extra=()):
+def _config(model, reference=False, extra=None):
     return dict(task='insertion', model=model, mesh='medium', integrator='explicit', mass_scaling=None,
-                reference=reference,
-                overrides=chart.MODELS[model] + MEDIUM + list(extra))
+                reference=reference, values={**chart.MODELS[model], **MEDIUM, **(extra or {})})
 
 
 @pytest.fixture(scope='module')
@@ -25,7 +24,7 @@ def small_chart(tmp_path_factory):
     scene's step); linear and full at the scene's 400, 10 mm of travel."""
     out = tmp_path_factory.mktemp('chart')
     jobs = [chart.make_job(c, travel=0.010) for c in (
-        _config('full', reference=True, extra=['solver.mass_scaling=25']), _config('linear'), _config('full'))]
+        _config('full', reference=True, extra={'solver.mass_scaling': 25.0}), _config('linear'), _config('full'))]
     report = chart.run_chart(jobs=jobs, out=out, workers=1, quiet=True, travel=0.010)
     return out, report
 

@@ -1,7 +1,7 @@
 """First start: where numba's cache goes, what a first start prints, and which kernels it compiles.
 
 Each test runs a fresh Python process, since numba reads its cache directory once, at import.
-The cold start's figure is a benchmark: python -m tissue_sim_ros.bench.cold_start.
+The cold start's figure is a benchmark: tissue-sim bench cold-start.
 """
 import os
 import subprocess
@@ -145,7 +145,7 @@ def test_processes_compiling_different_models_at_once_share_one_cache(tmp_path):
     env.update(NUMBA_CACHE_DIR=str(tmp_path / 'cache'), TISSUE_SIM_ROS_COMPILE_PROCESS='1',
                PYTHONPATH=os.pathsep.join([str(ROOT)] + [p for p in [os.environ.get('PYTHONPATH')] if p]))
     models = ('000', '101')           # linear; geometric with viscosity
-    code = 'import sys; from tissue_sim_ros.engine.compiled.cache import compile_element_pass; ' \
+    code = 'import sys; from tissue_sim_ros.engine.model.tensor_mass import compile_element_pass; ' \
            'compile_element_pass(*(c == "1" for c in sys.argv[1]))'
     processes = [subprocess.Popen([sys.executable, '-c', code, flags], env=env, cwd=str(ROOT),
                                   stderr=subprocess.PIPE, text=True) for flags in models]

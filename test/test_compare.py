@@ -39,7 +39,7 @@ def write_study(directory: Path, sets, *, seed=1, force_delay_s=0.0):
             times.append(times[-1] + rng.uniform(0.010, 0.0114))
         t = np.array(times)
         force = np.interp(t - force_delay_s, run.time, run.axial_force) + rng.normal(0.0, NOISE_N, len(t))
-        travel = np.interp(t, run.time, run.depth)
+        travel = np.interp(t, run.time, run.travel)
         with open(directory / f'trial_3p0_{repeat}.csv', 'w') as handle:
             handle.write('time,fz,pz\n')
             for us, fz, pz in zip(np.round((t + 12.3) * 1e6).astype(np.int64), -1e3 * force,

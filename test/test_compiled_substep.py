@@ -9,7 +9,7 @@ from tissue_sim_ros.analysis.insertion import run_insertion
 from tissue_sim_ros.engine.compiled import substeps as compiled_substep
 from tissue_sim_ros.engine.compiled.call import compiled_address
 from tissue_sim_ros.engine.scene.scene import Scene
-from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+from tissue_sim_ros.errors import SimulationDiverged
 
 #: a capsule, then a second layer with its own membrane under a plane (the apex's layer decided
 #: in the compiled call) and a box region with other laws below it

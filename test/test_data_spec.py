@@ -9,8 +9,9 @@ import yaml
 
 from tissue_sim_ros.io.trials.data_spec import (DataSpec, file_name_labels, group_by_speed, load_trials,
                                          speed_from_text)
-from tissue_sim_ros.io.trials.data_spec_keys import DataSpecError
-from tissue_sim_ros.io.trials.trial import DataError, Trial
+from tissue_sim_ros.errors import DataSpecError
+from tissue_sim_ros.io.trials.trial import Trial
+from tissue_sim_ros.errors import DataError
 
 PATTERN = r'sample_(?P<speed>\d+(?:[_p]\d+)?)_(?P<repeat>\d+)_(?P<date>\d{8})'
 SPEC = {

@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.engine.driver import SimulationDriver
-from tissue_sim_ros.engine.needle.interaction import NeedleInputError
-from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+from tissue_sim_ros.errors import PoseError, SimulationDiverged
 from tissue_sim_ros.ros.loop.pacing import (COALESCE_MARGIN_S, COALESCE_MAX_SPAN_S, COALESCE_MIN_WAIT_S, COALESCE_SAFETY,
                                              RATIO_TRUST, EnginePacing, LadderControl)
 
@@ -48,10 +47,10 @@ def test_a_refused_pose_holds_the_needle_and_time_goes_on():
     driver = SimulationDriver(scene)
     position, orientation = scene.needle_pose
     outcome = driver.advance(0.02, position + [0.0, 0.0, -0.02], orientation)  # 20 mm > 5 mm limit
-    assert isinstance(outcome.refused, NeedleInputError) and driver.refusals == 1
+    assert isinstance(outcome.refused, PoseError) and driver.refusals == 1
     np.testing.assert_array_equal(scene.needle_pose[0], position)
     assert outcome.substeps == int(0.02 / scene.dt + 1e-9) and driver.simulated_s == 0.02
-    with pytest.raises(NeedleInputError):  # a schedule is the caller's: follow raises it
+    with pytest.raises(PoseError):  # a schedule is the caller's: follow raises it
         driver.follow([0.04], [position + [0.0, 0.0, -0.02]])
 
 

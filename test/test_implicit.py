@@ -7,7 +7,8 @@ import pytest
 import tissue_sim_ros as ts
 from tissue_sim_ros.engine.driver import SimulationDriver
 from tissue_sim_ros.engine.solver.implicit_bonds import BondRows
-from tissue_sim_ros.engine.scene.scene import Scene, SceneError
+from tissue_sim_ros.engine.scene.scene import Scene
+from tissue_sim_ros.errors import SceneError
 
 COARSE = ['mesh.fine_size_m=0.003', 'mesh.divisions=[6,6,5]']
 
@@ -146,7 +147,7 @@ def test_no_root_at_the_nonlinearity_threshold_is_a_stall_not_a_failure(cube, li
     the elements within 1e-4 below the threshold: the residual left is within that jump, and the
     jump within the step's estimate."""
     from tissue_sim_ros.engine.model import kernels as forces
-    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+    from tissue_sim_ros.errors import SimulationDiverged
 
     def jump(model, x, free):
         both = []

@@ -7,10 +7,20 @@ import math
 import numpy as np
 import pytest
 
-from test_needle import small_scene
+from test_needle import small_scene, small_spec
 from tissue_sim_ros.analysis.charting.mass_scaling_rule import MAX_PROBES, MAX_SCALING, choose_mass_scaling
 from tissue_sim_ros.engine.driver import SimulationDriver
 from tissue_sim_ros.engine.solver.inertia_estimate import InertiaEstimate, inertia_line, weighted_body_force
+
+
+def auto_scene(**options):
+    """The small sample with its auto keys resolved, as every command loads a scene."""
+    from tissue_sim_ros.analysis.charting.auto_keys import resolve_auto_keys
+    from tissue_sim_ros.engine.scene.checks import apply_schema
+    from tissue_sim_ros.engine.scene.schema import SCHEMA
+    from tissue_sim_ros.engine.scene.scene import Scene
+    spec, choices = resolve_auto_keys(apply_schema('', small_spec(**options), SCHEMA))
+    return Scene(spec, auto_choices=choices)
 
 
 def test_weighted_body_force_equals_numpy():
@@ -157,8 +167,8 @@ def test_auto_scene_takes_the_rule_and_caches_it(tmp_path, monkeypatch):
     monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path))
     solver = {'mass_scaling': 'auto', 'design_speed_m_s': 0.01}
     region = {'membrane': {'criterion': 'force', 'rupture_force_n': 0.3}}
-    scene = small_scene(solver=solver, region=region)
-    record = scene.mass_scaling_rule
+    scene = auto_scene(solver=solver, region=region)
+    record = scene.auto_choices['solver.mass_scaling']
     within = [p for p in record['probes'] if p['error'] <= record['inertia_error_bound']]
     chosen = scene.simulation.mass_scaling
     assert chosen == max(p['mass_scaling'] for p in within) > REFERENCE_SCALING
@@ -167,7 +177,7 @@ def test_auto_scene_takes_the_rule_and_caches_it(tmp_path, monkeypatch):
 
     scene_file = next(tmp_path.rglob('*-scene.yaml'))
     rows = [simulate_job(make_job(dict(model='scene', mesh='scene', integrator='explicit', reference=False,
-                                       overrides=[f'solver.mass_scaling={s!r}']), scene_file, (), speed=0.01))
+                                       values={'solver.mass_scaling': s}), scene_file, (), speed=0.01))
             for s in (REFERENCE_SCALING, chosen)]
     measured = force_nrmse(rows[1]['axial_force'], rows[0]['axial_force'])
     assert measured == pytest.approx(next(p['error'] for p in within if p['mass_scaling'] == chosen), rel=1e-9)
@@ -175,7 +185,7 @@ def test_auto_scene_takes_the_rule_and_caches_it(tmp_path, monkeypatch):
 
     import tissue_sim_ros.analysis.charting.chart as chart
     monkeypatch.setattr(chart, 'simulate_job', lambda job: pytest.fail('probed again'))
-    again = small_scene(solver=solver, region=region)
+    again = auto_scene(solver=solver, region=region)
     assert again.simulation.mass_scaling == chosen
 
 

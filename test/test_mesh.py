@@ -8,8 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.engine.mesh.tetmesh import (MeshError, MeshOrientationWarning, TetMesh, make_mesh, mean_ratio,
-                                        signed_volumes, surface_triangles)
+from tissue_sim_ros.engine.mesh.tetmesh import (MeshOrientationWarning, TetMesh, make_mesh, mean_ratio,
+                                                signed_volumes, surface_triangles)
+from tissue_sim_ros.errors import MeshError
 from tissue_sim_ros.engine.mesh.generators import box_mesh, graded_box_mesh
 
 UNIT_CORNER = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])

@@ -7,8 +7,9 @@ import meshio
 import numpy as np
 import pytest
 
-from tissue_sim_ros.engine.mesh.tetmesh import (MeshError, MeshOrientationWarning, face_elements, make_mesh,
-                                        signed_volumes)
+from tissue_sim_ros.engine.mesh.tetmesh import (MeshOrientationWarning, face_elements, make_mesh,
+                                                signed_volumes)
+from tissue_sim_ros.errors import MeshError
 from tissue_sim_ros.engine.mesh.generators import box_mesh, graded_box_mesh
 from tissue_sim_ros.engine.mesh.files import load_mesh, save_mesh
 

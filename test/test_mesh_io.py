@@ -8,7 +8,8 @@ import meshio
 import numpy as np
 import pytest
 
-from tissue_sim_ros.engine.mesh.tetmesh import MeshError, MeshOrientationWarning, make_mesh, mean_ratio, signed_volumes
+from tissue_sim_ros.engine.mesh.tetmesh import MeshOrientationWarning, make_mesh, mean_ratio, signed_volumes
+from tissue_sim_ros.errors import MeshError
 from tissue_sim_ros.engine.mesh.generators import box_mesh
 from tissue_sim_ros.engine.mesh.files import load_mesh, save_mesh
 

@@ -6,16 +6,23 @@ import time
 import numpy as np
 import pytest
 
-from tissue_sim_ros.engine.needle.interaction import NeedleInputError, rotation_matrix, validate_pose
-from tissue_sim_ros.engine.scene.scene import Scene, SceneError
+from tissue_sim_ros.engine.needle.interaction import rotation_matrix, validate_pose
+from tissue_sim_ros.errors import PoseError
+from tissue_sim_ros.engine.scene.scene import Scene
+from tissue_sim_ros.errors import SceneError
 
 DOWN = [1.0, 0.0, 0.0, 0.0]          # needle axis (+z of its frame) along world -z
 E, NU = 16000.0, 0.45
 
 
-def small_scene(*, fine=0.002, region=None, regions=None, model=None, solver=None, mesh=None, gap=0.0005):
+def small_scene(**options):
     """A 30 x 30 x 20 mm sample (top at z = 0), needle tip ``gap`` above the centre."""
-    spec = {'mesh': {'size_m': [0.03, 0.03, 0.02], 'origin_m': [-0.015, -0.015, -0.02], 'divisions': [6, 6, 4],
+    return Scene(small_spec(**options))
+
+
+def small_spec(*, fine=0.002, region=None, regions=None, model=None, solver=None, mesh=None, gap=0.0005):
+    """The keys of :func:`small_scene`."""
+    return {'mesh': {'size_m': [0.03, 0.03, 0.02], 'origin_m': [-0.015, -0.015, -0.02], 'divisions': [6, 6, 4],
                      'fine_size_m': fine, 'focus_radius_m': 0.002, 'grade_z': True, **(mesh or {})},
             'model': {'geometric': False, 'physical': {'law': 'none'}, 'viscosity_mu_pa_s': 0.0, **(model or {})},
             'needle': {'initial_position_m': [0.0, 0.0, 0.15 + gap], 'length_m': 0.15,
@@ -23,7 +30,6 @@ def small_scene(*, fine=0.002, region=None, regions=None, model=None, solver=Non
             'solver': {'mass_scaling': 400.0, 'damping_per_s': 50.0, **(solver or {})},
             'regions': regions or [{'name': 'tissue', 'young_modulus_pa': E, 'poisson_ratio': NU,
                                     'membrane': {'criterion': 'force', 'rupture_force_n': 100.0}, **(region or {})}]}
-    return Scene(spec)
 
 
 def push(scene, travel, speed, *, tick=0.02):
@@ -317,7 +323,7 @@ def test_bad_poses_are_refused_by_name_and_state_is_unchanged():
                                          (p, [1.0, 0.0, 0.0, np.nan], 'pose.orientation'),
                                          (p, [1.2, 0.0, 0.0, 0.0], 'pose.orientation'),
                                          (p + [0.0, 0.0, -0.02], DOWN, 'pose.position')):
-        with pytest.raises(NeedleInputError) as err:
+        with pytest.raises(PoseError) as err:
             scene.advance(0.02, position, orientation)
         assert err.value.field == field and field in str(err.value)
     assert scene.time == 0.0 and np.array_equal(scene.needle_pose[0], p)
@@ -336,7 +342,7 @@ def test_a_turn_about_the_base_is_limited_by_how_far_the_tip_moves():
         theta = 2 * math.asin(chord / (2 * length))
         s, c = math.sin(theta / 2), math.cos(theta / 2)  # (0, s, 0, c) q: a turn about world y
         return np.array([c * q[0] + s * q[2], c * q[1] + s * q[3], c * q[2] - s * q[0], c * q[3] - s * q[1]])
-    with pytest.raises(NeedleInputError, match='moves the needle by 6 mm') as err:
+    with pytest.raises(PoseError, match='moves the needle by 6 mm') as err:
         scene.advance(0.02, p, turned(0.006))
     assert err.value.field == 'pose.position' and scene.time == 0.0
     scene.advance(0.02, p, turned(0.004))
@@ -363,6 +369,7 @@ def test_scene_keys_unknown_and_impossible_values_are_named():
 
 def test_insert_command_writes_the_csv_and_plot(tmp_path):
     import csv
+    import json
 
     import yaml
 
@@ -374,14 +381,17 @@ def test_insert_command_writes_the_csv_and_plot(tmp_path):
     scene_file.write_text(yaml.safe_dump(spec))
     cli.main(['insert', '--scene', str(scene_file), '--speed-mm-s', '10', '--travel-mm', '4',
               '--out', str(tmp_path)])
-    with open(tmp_path / 'insertion.csv') as f:
+    with open(tmp_path / 'insert.csv') as f:
         rows = list(csv.reader(f))
     assert tuple(rows[0]) == CSV_HEADER
     phases = [r[-1] for r in rows[1:]]
     assert {'approach', 'contact', 'inserted', 'retracting'} <= set(phases)
     values = np.array([[float(v) for v in r[:-1]] for r in rows[1:]])
     assert np.all(np.isfinite(values)) and values[:, 1].max() == pytest.approx(0.004)
-    assert (tmp_path / 'insertion.png').stat().st_size > 10_000
+    assert (tmp_path / 'insert.png').stat().st_size > 10_000
+    figures = json.loads((tmp_path / 'insert.json').read_text())
+    assert figures['peak_axial_force_n'] == pytest.approx(values[:, -1].max(), rel=1e-5)
+    assert (tmp_path / 'insert.md').read_text().startswith('# Insertion at 10 mm/s')
 
 
 def test_advance_calls_add_up_to_the_time_asked_for():

@@ -19,8 +19,8 @@ def pre_puncture(tip_sets):
     tip, pushed INDENT_M into a capsule that does not rupture, at 3 mm/s."""
     scene = Scene.from_file(sets=COARSE_FAR + NO_PUNCTURE + tip_sets)
     run = run_insertion(scene, 0.003, scene.start_gap_m + INDENT_M, retract=False, tick=0.02)
-    inside = run.depth > scene.start_gap_m
-    return run.depth[inside] - scene.start_gap_m, run.axial_force[inside]
+    inside = run.travel > scene.start_gap_m
+    return run.travel[inside] - scene.start_gap_m, run.axial_force[inside]
 
 
 def test_sharp_tips_curve_up_before_the_puncture_and_sharper_cones_push_less():
@@ -49,7 +49,7 @@ def lateral_after_puncture(orientation_deg):
                                                f'needle.tip.bevel_orientation_deg={orientation_deg}'])
     run = run_insertion(scene, 0.003, scene.start_gap_m + 0.018, retract=False, tick=0.02)
     puncture = scene.puncture_events[0]['tip_depth_m'] + scene.start_gap_m
-    window = (run.depth > puncture + 0.004) & (run.depth < puncture + 0.010)
+    window = (run.travel > puncture + 0.004) & (run.travel < puncture + 0.010)
     rotation = scene.needle.rotation
     force_world = run.force[window].mean(axis=0)
     return (rotation.T @ force_world)[:2], run.torque[window].mean(axis=0), force_world, scene.needle.axis

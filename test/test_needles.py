@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.engine.driver import SimulationDriver
-from tissue_sim_ros.engine.scene.scene import Scene, SceneError
+from tissue_sim_ros.engine.scene.scene import Scene
+from tissue_sim_ros.errors import InputError
 
 MESH = {'generator': 'graded_box', 'divisions': [8, 8, 6], 'fine_size_m': 0.002, 'focus_radius_m': 0.006}
 DOWN = np.array([0.0, 0.0, -1.0])
@@ -84,20 +85,22 @@ def test_a_reset_puts_every_needle_back():
      r'needles\[1\].initial_pose = .*starts inside the tissue'),
 ])
 def test_bad_needle_lists_are_refused_by_name(needles, words):
-    with pytest.raises(SceneError, match=words):
+    """Refused as input (a SceneError for the keys, a PoseError for where the needle starts)."""
+    with pytest.raises(InputError, match=words):
         Scene.from_file(None, mesh={'generator': 'box', 'divisions': [4, 4, 3]}, needles=needles)
 
 
 def test_a_prediction_moves_the_first_needle_and_reports_the_others_held():
     """From a state with the fixation needle in the tissue, a path that takes the biopsy needle
     in beside it: the fixation's wrench is a column, equal to the live run continued."""
-    from tissue_sim_ros.engine.prediction import check_path
+    from tissue_sim_ros.engine.prediction import check_path, predict
     scene, _ = _run(TWO, [(10.0, 10.0), (0.0, 3.0)], 3.0)
     driver = SimulationDriver(scene)
     start, q = scene.needle_pose
     times = np.arange(0.0, 3.0 + 1e-9, TICK)
     positions = start + (SPEED * times)[:, None] * DOWN
-    prediction = driver.predict(check_path(times, positions, np.tile(q, (times.size, 1)), max_jump_m=0.005))
+    path = check_path(times, positions, np.tile(q, (times.size, 1)), max_jump_m=0.005)
+    prediction = predict(driver.scene, path, wrench_frame=driver.wrench_frame)
     assert prediction.columns[-6:] == [f'needle/fixation/{c}' for c in
                                        ('force_x_n', 'force_y_n', 'force_z_n', 'torque_x_nm', 'torque_y_nm', 'torque_z_nm')]
     live = [driver.forces[1].copy()]

@@ -686,7 +686,7 @@ def test_node_insertion_gives_the_axial_force_curve_of_tissue_sim_insert(harness
     assert all(w.header.frame_id == 'world' for w in wrenches)
     axial = (-force @ axis)[1:]  # positive when the tissue resists insertion
     depth = travel_at[1:]  # tick k moved the needle to travel_at[k]; tick 0 held it
-    np.testing.assert_allclose(depth, reference.depth, atol=1e-12)  # the same pose sequence
+    np.testing.assert_allclose(depth, reference.travel, atol=1e-12)  # the same pose sequence
     # The engine's contact and puncture depend on where the substeps fall within a tick (the
     # node ticks once more at rest before the first move, and its ticks are exactly 20 ms where
     # run_insertion's are whole substeps, 20.6 ms): an offline run of the same scene advanced like

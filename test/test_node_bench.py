@@ -128,7 +128,8 @@ def test_thread_groups_by_os_name_with_the_main_thread_as_the_executor():
 
 def test_a_node_that_refuses_its_parameters_is_one_error_naming_the_reason(tmp_path):
     pytest.importorskip('rclpy')
-    from tissue_sim_ros.ros.clients.node_process import NodeProcess, NodeProcessError
+    from tissue_sim_ros.ros.clients.node_process import NodeProcess
+    from tissue_sim_ros.errors import NodeProcessError
     with NodeProcess(['publish_rate_hz:=-5.0'], tmp_path / 'node.log') as node:
         assert node.env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
         assert node.env['ROS_DOMAIN_ID'] == str(node.domain_id) != os.environ.get('ROS_DOMAIN_ID')

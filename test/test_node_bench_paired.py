@@ -52,7 +52,7 @@ def test_the_revision_is_exported_as_git_has_it_and_once(tmp_path):
     paired.export_revision(head, tmp_path / 'rev')
     assert not (tmp_path / 'rev' / 'stray.txt').exists()
     assert (tmp_path / 'rev' / 'setup.py').read_text() == setup
-    with pytest.raises(paired.PairedBenchError, match="'no-such-revision'"):
+    with pytest.raises(paired.BenchError, match="'no-such-revision'"):
         paired.resolve_commit('no-such-revision')
 
 
@@ -110,17 +110,17 @@ def test_runs_alternate_which_goes_first_resume_and_refuse_another_comparison(tm
     assert len(calls) == 6 and again['ratios'] == summary['ratios']
     assert sum('(reused)' in line for line in lines) == 6
     # not another comparison over those runs
-    with pytest.raises(paired.PairedBenchError, match='another bench_args'):
+    with pytest.raises(paired.BenchError, match='another bench_args'):
         paired.run('HEAD', 'out', pairs=3, duration_s=2.0, stream=lambda *_: None)
     plan = tmp_path / 'out' / 'plan.json'
     plan.rename(tmp_path / 'plan.json')       # runs whose plan is gone are not taken either
-    with pytest.raises(paired.PairedBenchError, match='no plan.json'):
+    with pytest.raises(paired.BenchError, match='no plan.json'):
         paired.run('HEAD', 'out', pairs=3, duration_s=1.0, stream=lambda *_: None)
     (tmp_path / 'plan.json').rename(plan)
     # a run whose node did not exit cleanly is not taken
     (tmp_path / 'out' / 'runs' / 'pair1_after' / 'node_bench.json').write_text(
         json.dumps({'node_cpu_pct_of_one_core': 40.0, 'node_exit_code': -9}))
-    with pytest.raises(paired.PairedBenchError, match='pair1_after'):
+    with pytest.raises(paired.BenchError, match='pair1_after'):
         paired.run('HEAD', 'out', pairs=3, duration_s=1.0, stream=lambda *_: None)
 
 

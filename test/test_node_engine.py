@@ -17,7 +17,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 
 from test_node import (_private_ros, harness, make_scene, publish_at_stamps,  # noqa: E402,F401 - fixtures
                        straight_descent)
-from tissue_sim_ros import SimulationDiverged  # noqa: E402
+from tissue_sim_ros.errors import SimulationDiverged  # noqa: E402
 from tissue_sim_ros.ros.messages import conversions as cv  # noqa: E402
 
 

@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.engine.needle.parameters import NeedleGeometry
-from tissue_sim_ros.engine.needle.pose import (DEFAULT_MAX_JUMP_M, DEFAULT_MAX_JUMP_RAD, QUATERNION_NORM_TOLERANCE,
-                                        NeedleInputError, needle_axis, pose_jump, rotation_angle,
-                                        rotation_matrix, slerp, unit_quaternion, validate_pose)
+from tissue_sim_ros.engine.needle.pose import (DEFAULT_MAX_JUMP_M, DEFAULT_MAX_JUMP_RAD,
+                                               QUATERNION_NORM_TOLERANCE, needle_axis, pose_jump,
+                                               rotation_angle, rotation_matrix, slerp, unit_quaternion,
+                                               validate_pose)
+from tissue_sim_ros.errors import PoseError
 from tissue_sim_ros.ros.clients.drive import _axis
 from tissue_sim_ros.ros.loop.pose_input import PoseInputLimits
 
@@ -69,7 +71,7 @@ def test_unit_quaternion_normalises_within_the_tolerance_and_refuses_beyond():
     assert norm == pytest.approx(1.009) and np.linalg.norm(unit) == pytest.approx(1.0, abs=1e-15)
     assert unit_quaternion(1.011 * q)[0] is None and unit_quaternion(0.989 * q)[0] is None
     assert unit_quaternion(1.05 * q, tolerance=0.1)[0] is not None
-    with pytest.raises(NeedleInputError, match=f'norm 1.02, expected 1 within {QUATERNION_NORM_TOLERANCE}'):
+    with pytest.raises(PoseError, match=f'norm 1.02, expected 1 within {QUATERNION_NORM_TOLERANCE}'):
         validate_pose([0, 0, 0], 1.02 * q)
 
 

@@ -14,7 +14,7 @@ import pytest
 
 from tissue_sim_ros.analysis.predict import main as predict_main, read_path_csv
 from tissue_sim_ros.engine.driver import SimulationDriver
-from tissue_sim_ros.engine.needle.pose import NeedleInputError
+from tissue_sim_ros.errors import PoseError
 from tissue_sim_ros.engine.prediction import (WRENCH_COLUMNS, check_path, predict, predict_snapshot,
                                               scene_snapshot, write_snapshot)
 from tissue_sim_ros.engine.scene.scene import Scene
@@ -58,7 +58,7 @@ def live_and_prediction():
     stamps, positions, orientations = _down(scene, 3.0, 1.5, t0=1234.5)
     path = check_path(stamps, positions, orientations, max_jump_m=0.005, start_pose=scene.needle_pose,
                       length_m=scene.needle.geometry.length_m)
-    prediction = driver.predict(path)
+    prediction = predict(driver.scene, path, wrench_frame=driver.wrench_frame)
     after = _state(scene)
     live = [np.r_[driver.force, driver.torque, scene.tip_depth, scene.targets_relative_to_needle()[0]]]
     rest = scene.targets.rest
@@ -123,7 +123,7 @@ def test_a_worker_snapshot_predicts_the_same_and_a_rung_changes_the_settings(tmp
 def test_a_bad_path_is_refused_naming_the_pose(change, field, words):
     scene = _scene()
     stamps, positions, orientations = change(*_down(scene, 0.0, 0.18))
-    with pytest.raises(NeedleInputError, match=field) as caught:
+    with pytest.raises(PoseError, match=field) as caught:
         check_path(stamps, positions, orientations, max_jump_m=0.005, max_duration_s=10.0,
                    start_pose=scene.needle_pose)
     assert words in str(caught.value)
@@ -181,7 +181,7 @@ def test_predict_with_a_max_error_runs_on_the_cheapest_rung_within_it(tmp_path, 
 
 
 def test_a_path_csv_without_a_column_or_with_a_word_is_refused_by_line(tmp_path):
-    from tissue_sim_ros.io.trials.trial import DataError
+    from tissue_sim_ros.errors import DataError
     bad = tmp_path / 'bad.csv'
     bad.write_text('t,x,y,z,qx,qy,qz\n0,0,0,0.159,1,0,0\n')
     with pytest.raises(DataError, match="no column 'qw'"):
@@ -208,7 +208,7 @@ def test_the_prediction_example_is_what_the_engine_answers():
     answer = load_example(ROOT / 'msg_examples' / 'plan_prediction.yaml')['messages']['message']
     scene = Scene.from_file(None, targets=[{'name': 'tumour', 'position_m': [0.002, 0.0, -0.015]}])
     path = check_path(*path_arrays(request, 'world'), max_jump_m=0.005, start_pose=scene.needle_pose)
-    prediction = SimulationDriver(scene, wrench_frame='needle').predict(path)
+    prediction = predict(scene, path, wrench_frame='needle')
     assert answer.header.stamp == request.header.stamp
     assert list(answer.joint_names) == prediction.columns
     assert [p.time_from_start.sec for p in answer.points] == [round(t) for t in prediction.time_from_start_s]

@@ -7,7 +7,9 @@ import yaml
 
 from tissue_sim_ros.analysis.charting import chart
 from tissue_sim_ros.analysis.charting import recommend
+from tissue_sim_ros.analysis.charting.auto_keys import load_scene
 from tissue_sim_ros.engine.scene.scene import Scene
+from tissue_sim_ros.errors import SceneError
 
 MEDIUM = chart.MESHES['medium']
 
@@ -35,10 +37,10 @@ def test_recommended_scene_measured_afresh_within_tolerance(tmp_path):
     scaling 400 and 100 and the linear model; a tolerance the 400 run misses. No cost limit (the
     machine's load must not decide the test; the rule is tested above)."""
     configs = [dict(model='full', mesh='medium', integrator='explicit', mass_scaling=None, reference=True,
-                    overrides=chart.MODELS['full'] + MEDIUM + ['solver.mass_scaling=25'])]
+                    values={**chart.MODELS['full'], **MEDIUM, 'solver.mass_scaling': 25.0})]
     configs += [dict(model=m, mesh='medium', integrator='explicit', mass_scaling=None, reference=False,
-                     overrides=chart.MODELS[m] + MEDIUM + extra)
-                for m, extra in (('full', []), ('full', ['solver.mass_scaling=100']), ('linear', []))]
+                     values={**chart.MODELS[m], **MEDIUM, **extra})
+                for m, extra in (('full', {}), ('full', {'solver.mass_scaling': 100.0}), ('linear', {}))]
     jobs = [chart.make_job(c, travel=0.010) for c in configs]
     errors = {}
     for tolerance in (1.0, 0.12):
@@ -72,7 +74,7 @@ def test_model_auto_uses_the_cached_recommendation(tmp_path, monkeypatch):
 
     def study(scene_file, sets, *, tolerance, out, **options):
         calls.append(tolerance)
-        chosen = Scene.from_file(scene_file, sets=chart.MODELS['linear'] + MEDIUM).spec
+        chosen = Scene.from_file(scene_file, values={**chart.MODELS['linear'], **MEDIUM}).spec
         out.mkdir(parents=True)
         (out / 'recommended.yaml').write_text(yaml.safe_dump(chosen))
 
@@ -80,12 +82,14 @@ def test_model_auto_uses_the_cached_recommendation(tmp_path, monkeypatch):
     scene_file = tmp_path / 'auto.yaml'
     base = yaml.safe_load(Scene.from_file(None).text)
     scene_file.write_text(yaml.safe_dump(dict(base, model='auto')))
-    first = Scene.from_file(scene_file)
+    with pytest.raises(SceneError, match='model.auto = true: chosen by measuring'):
+        Scene.from_file(scene_file)                                     # the engine alone cannot
+    first = load_scene(scene_file)
     assert calls == [0.05]
     assert first.spec['model']['geometric'] is False and first.spec['model']['auto'] is False
-    assert first.recommended_from['model']['auto'] is True
-    assert first.mesh.n_elements == Scene.from_file(None, sets=MEDIUM).mesh.n_elements
-    again = Scene.from_file(scene_file)                                  # from the cache
+    assert first.auto_choices['model.auto']['written']['model']['auto'] is True
+    assert first.mesh.n_elements == Scene.from_file(None, values=MEDIUM).mesh.n_elements
+    again = load_scene(scene_file)                                      # from the cache
     assert calls == [0.05] and again.spec == first.spec
-    Scene.from_file(scene_file, sets=['model.auto_tolerance=0.01'])     # another scene: another study
+    load_scene(scene_file, sets=['model.auto_tolerance=0.01'])          # another scene: another study
     assert calls == [0.05, 0.01]

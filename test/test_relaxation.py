@@ -18,7 +18,8 @@ import tissue_sim_ros as ts
 from tissue_sim_ros.analysis.insertion import run_insertion
 from tissue_sim_ros.engine.model.relaxation import PronySeries
 from tissue_sim_ros.engine.scene.scene import Scene
-from tissue_sim_ros.engine.scene.schema import SCHEMA, SceneError, apply_schema
+from tissue_sim_ros.engine.scene.schema import SCHEMA, apply_schema
+from tissue_sim_ros.errors import SceneError
 
 SIDE = 0.01                        # block edge [m]
 MATERIAL = ts.Material(young_modulus=5e3, poisson_ratio=0.3, density=1000.0)
@@ -319,7 +320,7 @@ def held_needle(sets):
     scene = Scene.from_file(sets=sets)
     result = run_insertion(scene, 0.005, TRAVEL_M, hold_s=HOLD_S, retract=False)
     assert not result.puncture_events
-    holding = result.depth >= TRAVEL_M - 1e-12
+    holding = result.travel >= TRAVEL_M - 1e-12
     return result.time[holding] - result.time[holding][0], result.axial_force[holding]
 
 

@@ -1,7 +1,8 @@
 """Scene values refused at load, each naming its path in the scene, the value and the bound."""
 import pytest
 
-from tissue_sim_ros.engine.scene.scene import Scene, SceneError
+from tissue_sim_ros.engine.scene.scene import Scene
+from tissue_sim_ros.errors import SceneError
 
 COARSE = {'generator': 'box', 'divisions': [6, 6, 4]}
 
@@ -76,9 +77,11 @@ def test_an_exponent_without_a_dot_is_a_number_in_a_file_and_in_a_set(tmp_path):
 
 @pytest.mark.parametrize('override, words', [
     ('model.geometrc=true', ['model.geometrc', 'known keys here: geometric']),
-    ('regions[kidney].young_modulus_pa=1', ["no region named 'kidney'", "'liver'"]),
-    ('regions[3].young_modulus_pa=1', ['regions[3]', '1 region(s)']),
+    ('regions[kidney].young_modulus_pa=1', ["no entry of regions named 'kidney'", "'liver'"]),
+    ('regions[3].young_modulus_pa=1', ['regions[3]', 'the list has 1 entry']),
     ('regions.young_modulus_pa=1', ['regions is a list', 'regions[0]']),
+    ('regions[0].select.below_z=1', ['regions[0].select.below_z', 'below_z_m']),
+    ('model.relaxation[0].time_constant_s=1', ['model.relaxation[0]', 'the list has 0 entries']),
     ('mesh=3', ['mesh is a section', 'generator']),
     ('solver.mass_scaling', ['expected KEY=VALUE']),
     ('solver.mass_scaling=-1', ['solver.mass_scaling = -1', ">= 1 or 'auto'"]),   # the file's own check

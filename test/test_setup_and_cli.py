@@ -36,8 +36,8 @@ def test_cli_reports_a_bad_scene_and_a_divergence_in_one_line(tmp_path, capsys, 
     """A scene with an unknown key, and a run whose simulation diverges: one error line naming
     it and exit status 2, no traceback."""
     from tissue_sim_ros.cli import app as cli
-    from tissue_sim_ros.analysis import insertion
-    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+    from tissue_sim_ros.analysis import insert
+    from tissue_sim_ros.errors import SimulationDiverged
     bad = tmp_path / 'bad.yaml'
     bad.write_text('needle:\n  diameter_mm: 2.4\n')
     assert cli.main(['insert', '--scene', str(bad), '--out', str(tmp_path)]) == 2
@@ -46,7 +46,7 @@ def test_cli_reports_a_bad_scene_and_a_divergence_in_one_line(tmp_path, capsys, 
 
     def diverge(*args, **kwargs):
         raise SimulationDiverged('13 inverted elements (det F <= 0)', 2500, 5.83, 0.0023, 0.0029)
-    monkeypatch.setattr(insertion, 'run_insertion', diverge)
+    monkeypatch.setattr(insert, 'run_insertion', diverge)
     assert cli.main(['insert', '--out', str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert 'diverged at step 2500' in err and 'model.geometric: true' in err
@@ -148,7 +148,7 @@ def _error_line(capsys, argv):
     (['insert', '--travel-mm', '3', '--depth-mm', '3'], ['--depth-mm', 'not allowed with', '--travel-mm']),
     (['insert', '--travel-mm', '0'], ["--travel-mm: '0'", '> 0']),
     (['insert', '--set', 'solver.mass_scaling'], ["--set 'solver.mass_scaling'", 'KEY=VALUE']),
-    (['insert', '--set', 'regions[kidney].young_modulus_pa=1'], ["no region named 'kidney'"]),
+    (['insert', '--set', 'regions[kidney].young_modulus_pa=1'], ["no entry of regions named 'kidney'"]),
     (['drive', '--speed-mm-s', '1', '--travel-mm', '2'], ['--travel-mm 2', 'start height']),
     (['demo', '--speed-mm-s', '-5'], ["--speed-mm-s: '-5'"]),
     (['demo', '--depth-mm', '-15'], ["--depth-mm: '-15'"]),

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.analysis.insertion import run_insertion, target_columns, write_csv
-from tissue_sim_ros.engine.scene.scene import Scene, SceneError
+from tissue_sim_ros.engine.scene.scene import Scene
+from tissue_sim_ros.errors import SceneError
 
 COARSE = ['mesh.fine_size_m=0.003', 'mesh.divisions=[6,6,5]']
 TARGETS = 'targets=[{name: tumour, position_m: [0.002, 0.0, -0.015]}, {name: fiducial, position_m: [0.012, -0.007, -0.031]}]'

@@ -9,10 +9,11 @@ import sys
 import numpy as np
 import pytest
 
-from tissue_sim_ros.io.trials.data_spec_keys import DataSpecError
-from tissue_sim_ros.io.trials.measurement_units import UnitError, to_si, unit_factor
+from tissue_sim_ros.errors import DataSpecError
+from tissue_sim_ros.io.trials.measurement_units import to_si, unit_factor
+from tissue_sim_ros.errors import UnitError
 from tissue_sim_ros.io.trials.text_files import read_text_trial
-from tissue_sim_ros.io.trials.trial import DataError
+from tissue_sim_ros.errors import DataError
 
 # Independent definitions: standard gravity, the avoirdupois pound, the inch.
 G0 = 9.80665

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_sim_ros.io.trials.trial import DataError
+from tissue_sim_ros.errors import DataError
 
 __all__ = ['PATH_COLUMNS', 'read_path_csv', 'write_prediction', 'main']
 
@@ -129,14 +129,13 @@ def main(scene_file, path_file, out, *, sets=(), wrench_frame='needle', max_erro
     wrench.frame_id) or 'world'. ``max_error`` > 0: on the cheapest degradation-ladder rung whose
     measured error against the scene as configured is within it, as the node's
     ``prediction.max_error`` (the rung and its error in the outputs). Returns the Prediction."""
-    from tissue_sim_ros.engine.driver import SimulationDriver
-    from tissue_sim_ros.engine.prediction import check_path
-    from tissue_sim_ros.engine.scene.scene import Scene
+    from tissue_sim_ros.analysis.charting.auto_keys import load_scene
+    from tissue_sim_ros.engine.prediction import check_path, predict
     stream = sys.stdout if stream is None else stream
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     stamps, positions, orientations = read_path_csv(path_file)
-    scene = Scene.from_file(scene_file, sets=sets)
+    scene = load_scene(scene_file, sets=sets)
     needle = scene.needle
     path = check_path(stamps, positions, orientations, max_jump_m=needle.geometry.max_jump_m,
                       start_pose=scene.needle_pose, length_m=needle.geometry.length_m,
@@ -148,7 +147,7 @@ def main(scene_file, path_file, out, *, sets=(), wrench_frame='needle', max_erro
     if rung is not None:
         print(f"on the ladder's rung '{rung['rung']}' (measured error {rung['rung_error']:.4f} of the "
               f'force range against the scene as configured, within {max_error:g})', file=stream)
-    prediction = SimulationDriver(scene, wrench_frame=wrench_frame).predict(path)
+    prediction = predict(scene, path, wrench_frame=wrench_frame)
     figures = dict(_figures(prediction), **(rung or {}))
     write_prediction(prediction, out, title=f'prediction of {Path(path_file).name}', wrench_frame=wrench_frame)
     summary = {'scene': str(scene_file) if scene_file else 'default (config/liver_sample.yaml)',

@@ -33,16 +33,13 @@ import numpy as np
 import yaml
 
 from tissue_sim_ros.units import NS_PER_S
+from tissue_sim_ros.errors import ReplayError
 
-__all__ = ['NodeRun', 'ReplayError', 'ReplayResult', 'read_node_run', 'replay', 'main']
+__all__ = ['NodeRun', 'ReplayResult', 'read_node_run', 'replay', 'main']
 
 _WRENCH = 'geometry_msgs/msg/WrenchStamped'
 _TRACE = 'std_msgs/msg/Float64MultiArray'
 _POSE = 'geometry_msgs/msg/PoseStamped'
-
-
-class ReplayError(ValueError):
-    """A log that cannot be replayed; names the log and what is missing."""
 
 
 def _flatten(d: dict, prefix: str = '') -> dict:
@@ -136,11 +133,12 @@ def _recorded(run: NodeRun):
 def _node_scene(run: NodeRun, scene_file=None, sets=()):
     """The scene to replay with: the log's own (its keys as the engine used them), or the one
     given, with the ``--set`` overrides; laid out for the node's engine threads."""
+    from tissue_sim_ros.analysis.charting.auto_keys import load_scene
     from tissue_sim_ros.engine.scene.scene import Scene
     from tissue_sim_ros.engine.scene.keys import apply_overrides
     from tissue_sim_ros.ros.parameters import AUTO_THREADS_ELEMENTS
     if scene_file is not None:
-        scene = Scene.from_file(scene_file, sets=sets)
+        scene = load_scene(scene_file, sets=sets)
     else:
         if run.scene_spec is None:
             raise ReplayError(f'{run.path}: the log holds no scene (metadata "scene"); give --scene')

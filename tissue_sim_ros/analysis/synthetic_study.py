@@ -23,17 +23,17 @@ def write_synthetic_study(directory, scene_sets, speeds_mm_s, *, travel_m=0.02, 
                           noise_n=0.005, seed=1, scene_file=None) -> Path:
     """Write the study into ``directory``; returns its data description's path."""
     from tissue_sim_ros.analysis.insertion import run_insertion
-    from tissue_sim_ros.engine.scene.scene import Scene
+    from tissue_sim_ros.analysis.charting.auto_keys import load_scene
     rng = np.random.default_rng(seed)
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     for speed in speeds_mm_s:
-        run = run_insertion(Scene.from_file(scene_file, sets=scene_sets), speed * 1e-3, travel_m,
+        run = run_insertion(load_scene(scene_file, sets=scene_sets), speed * 1e-3, travel_m,
                             hold_s=hold_s, tick=0.01)
         for repeat in range(1, repeats + 1):
             t = np.arange(0.0, run.time[-1], 0.01) + rng.uniform(0.0, 0.001)
             force = np.interp(t, run.time, run.axial_force) + rng.normal(0.0, noise_n, t.size)
-            rows = np.column_stack([t, force, 1e3 * np.interp(t, run.time, run.depth)])
+            rows = np.column_stack([t, force, 1e3 * np.interp(t, run.time, run.travel)])
             np.savetxt(directory / f'trial_{speed:g}_{repeat}.csv', rows, delimiter=',', fmt='%.6f',
                        header='time,fz,pz', comments='')
     spec = directory / 'spec.yaml'

@@ -1,6 +1,6 @@
 """Cold-start benchmark: wall time from a fresh install (an empty numba cache) to the first step.
 
-    python -m tissue_sim_ros.bench.cold_start [--scene FILE] [--modes parallel one-process warm]
+    tissue-sim bench cold-start [--scene FILE] [--modes parallel one-process warm]
 
 Each mode runs a new Python process that loads a scene (default: the packaged one) and takes one
 step, timed from the process's start as a user sees it:
@@ -27,7 +27,6 @@ needs a C compiler where the package is built, and builds generic x86-64 code by
 AVX2/FMA, or the host features _threading gives numba), so the shipped kernels would run slower
 than the 22 s compile that a first start now costs once.
 """
-import argparse
 import os
 import subprocess
 import sys
@@ -83,13 +82,11 @@ def run(scene_file=None, modes=MODES, out=sys.stdout):
     return figures
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split('\n', 1)[0])
-    parser.add_argument('--scene', default=None, help='scene YAML (default: the packaged scene)')
-    parser.add_argument('--modes', nargs='+', choices=MODES, default=list(MODES))
-    args = parser.parse_args(argv)
-    run(args.scene, args.modes)
+def main(*, scene=None, modes=MODES):
+    """``tissue-sim bench cold-start``: run each mode, print the figures."""
+    return run(scene, list(modes))
 
 
 if __name__ == '__main__':
-    main()
+    import sys
+    sys.exit('this benchmark runs as: tissue-sim bench cold-start (tissue-sim bench --help)')

@@ -34,8 +34,9 @@ from pathlib import Path
 
 import tissue_sim_ros
 from tissue_sim_ros.system.child_env import importing_from
+from tissue_sim_ros.errors import BenchError
 
-__all__ = ['run', 'summarise', 'resolve_commit', 'export_revision', 'PairedBenchError']
+__all__ = ['run', 'summarise', 'resolve_commit', 'export_revision', 'BenchError']
 
 #: figures kept per run (node_bench.json keys both versions write; the kernel share only newer
 #: ones). Each side measures with its own node-bench: revisions before the latency was read
@@ -43,10 +44,6 @@ __all__ = ['run', 'summarise', 'resolve_commit', 'export_revision', 'PairedBench
 COLUMNS = ('node_cpu_pct_of_one_core', 'kernel_share_of_node_cpu', 'wrench_rate_hz',
            'tick_period_dev_ms_p99', 'latency_ms_p99', 'missed_ticks', 'ticks')
 CPU_GOAL_RATIO = 0.6   # issue 19: the node's CPU at most 60 % of what it was
-
-
-class PairedBenchError(ValueError):
-    """A revision that is not there, or a run of either version that failed (its output named)."""
 
 
 def _this_tree() -> Path:
@@ -58,11 +55,11 @@ def _git(*args: str) -> subprocess.CompletedProcess:
 
 
 def resolve_commit(rev: str) -> str:
-    """The full hash of commit ``rev`` of this checkout's repository; PairedBenchError when this
+    """The full hash of commit ``rev`` of this checkout's repository; BenchError when this
     is not a git checkout or ``rev`` names no commit."""
     found = _git('rev-parse', '--verify', '--quiet', f'{rev}^{{commit}}')
     if found.returncode != 0:
-        raise PairedBenchError(f'--against {rev!r}: no such commit in {_this_tree()} (a git checkout is needed)')
+        raise BenchError(f'--against {rev!r}: no such commit in {_this_tree()} (a git checkout is needed)')
     return found.stdout.decode().strip()
 
 
@@ -82,7 +79,7 @@ def export_revision(commit: str, into: Path) -> None:
     into.mkdir(parents=True)
     archive = _git('archive', '--format=tar', commit)
     if archive.returncode != 0:
-        raise PairedBenchError(f'git archive {commit}: {archive.stderr.decode().strip()}')
+        raise BenchError(f'git archive {commit}: {archive.stderr.decode().strip()}')
     with tarfile.open(fileobj=io.BytesIO(archive.stdout)) as tar:
         tar.extractall(into, filter='data')
     (into / 'COMMIT').write_text(commit + '\n')
@@ -111,11 +108,11 @@ def _bench_once(tree: Path, run_dir: Path, bench_args: list[str], env: dict) -> 
                               capture_output=True, text=True)
         (run_dir / 'console.txt').write_text(done.stdout + done.stderr)
         if done.returncode != 0 or not result_file.is_file():
-            raise PairedBenchError(f'node-bench of {tree} failed (exit {done.returncode}); its output: '
+            raise BenchError(f'node-bench of {tree} failed (exit {done.returncode}); its output: '
                                    f'{run_dir / "console.txt"}')
     result = json.loads(result_file.read_text())
     if result.get('node_exit_code') != 0 or not isinstance(result.get('node_cpu_pct_of_one_core'), (int, float)):
-        raise PairedBenchError(f'{result_file}: the node exited with {result.get("node_exit_code")!r} or its CPU '
+        raise BenchError(f'{result_file}: the node exited with {result.get("node_exit_code")!r} or its CPU '
                                'was not measured; delete that run to measure it again')
     return result, reused
 
@@ -126,12 +123,12 @@ def _check_plan(out: Path, plan: dict) -> None:
     path = out / 'plan.json'
     if any((out / 'runs').glob('*/node_bench.json')):
         if not path.is_file():
-            raise PairedBenchError(f'{out} holds runs but no plan.json saying what they compare; expected '
+            raise BenchError(f'{out} holds runs but no plan.json saying what they compare; expected '
                                    'an empty directory or one this command filled')
         earlier = json.loads(path.read_text())
         changed = [k for k in plan if earlier.get(k) != plan[k]]
         if changed:
-            raise PairedBenchError(f'{out} holds runs with another {", ".join(changed)} '
+            raise BenchError(f'{out} holds runs with another {", ".join(changed)} '
                                    f'({", ".join(repr(earlier.get(k)) for k in changed)}); expected an empty '
                                    'directory or the same comparison')
         return

@@ -1,6 +1,6 @@
 """Benchmark of replay and compare (issue 14), printed, not asserted::
 
-    python -m tissue_sim_ros.bench.study [--replay-s 60] [--trials 30] [--samples 5000]
+    tissue-sim bench study [--replay-s 60] [--trials 30] [--samples 5000]
 
 - replay: the node runs the default scene for ``--replay-s`` seconds under node-bench's
   scripted insertions (recording on); ``tissue-sim replay`` then runs the log again: its
@@ -15,7 +15,6 @@ node, the simulation workers), from getrusage.
 """
 from __future__ import annotations
 
-import argparse
 import resource
 import tempfile
 import time
@@ -59,7 +58,7 @@ def _synthetic_study(directory: Path, trials: int, samples: int) -> Path:
         for repeat in repeats:
             times = np.cumsum(rng.uniform(0.9, 1.1, samples)) * run.time[-1] / samples
             force = np.interp(times, run.time, run.axial_force) + rng.normal(0.0, 0.005, samples)
-            travel = np.interp(times, run.time, run.depth)
+            travel = np.interp(times, run.time, run.travel)
             name = f'sample_{speed * 1e3:.1f}'.replace('.', '_') + f'_{repeat + 1}.csv'
             np.savetxt(directory / name, np.column_stack([np.round(times * 1e6), force * 1e3, travel * 1e3]),
                        delimiter=',', header='time,fz,pz', comments='', fmt=['%d', '%.4f', '%.5f'])
@@ -83,24 +82,18 @@ def bench_compare(trials: int, samples: int, directory: Path) -> dict:
             'peak_rss_mb': own, 'peak_child_rss_mb': children}
 
 
-def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(prog='python -m tissue_sim_ros.bench.study',
-                                     description=__doc__.split('\n\n')[0])
-    parser.add_argument('--replay-s', type=float, default=60.0)
-    parser.add_argument('--trials', type=int, default=30)
-    parser.add_argument('--samples', type=int, default=5000)
-    parser.add_argument('--skip', choices=['replay', 'compare'], default=None)
-    args = parser.parse_args(argv)
+def main(*, replay_s=60.0, trials=30, samples=5000, skip=None) -> dict:
+    """``tissue-sim bench study``: run both parts (or one), print their figures."""
     results = {}
     with tempfile.TemporaryDirectory(prefix='study_bench_') as tmp:
-        if args.skip != 'compare':
-            results['compare'] = c = bench_compare(args.trials, args.samples, Path(tmp))
+        if skip != 'compare':
+            results['compare'] = c = bench_compare(trials, samples, Path(tmp))
             print(f"compare: {c['trials']} trials x {c['samples']} samples, {c['simulations']} simulations, "
                   f"{c['wall_s']:.1f} s wall; model NRMSE {c['nrmse_mean']:.4f}, noise floor "
                   f"{c['noise_floor_nrmse']:.4f}; peak memory {c['peak_rss_mb']:.0f} MB here, "
                   f"{c['peak_child_rss_mb']:.0f} MB in the largest worker")
-        if args.skip != 'replay':
-            results['replay'] = r = bench_replay(args.replay_s, Path(tmp))
+        if skip != 'replay':
+            results['replay'] = r = bench_replay(replay_s, Path(tmp))
             print(f"replay: a {r['log_s']:g} s node log, {r['ticks']} ticks in {r['replay_wall_s']:.1f} s "
                   f"(real-time factor {r['real_time_factor']:.1f}), largest difference "
                   f"{r['max_abs_difference_n']:.3g} N; peak memory {r['peak_rss_mb']:.0f} MB")
@@ -108,4 +101,5 @@ def main(argv=None) -> dict:
 
 
 if __name__ == '__main__':
-    main()
+    import sys
+    sys.exit('this benchmark runs as: tissue-sim bench study (tissue-sim bench --help)')

@@ -31,7 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tissue_sim_ros.engine.needle.pose import NeedleInputError, pose_jump, validate_pose
+from tissue_sim_ros.engine.needle.pose import pose_jump, validate_pose
+from tissue_sim_ros.errors import PoseError
 
 __all__ = ['WRENCH_COLUMNS', 'DEFAULT_MAX_DURATION_S', 'CandidatePath', 'Prediction',
            'prediction_columns', 'check_path', 'scene_snapshot', 'scene_from_snapshot', 'predict',
@@ -73,31 +74,31 @@ class CandidatePath:
 def check_path(stamps_s, positions, orientations, *, max_jump_m: float,
                max_duration_s: float = DEFAULT_MAX_DURATION_S, start_pose=None,
                length_m: float = 0.0, field_name: str = 'path') -> CandidatePath:
-    """A :class:`CandidatePath` from stamps [s] (any origin) and poses, or NeedleInputError naming
+    """A :class:`CandidatePath` from stamps [s] (any origin) and poses, or PoseError naming
     the pose and its value. ``start_pose``: (position, orientation) of the needle now, which the
     first pose must be within ``max_jump_m`` of; ``length_m``: the needle's length, so the tip's
     move counts toward a jump as it does in the engine."""
     stamps = np.asarray(stamps_s, dtype=np.float64).reshape(-1)
     k = stamps.size
     if k == 0:
-        raise NeedleInputError(f'{field_name}.poses', [], 'no poses; a path needs at least one')
+        raise PoseError(f'{field_name}.poses', [], 'no poses; a path needs at least one')
     try:
         positions = np.asarray(positions, dtype=np.float64).reshape(k, 3)
         orientations = np.asarray(orientations, dtype=np.float64).reshape(k, 4)
     except ValueError:
-        raise NeedleInputError(f'{field_name}.poses', (np.shape(positions), np.shape(orientations)),
+        raise PoseError(f'{field_name}.poses', (np.shape(positions), np.shape(orientations)),
                                f'expected {k} positions (x, y, z) and {k} quaternions, one per stamp') from None
     unit = np.empty_like(orientations)
     for i in range(k):
         if not math.isfinite(stamps[i]):
-            raise NeedleInputError(f'{field_name}.poses[{i}].header.stamp', float(stamps[i]), 'expected a finite time')
+            raise PoseError(f'{field_name}.poses[{i}].header.stamp', float(stamps[i]), 'expected a finite time')
         if i and not stamps[i] > stamps[i - 1]:
-            raise NeedleInputError(f'{field_name}.poses[{i}].header.stamp', float(stamps[i]),
+            raise PoseError(f'{field_name}.poses[{i}].header.stamp', float(stamps[i]),
                                    f'not after poses[{i - 1}] ({stamps[i - 1]:.9g} s): stamps must increase')
         positions[i], unit[i] = validate_pose(positions[i], orientations[i], f'{field_name}.poses[{i}].pose')
     duration = float(stamps[-1] - stamps[0])
     if duration > max_duration_s:
-        raise NeedleInputError(f'{field_name}.poses[{k - 1}].header.stamp', float(stamps[-1]),
+        raise PoseError(f'{field_name}.poses[{k - 1}].header.stamp', float(stamps[-1]),
                                f'the path lasts {duration:.6g} s, more than the limit {max_duration_s:g} s')
     previous = start_pose
     for i in range(k):
@@ -105,7 +106,7 @@ def check_path(stamps_s, positions, orientations, *, max_jump_m: float,
             jump = pose_jump(previous[0], previous[1], positions[i], unit[i], length_m)
             if jump.exceeds(max_jump_m):
                 came_from = f'poses[{i - 1}]' if i else "the needle's current pose"
-                raise NeedleInputError(f'{field_name}.poses[{i}].pose.position', positions[i].tolist(),
+                raise PoseError(f'{field_name}.poses[{i}].pose.position', positions[i].tolist(),
                                        f'{jump.distance_m * 1e3:.4g} mm from {came_from}, more than the '
                                        f'jump limit {max_jump_m * 1e3:.4g} mm')
         previous = positions[i], unit[i]
@@ -184,7 +185,7 @@ def predict(scene, path: CandidatePath, *, wrench_frame: str = 'world', copy: bo
     step (the fraction the live scene carries into its next call, so the prediction steps on the
     live schedule) and dropped beyond it (the lag of an engine that ran late: the path starts
     from the state as it is). Raises SimulationDiverged
-    or NeedleInputError (a pose the engine refuses on the way)."""
+    or PoseError (a pose the engine refuses on the way)."""
     from tissue_sim_ros.engine.driver import SimulationDriver
     wall0 = time.perf_counter()
     if copy:

@@ -73,8 +73,9 @@ from tissue_sim_ros.ros.targets import targets_msg, targets_status
 from tissue_sim_ros.ros.recording import (every_kth_tick, node_log_topics, open_node_log,
                                                record_service_call)
 from tissue_sim_ros.ros.parameter_declaration import declare_parameters
-from tissue_sim_ros.ros.parameters import (NODE_NAME, PARAMETERS, ConfigError, NodeConfig,
-                                           help_text as _help_text, load_scene, make_config)
+from tissue_sim_ros.ros.parameters import (NODE_NAME, PARAMETERS, NodeConfig, help_text as _help_text,
+                                           load_scene, make_config)
+from tissue_sim_ros.errors import ConfigError
 from tissue_sim_ros.ros.loop.pose_input import PoseInput
 from tissue_sim_ros.ros.messages.pose_cdr import decode_pose
 from tissue_sim_ros.ros.loop.tick_thread import TickThread
@@ -105,20 +106,21 @@ class TissueSimNode(Node):
     Raises ConfigError (a parameter refused, or the scene file not loaded) from the constructor.
     """
 
-    def __init__(self, *, scene=None, node_name: str = NODE_NAME, slow_down=None, **node_kwargs):
+    def __init__(self, *, scene=None, node_name: str = NODE_NAME, slow_down=None, resolve_auto=None,
+                 **node_kwargs):
         super().__init__(node_name, **node_kwargs)
         self._recorder, self._closed, self.engine, self.predictions = None, False, None, None
         try:
-            self._set_up(scene, slow_down)
+            self._set_up(scene, slow_down, resolve_auto)
         except BaseException:
             # a half-built node left to the garbage collector takes its logger's /rosout
             # registration with it whenever it is collected, even from a later node of that name
             self.destroy_node()
             raise
 
-    def _set_up(self, scene, slow_down) -> None:
+    def _set_up(self, scene, slow_down, resolve_auto) -> None:
         values = declare_parameters(self)
-        self.scene = scene if scene is not None else load_scene(values['scene_file'])
+        self.scene = scene if scene is not None else load_scene(values['scene_file'], resolve_auto)
         self.config = cfg = make_config(values, getattr(self.scene, 'mesh_frame_id', None))
         self.driver = SimulationDriver(self.scene, wrench_frame=cfg.wrench_frame,
                                        on_divergence=cfg.on_divergence)
@@ -471,10 +473,15 @@ class TissueSimNode(Node):
         return super().destroy_node()
 
 
-def main(argv=None) -> int:
-    """Run the node until SIGINT or SIGTERM; 0 on a clean stop, 2 on a refused parameter."""
+def main(argv=None, resolve_auto=None) -> int:
+    """Run the node until SIGINT or SIGTERM; 0 on a clean stop, 2 on a refused parameter.
+    ``resolve_auto``: how ``model: auto`` and ``solver.mass_scaling: auto`` become concrete keys
+    (``tissue_sim_ros.cli.node_script`` passes the analysis layer's; without it such a scene is
+    refused, naming the key)."""
+    import functools
+
     from tissue_sim_ros.ros.node_main import run
-    return run(TissueSimNode, help_text, argv)
+    return run(functools.partial(TissueSimNode, resolve_auto=resolve_auto), help_text, argv)
 
 
 if __name__ == '__main__':

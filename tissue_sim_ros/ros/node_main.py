@@ -14,7 +14,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
-from tissue_sim_ros.ros.parameters import ConfigError
+from tissue_sim_ros.errors import ConfigError
 
 __all__ = ['make_executor', 'run']
 

@@ -14,8 +14,9 @@ import yaml
 
 from tissue_sim_ros.engine.needle.pose import DEFAULT_MAX_JUMP_M, DEFAULT_MAX_JUMP_RAD, QUATERNION_NORM_TOLERANCE
 from tissue_sim_ros.ros.loop.pose_input import PoseInputLimits
+from tissue_sim_ros.errors import ConfigError, InputError
 
-__all__ = ['AUTO_THREADS_ELEMENTS', 'NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'make_config', 'load_scene',
+__all__ = ['AUTO_THREADS_ELEMENTS', 'NODE_NAME', 'PARAMETERS', 'NodeConfig', 'make_config', 'load_scene',
            'parameters_yaml', 'help_text']
 
 NODE_NAME = 'tissue_sim'
@@ -107,10 +108,6 @@ PARAMETERS = (
     _Param('on_divergence', 'reset', 'when the simulation diverges: reset it to rest, or hold the '
            'last good wrench until ~/reset', choices=('reset', 'hold')),
 )
-
-
-class ConfigError(ValueError):
-    """A parameter the node refuses at start; the message names it and its value."""
 
 
 @dataclass(frozen=True)
@@ -251,13 +248,15 @@ def help_text(summary: str = '') -> str:
     return '\n'.join(lines)
 
 
-def load_scene(scene_file: str):
-    """The scene of ``scene_file`` (empty: the packaged default), or ConfigError naming it."""
+def load_scene(scene_file: str, resolve_auto=None):
+    """The scene of ``scene_file`` (empty: the packaged default), or ConfigError naming it;
+    ``resolve_auto``: as ``Scene.from_file``'s (the console script passes the analysis layer's,
+    for ``model: auto`` and ``solver.mass_scaling: auto``)."""
     from tissue_sim_ros.engine.scene.scene import Scene, default_scene_path
     path = scene_file or default_scene_path()
     try:
-        return Scene.from_file(path)
+        return Scene.from_file(path, resolve_auto=resolve_auto)
     except FileNotFoundError as exc:
         raise ConfigError(f'parameter scene_file: {scene_file!r}: {exc}') from None
-    except (ValueError, KeyError, TypeError, OSError, yaml.YAMLError) as exc:
+    except (InputError, OSError) as exc:
         raise ConfigError(f'parameter scene_file: {str(path)!r} was refused: {exc}') from None

@@ -42,10 +42,11 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path as PathMsg
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from tissue_sim_ros.engine.needle.pose import NeedleInputError, pose_jump
+from tissue_sim_ros.engine.needle.pose import pose_jump
+from tissue_sim_ros.errors import PoseError
 from tissue_sim_ros.engine.prediction import (check_path, predict_snapshot, prediction_columns,
                                               write_snapshot)
-from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+from tissue_sim_ros.errors import SimulationDiverged
 from tissue_sim_ros.system.thread_names import name_os_thread
 from tissue_sim_ros.system.process_pools import stop_pool
 from tissue_sim_ros.ros.messages.conversions import header, stamp_to_ns
@@ -78,13 +79,13 @@ def _snapshot_directory() -> Path:
 def path_arrays(msg, frame_id: str):
     """(stamps [s], positions (k, 3), quaternions (k, 4)) of a nav_msgs/Path; a pose in another
     frame than ``frame_id`` (the path's header frame, or the pose's own when it names one) raises
-    NeedleInputError naming it."""
+    PoseError naming it."""
     k = len(msg.poses)
     stamps, positions, orientations = np.empty(k), np.empty((k, 3)), np.empty((k, 4))
     for i, stamped in enumerate(msg.poses):
         frame = stamped.header.frame_id or msg.header.frame_id
         if frame != frame_id:
-            raise NeedleInputError(f'path.poses[{i}].header.frame_id', frame,
+            raise PoseError(f'path.poses[{i}].header.frame_id', frame,
                                    f'expected {frame_id!r}, the node\'s frame (there is no tf here)')
         p, q = stamped.pose.position, stamped.pose.orientation
         stamps[i] = stamp_to_ns(stamped.header.stamp) / NS_PER_S
@@ -133,7 +134,7 @@ def _start_worker(niceness: int, parent_pid: int) -> None:
             time.sleep(1.0)
         os._exit(0)
     threading.Thread(target=watch_parent, name='tissue_sim-prediction-parent-watch', daemon=True).start()
-    from tissue_sim_ros.engine.compiled.warm_up import warm_up
+    from tissue_sim_ros.engine.warm_up import warm_up
     warm_up()
 
 
@@ -142,7 +143,7 @@ def _work(snapshot, path, wrench_frame, threads, threshold, mass_scaling):
     try:
         return predict_snapshot(snapshot, path, wrench_frame, threads=threads, threshold=threshold,
                                 mass_scaling=mass_scaling), None
-    except (SimulationDiverged, NeedleInputError) as exc:
+    except (SimulationDiverged, PoseError) as exc:
         return None, f'the engine could not follow the path: {exc}'
 
 
@@ -225,7 +226,7 @@ class PredictionService:
             stamps, positions, orientations = path_arrays(msg, self.frame_id)
             path = check_path(stamps, positions, orientations, max_jump_m=self.max_jump_m,
                               max_duration_s=self.max_duration_s, length_m=self.length_m)
-        except NeedleInputError as exc:
+        except PoseError as exc:
             self._finish(request, None, f'refused: {exc}')
             return
         self.engine.post(lambda: self._submit(request, path))
@@ -236,12 +237,12 @@ class PredictionService:
         try:
             driver = self.engine.driver
             if driver.held:
-                raise NeedleInputError('path', '(any)', 'the simulation is held after a divergence; '
+                raise PoseError('path', '(any)', 'the simulation is held after a divergence; '
                                        'call ~/reset first')
             position, orientation = driver.needle_pose
             jump = pose_jump(position, orientation, path.positions[0], path.orientations[0], self.length_m)
             if jump.exceeds(self.max_jump_m):
-                raise NeedleInputError('path.poses[0].pose.position', path.positions[0].tolist(),
+                raise PoseError('path.poses[0].pose.position', path.positions[0].tolist(),
                                        f"{jump.distance_m * 1e3:.4g} mm from the needle's current pose "
                                        f'{position.tolist()}, more than the jump limit '
                                        f'{self.max_jump_m * 1e3:.4g} mm: a path starts where the needle is')
@@ -257,7 +258,7 @@ class PredictionService:
                 self._users[snapshot] += 1
             future = self._ensure_pool().submit(_work, str(snapshot), path, self.wrench_frame,
                                                 self.threads, threshold, mass_scaling)
-        except NeedleInputError as exc:
+        except PoseError as exc:
             self._finish(request, None, f'refused: {exc}')
             return
         except Exception as exc:  # noqa: BLE001 - never the engine thread's end: answered, logged

@@ -5,7 +5,7 @@
 2. Affordable stiffness: a trial that would shrink the time step below the starting scene's keeps
    that step by raising the mass scaling (the critical step grows as its square root); its
    damping force stays the scene's (the rate falls as the mass scaling rises:
-   ``scene_overrides.with_mass_scaling``, the rule the node's degradation ladder follows). The inertia
+   ``engine.scene.keys.with_mass_scaling``, the rule the node's degradation ladder follows). The inertia
    error this brings is measured once, on the scene the search runs on: the fastest speed's
    simulation (the shortest, and the largest inertial forces: the worst case) at the starting
    mass scaling m0 and at m0 / 4, the damping force kept; the quasi-static error of mass scaling
@@ -34,9 +34,10 @@ from pathlib import Path
 import numpy as np
 
 from tissue_sim_ros.analysis.calibration.fine import REFIT_STEPS
+from tissue_sim_ros.analysis.calibration.objective import calibrated_spec
 from tissue_sim_ros.engine.scene.keys import with_mass_scaling
 
-__all__ = ['INERTIA_BOUND', 'measure_inertia_error', 'calibrate', 'calibrated_spec', 'noise_floor',
+__all__ = ['INERTIA_BOUND', 'measure_inertia_error', 'calibrate', 'noise_floor',
            'parse_phase_weights', 'speed_folds', 'main']
 
 INERTIA_BOUND = 0.02
@@ -80,10 +81,15 @@ def noise_floor(objective, evaluation) -> float:
 
 
 def _start(keys, spec, log) -> np.ndarray:
+    """The unit coordinates of the scene's values; a key that cannot take its bounds is refused
+    here, before the first evaluation."""
     from tissue_sim_ros.analysis.calibration.parameters import read_key
+    from tissue_sim_ros.engine.scene.keys import set_key
     u = []
     for k in keys:
         value = read_key(spec, k.key)
+        for bound in (k.low, k.high):
+            set_key(spec, k.key, bound, where=f'--fit {k.key}={k.low:g}:{k.high:g}')
         if not k.low <= value <= k.high:
             log(f'warning: {k.key} = {value:g} in the scene is outside --fit {k.low:g}:{k.high:g}; '
                 'starting at the nearest bound')
@@ -172,12 +178,6 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
             'search_wall_s': time.perf_counter() - wall0, 'finish': finish}
 
 
-def calibrated_spec(fit: dict) -> dict:
-    """The scene keys of the optimum, with the mass scaling it ran with (and the damping rate that
-    keeps the scene's damping force at it)."""
-    return with_mass_scaling(fit['objective'].spec_for(fit['u']), fit['inertia']['mass_scaling_at_optimum'])
-
-
 def parse_phase_weights(texts) -> dict:
     from tissue_sim_ros.analysis.compare.force_events import PHASES
     weights = {}
@@ -231,7 +231,7 @@ def main(*, data_spec, fits, validate_spec=None, leave_one_speed_out=False, scen
     gives as the cross-validation."""
     from tissue_sim_ros.analysis.calibration.parameters import parse_fit
     from tissue_sim_ros.analysis.calibration.report import speed_label
-    from tissue_sim_ros.engine.scene.scene import Scene
+    from tissue_sim_ros.analysis.charting.auto_keys import load_scene
     from tissue_sim_ros.io.trials.data_spec import DataSpec, load_trials
     stream = sys.stdout if stream is None else stream
     keys = [parse_fit(text) for text in fits]
@@ -249,8 +249,8 @@ def main(*, data_spec, fits, validate_spec=None, leave_one_speed_out=False, scen
         trials = [within_depth(t, max_depth_mm * 1e-3, gap_m=gap) for t in trials]
         held_out = [within_depth(t, max_depth_mm * 1e-3, gap_m=gap) for t in held_out]
     folds = speed_folds(trials) if leave_one_speed_out else []
-    scene = Scene.from_file(scene_file, sets=sets)
-    coarse = Scene.from_file(scene_file, sets=list(sets) + list(coarse_sets)) if coarse_sets else None
+    scene = load_scene(scene_file, sets=sets)
+    coarse = load_scene(scene_file, sets=list(sets) + list(coarse_sets)) if coarse_sets else None
     print(f'calibrate: {len(keys)} key(s) on {len(trials)} trial(s) from {spec.source}'
           f'{f", {len(held_out)} held out" if held_out else ""}'
           f'{f", cross-validated leaving out each of {len(folds)} speeds" if folds else ""}; '

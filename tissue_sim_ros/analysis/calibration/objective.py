@@ -58,7 +58,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['Evaluation', 'Objective', 'FAILED_RESIDUAL', 'BudgetSpent', 'huber_root', 'puncture_shift_residuals']
+__all__ = ['Evaluation', 'Objective', 'FAILED_RESIDUAL', 'BudgetSpent', 'calibrated_spec', 'huber_root',
+           'puncture_shift_residuals']
 
 #: the residual of a sample the simulation did not give (diverged, refused, not reached)
 FAILED_RESIDUAL = 1.0
@@ -162,9 +163,9 @@ class Objective:
         return {k.key: k.value(x) for k, x in zip(self.keys, u)}
 
     def spec_for(self, u) -> dict:
-        from tissue_sim_ros.analysis.calibration.parameters import overrides_for
-        from tissue_sim_ros.engine.scene.keys import apply_overrides
-        return apply_overrides(self.base_spec, overrides_for(self.keys, [k.value(x) for k, x in zip(self.keys, u)]))
+        """The scene keys at ``u``: each fitted value set by its key path, checked there."""
+        from tissue_sim_ros.engine.scene.keys import set_keys
+        return set_keys(self.base_spec, self.values(u))
 
     def jobs_for(self, u, ends=None) -> list:
         """The simulation jobs of ``u``; ``ends``: per job the schedule's end index (None: whole)."""
@@ -362,3 +363,10 @@ def _cut(schedule, end):
         return schedule
     return replace(schedule, times_s=schedule.times_s[:end], positions=schedule.positions[:end],
                    travel_m=schedule.travel_m[:end], trial_time_s=schedule.trial_time_s[:end])
+
+
+def calibrated_spec(fit: dict) -> dict:
+    """The scene keys of a calibration's optimum, with the mass scaling it ran with (and the
+    damping rate that keeps the scene's damping force at it)."""
+    from tissue_sim_ros.engine.scene.keys import with_mass_scaling
+    return with_mass_scaling(fit['objective'].spec_for(fit['u']), fit['inertia']['mass_scaling_at_optimum'])

@@ -208,7 +208,7 @@ def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_fi
     """Write every output (see the module docstring); the report dict. ``cross_validation``: per
     speed, its prediction by the calibration without it (the held-out row of that fold's report,
     with its ``parameters`` and ``report``)."""
-    from tissue_sim_ros.analysis.calibration.calibrate import calibrated_spec
+    from tissue_sim_ros.analysis.calibration.objective import calibrated_spec
     from tissue_sim_ros.analysis.compare.trial_simulation import ResultStore
     out.mkdir(parents=True, exist_ok=True)
     options = dict(align=align, gap_m=gap_m, tick_s=tick_s, store=ResultStore(out / 'simulations'),

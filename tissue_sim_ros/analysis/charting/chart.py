@@ -48,27 +48,29 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_sim_ros.engine.scene.keys import override_text
+
 __all__ = ['configurations', 'force_nrmse', 'make_job', 'read_reference', 'run_chart', 'simulate_job', 'main']
 
-_NO_VISCOSITY = ['model.viscosity_mu_pa_s=0', 'model.viscosity_lambda_pa_s=0']
-#: model name -> overrides (the law, the viscosity and the threshold: the scene's unless set)
+_NO_VISCOSITY = {'model.viscosity_mu_pa_s': 0.0, 'model.viscosity_lambda_pa_s': 0.0}
+#: model name -> scene values (the law, the viscosity and the threshold: the scene's unless set)
 MODELS = {
-    'linear': ['model.geometric=false', 'model.physical.law=none'] + _NO_VISCOSITY,
-    'physical': ['model.geometric=false'] + _NO_VISCOSITY,
-    'geometric': ['model.geometric=true', 'model.physical.law=none'] + _NO_VISCOSITY,
-    'full': ['model.geometric=true'],
-    'full, no viscosity': ['model.geometric=true'] + _NO_VISCOSITY,
-    'full, threshold 0': ['model.geometric=true', 'model.nonlinearity_threshold=0'],
-    'full, threshold 0.05': ['model.geometric=true', 'model.nonlinearity_threshold=0.05'],
-    'full, threshold 0.1': ['model.geometric=true', 'model.nonlinearity_threshold=0.1'],
-    'full, float32': ['model.geometric=true', 'model.precision=float32'],
+    'linear': {'model.geometric': False, 'model.physical.law': 'none', **_NO_VISCOSITY},
+    'physical': {'model.geometric': False, **_NO_VISCOSITY},
+    'geometric': {'model.geometric': True, 'model.physical.law': 'none', **_NO_VISCOSITY},
+    'full': {'model.geometric': True},
+    'full, no viscosity': {'model.geometric': True, **_NO_VISCOSITY},
+    'full, threshold 0': {'model.geometric': True, 'model.nonlinearity_threshold': 0.0},
+    'full, threshold 0.05': {'model.geometric': True, 'model.nonlinearity_threshold': 0.05},
+    'full, threshold 0.1': {'model.geometric': True, 'model.nonlinearity_threshold': 0.1},
+    'full, float32': {'model.geometric': True, 'model.precision': 'float32'},
 }
-#: mesh level -> overrides (the default scene's graded box: near-needle cell, far-field divisions)
+#: mesh level -> scene values (the default scene's graded box: near-needle cell, far-field divisions)
 MESHES = {
-    'coarse': ['mesh.fine_size_m=0.004', 'mesh.divisions=[5,5,4]'],
-    'medium': ['mesh.fine_size_m=0.003', 'mesh.divisions=[6,6,5]'],
-    'scene': [],
-    'fine': ['mesh.fine_size_m=0.001', 'mesh.divisions=[12,12,10]'],
+    'coarse': {'mesh.fine_size_m': 0.004, 'mesh.divisions': [5, 5, 4]},
+    'medium': {'mesh.fine_size_m': 0.003, 'mesh.divisions': [6, 6, 5]},
+    'scene': {},
+    'fine': {'mesh.fine_size_m': 0.001, 'mesh.divisions': [12, 12, 10]},
 }
 MASS_SCALINGS = (25.0, 100.0, 1600.0)
 #: cheaper models also run at smaller mass scalings on the scene's mesh: a model's own error and
@@ -100,37 +102,37 @@ def _model_family(name: str) -> str:
 
 
 def configurations(scene_dt: float, *, quick: bool) -> list[dict]:
-    """The grid (module docstring) as rows of (name fields, overrides); the first is the reference.
+    """The grid (module docstring) as rows of (name fields, scene values); the first is the reference.
     ``scene_dt``: the scene's explicit step, which the implicit runs multiply."""
     levels = ['coarse', 'medium', 'scene'] + ([] if quick else ['fine'])
     finest = levels[-1]
     rows = [dict(task='insertion', model='full', mesh=finest, integrator='explicit', mass_scaling=1.0, reference=True,
-                 overrides=MODELS['full'] + MESHES[finest] + ['solver.mass_scaling=1'])]
-    for model, model_sets in MODELS.items():
+                 values={**MODELS['full'], **MESHES[finest], 'solver.mass_scaling': 1.0})]
+    for model, model_values in MODELS.items():
         for level in levels:
             rows.append(dict(task='insertion', model=model, mesh=level, integrator='explicit', mass_scaling=None,
-                             reference=False, overrides=model_sets + MESHES[level]))
+                             reference=False, values={**model_values, **MESHES[level]}))
     for model in ('full',) + CROSSED_MODELS:
         for scaling in MASS_SCALINGS if model == 'full' else CROSSED_SCALINGS:
             rows.append(dict(task='insertion', model=model, mesh='scene', integrator='explicit', mass_scaling=scaling,
-                             reference=False, overrides=MODELS[model] + [f'solver.mass_scaling={scaling:g}']))
+                             reference=False, values={**MODELS[model], 'solver.mass_scaling': scaling}))
     for scaling in (400.0, 1600.0):
         for damping in DAMPINGS:
             rows.append(dict(task='insertion', model='full', mesh='scene', integrator='explicit', mass_scaling=scaling,
-                             reference=False, overrides=MODELS['full'] + [f'solver.mass_scaling={scaling:g}',
-                                                                          f'solver.damping_per_s={damping:g}']))
+                             reference=False, values={**MODELS['full'], 'solver.mass_scaling': scaling,
+                                                      'solver.damping_per_s': damping}))
     for integrator, multiple, scaling in QUICK_INTEGRATOR_RUNS if quick else INTEGRATOR_RUNS:
-        sets = MODELS['full'] + [f'solver.integrator={integrator}', f'solver.time_step_s={multiple * scene_dt!r}']
+        values = {**MODELS['full'], 'solver.integrator': integrator, 'solver.time_step_s': multiple * scene_dt}
         if scaling is not None:
-            sets.append(f'solver.mass_scaling={scaling:g}')
+            values['solver.mass_scaling'] = scaling
         rows.append(dict(task='insertion', model='full', mesh='scene', integrator=integrator, mass_scaling=scaling,
-                         reference=False, overrides=sets))
+                         reference=False, values=values))
     for model in ('linear', 'physical', 'geometric', 'full'):
         for divisions in (4, 6) if quick else (4, 6, 8):
             for integrator, multiple in COMPRESSION_INTEGRATORS:
                 rows.append(dict(task='compression', model=model, mesh=f'{divisions}^3 cube', divisions=divisions,
                                  integrator=integrator, step_multiple=multiple, mass_scaling=None, reference=False,
-                                 overrides=MODELS[model] + [f'solver.integrator={integrator}']))
+                                 values={**MODELS[model], 'solver.integrator': integrator}))
     return rows
 
 
@@ -145,10 +147,10 @@ def _compression_job(job: dict) -> dict:
     """The plate compression of the scene's material and model, error against E A strain."""
     from tissue_sim_ros.analysis.charting.compression import scene_block
     from tissue_sim_ros.engine.scene.scene import Scene
-    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+    from tissue_sim_ros.errors import SimulationDiverged
     row = {k: job[k] for k in ('key', 'task', 'model', 'mesh', 'integrator', 'reference')}
-    row['overrides'] = list(job['overrides'])
-    scene = Scene.from_file(job['scene_file'], sets=list(job['sets']) + list(job['overrides']))
+    row['values'] = dict(job['values'])
+    scene = Scene.from_file(job['scene_file'], sets=job['sets'], values=job['values'])
     explicit = scene_block(scene, COMPRESSION_STRAIN, divisions=job['divisions'], integrator='explicit')
     dt = explicit.simulation.dt * job['step_multiple']
     block = scene_block(scene, COMPRESSION_STRAIN, divisions=job['divisions'], dt=dt)
@@ -171,15 +173,15 @@ def _compression_job(job: dict) -> dict:
 def _insertion_job(job: dict) -> dict:
     """One configuration's insertion: the axial force per tick, the punctures, and the cost."""
     from tissue_sim_ros.analysis.insertion import run_insertion
-    from tissue_sim_ros.engine.scene.scene import Scene, SceneError
-    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+    from tissue_sim_ros.engine.scene.scene import Scene
+    from tissue_sim_ros.errors import SceneError, SimulationDiverged
     row = {k: job[k] for k in ('key', 'model', 'mesh', 'integrator', 'reference')}
     row['task'] = 'insertion'
     row['mass_scaling'] = job.get('mass_scaling')
-    row['overrides'] = list(job['overrides'])
+    row['values'] = dict(job['values'])
     try:
-        scene = Scene.from_file(job['scene_file'], sets=list(job['sets']) + list(job['overrides'])
-                                + [f'needle.start_gap_m={START_GAP_M!r}'])
+        scene = Scene.from_file(job['scene_file'], sets=job['sets'],
+                                values={**job['values'], 'needle.start_gap_m': START_GAP_M})
     except (SceneError, ValueError) as exc:
         return dict(row, failure=f'refused: {exc}')
     row.update(tetrahedra=int(scene.mesh.n_elements), time_step_s=float(scene.dt),
@@ -247,7 +249,7 @@ def _pareto_of(rows: list[dict]) -> None:
 
 def make_job(config: dict, scene_file=None, sets=(), *, speed=0.005, travel=0.012) -> dict:
     """A job for simulate_job: a configuration (``model``, ``mesh``, ``integrator``, ``reference``,
-    ``overrides``) on the scene and task."""
+    ``values``: {key path: value}) on the scene and task."""
     job = dict(config, scene_file=None if scene_file is None else str(scene_file), sets=list(sets), speed=speed,
                travel=travel)
     job['key'] = json.dumps(job, sort_keys=True)
@@ -308,8 +310,9 @@ def _cell(value):
     return value
 
 
-def _overrides_text(overrides) -> str:
-    return ' '.join(f'--set {shlex.quote(s)}' for s in overrides)
+def _overrides_text(values: dict) -> str:
+    """The ``--set`` options that reproduce a row's scene values."""
+    return ' '.join(f'--set {shlex.quote(override_text(k, v))}' for k, v in values.items())
 
 
 def _write_outputs(out: Path, report: dict, rows: list[dict]) -> None:
@@ -318,7 +321,7 @@ def _write_outputs(out: Path, report: dict, rows: list[dict]) -> None:
         w = csv.writer(f)
         w.writerow(_CSV_COLUMNS)
         for r in rows:
-            w.writerow([_overrides_text(r['overrides']) if c == 'overrides' else _cell(r.get(c))
+            w.writerow([_overrides_text(r['values']) if c == 'overrides' else _cell(r.get(c))
                         for c in _CSV_COLUMNS])
     (out / 'chart.json').write_text(json.dumps(report, indent=1))
     _plot(out / 'chart.png', rows)

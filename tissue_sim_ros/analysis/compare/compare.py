@@ -294,7 +294,7 @@ def main(*, data_spec=None, files=(), options=None, scene_file=None, sets=(), al
 
     from tissue_sim_ros.analysis.compare.report import write_report
     from tissue_sim_ros.analysis.compare.trial_simulation import ResultStore
-    from tissue_sim_ros.engine.scene.scene import Scene
+    from tissue_sim_ros.analysis.charting.auto_keys import load_scene
     from tissue_sim_ros.io.trials.data_spec import DataSpec, load_trials
     stream = sys.stdout if stream is None else stream
     spec = DataSpec.from_file(data_spec) if data_spec else data_spec_from_options(files, options or {})
@@ -303,7 +303,7 @@ def main(*, data_spec=None, files=(), options=None, scene_file=None, sets=(), al
         from tissue_sim_ros.analysis.compare.measured_motion import within_depth
         trials = [within_depth(t, max_depth_mm * 1e-3, gap_m=None if gap_mm is None else gap_mm * 1e-3)
                   for t in trials]
-    scene = Scene.from_file(scene_file, sets=sets)
+    scene = load_scene(scene_file, sets=sets)
     print(f'compare: {len(trials)} trial(s) from {spec.source}; scene {scene_file or "(default)"}'
           f'{" with " + ", ".join(sets) if sets else ""}: {scene.mesh.n_elements} tetrahedra', file=stream)
     out = Path(out)

@@ -105,8 +105,7 @@ def simulate(job: SimulationJob) -> SimulationResult:
     import time
 
     from tissue_sim_ros.engine.driver import SimulationDriver
-    from tissue_sim_ros.engine.scene.schema import SceneError
-    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+    from tissue_sim_ros.errors import SceneError, SimulationDiverged
     try:
         scene = _scene(job)
     except SceneError as exc:            # parameters the scene refuses: a failed run, not a crash

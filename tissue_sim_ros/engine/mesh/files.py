@@ -4,7 +4,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_sim_ros.engine.mesh.tetmesh import MeshError, TetMesh, make_mesh
+from tissue_sim_ros.engine.mesh.tetmesh import TetMesh, make_mesh
+from tissue_sim_ros.errors import MeshError
 
 __all__ = ['load_mesh', 'save_mesh', 'ELEMENT_TAG_NAMES']
 

@@ -5,7 +5,8 @@ import math
 
 import numpy as np
 
-from tissue_sim_ros.engine.mesh.tetmesh import MeshError, TetMesh, make_mesh
+from tissue_sim_ros.engine.mesh.tetmesh import TetMesh, make_mesh
+from tissue_sim_ros.errors import MeshError
 
 __all__ = ['box_mesh', 'graded_box_mesh']
 

@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_sim_ros.errors import MeshError
+
 __all__ = [
-    'MeshError',
     'MeshOrientationWarning',
     'TetMesh',
     'make_mesh',
@@ -52,11 +53,6 @@ _FACE_VERTICES = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]], dtype=np
 _OPPOSITE_VERTEX = np.array([0, 1, 2, 3], dtype=np.int64)
 # The six edges of a tetrahedron as pairs of local vertex numbers.
 _EDGE_VERTICES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int64)
-
-
-class MeshError(ValueError):
-    """A mesh or a mesh parameter is invalid; the message names the field, the offending values
-    or element indices, and what was expected."""
 
 
 class MeshOrientationWarning(UserWarning):

@@ -8,10 +8,7 @@ import math
 import numpy as np
 
 from tissue_sim_ros.engine.model.kernels import LAW_EXPONENTIAL, LAW_NONE, LAW_POLYNOMIAL
-
-
-class MaterialError(ValueError):
-    """An impossible material parameter; the message names the field, value and allowed range."""
+from tissue_sim_ros.errors import MaterialError
 
 
 def _require(field, value, ok, expected):

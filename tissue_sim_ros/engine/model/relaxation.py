@@ -61,7 +61,7 @@ from numba.extending import register_jitable
 from tissue_sim_ros.engine.model.kernels import (BLOCK, FASTMATH, MU, _at, _element_nodes, _first_piola,
                                           _gather_differences, _get9, _lane_gradient, _piola_forces,
                                           _scatter_forces, _set9, element_gradient, green_strain)
-from tissue_sim_ros.engine.model.material import MaterialError
+from tissue_sim_ros.errors import MaterialError
 
 _SYMMETRIC = 6     # components of a symmetric 3x3 tensor: 00, 11, 22, 01, 02, 12
 # Fields of a work row (forces.py's block layout: field k of lane j at k * BLOCK + j). The first

@@ -14,7 +14,8 @@ from tissue_sim_ros.engine.model import critical_step
 from tissue_sim_ros.engine.model import edge_form
 from tissue_sim_ros.engine.model import kernels as forces
 from tissue_sim_ros.engine.model import simd_lanes
-from tissue_sim_ros.engine.model.material import Material, MaterialError, MeanRatioLaw, Viscosity
+from tissue_sim_ros.engine.model.material import Material, MeanRatioLaw, Viscosity
+from tissue_sim_ros.errors import MaterialError
 from tissue_sim_ros.engine.mesh.tetmesh import TetMesh, make_mesh, mean_ratio
 from tissue_sim_ros.engine.model.relaxation import relaxation_for
 
@@ -385,7 +386,13 @@ class TensorMassModel:
         if (kernel, self.precision) in compile_cache.LOADED:
             kernel(*args)
         else:     # first use in this process: the cached code, compiled apart if need be
-            compile_cache.call_compiled_apart(kernel, args, (geometric, physical, viscous), self.precision)
+            what = (f'element pass, {forces.model_name(geometric, physical, viscous)} model'
+                    + ('' if self.precision == 'float64' else f', {self.precision}'))
+            code = (f'from {__name__} import compile_element_pass; '
+                    f'compile_element_pass{(geometric, physical, viscous, self.precision)!r}')
+            compile_cache.call_compiled_apart(
+                kernel, args, self.precision, what, code,
+                helper_compiles=(geometric, physical, viscous) == (False, False, False) and self.precision == 'float64')
 
     def _kernel_call(self, geometric, physical, viscous, displacement, velocity, threshold_squared, safeguard):
         kernel = forces.element_kernel(geometric, physical, viscous)
@@ -514,3 +521,12 @@ def _strain_energy(tetrahedra, shape_gradients, volume_lambda, volume_mu, displa
         if forces.deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22) <= 0.0:
             inverted += 1
     return energy, inverted
+
+
+def compile_element_pass(geometric, physical, viscous, precision='float64'):
+    """In a compile process (engine.compiled.cache): compile one model's element pass into the
+    cache, on a one-element model (the arrays it passes have the types every model's have)."""
+    from tissue_sim_ros.engine.mesh.generators import box_mesh
+    TensorMassModel(box_mesh((1.0, 1.0, 1.0), (1, 1, 1)), Material(1e4, 0.3, 1000.0), geometric=geometric,
+                    physical=MeanRatioLaw.exponential(mu_amplitude=1.0, mu_rate=1.0) if physical else None,
+                    viscosity=Viscosity(1.0, 1.0) if viscous else None, precision=precision)

@@ -73,10 +73,11 @@ from tissue_sim_ros.engine.needle.parameters import (Friction, Membrane, NeedleG
                                                      TipShape)
 from tissue_sim_ros.engine.needle.step import inserted_step
 from tissue_sim_ros.engine.needle.tip import SharpTipContact, tip_length, tip_samples
-from tissue_sim_ros.engine.needle.pose import (QUATERNION_NORM_TOLERANCE, NeedleInputError, needle_axis, pose_jump,
-                                        rotation_matrix, slerp, validate_pose)
+from tissue_sim_ros.engine.needle.pose import (QUATERNION_NORM_TOLERANCE, needle_axis, pose_jump,
+                                               rotation_matrix, slerp, validate_pose)
+from tissue_sim_ros.errors import PoseError
 
-__all__ = ['PHASES', 'NeedleTissue', 'NeedleInputError', 'Friction', 'Membrane', 'RegionInteraction',
+__all__ = ['PHASES', 'NeedleTissue', 'PoseError', 'Friction', 'Membrane', 'RegionInteraction',
            'NeedleGeometry', 'TipShape', 'QUATERNION_NORM_TOLERANCE', 'rotation_matrix', 'slerp', 'validate_pose',
            'first_surface_hit', 'locate_point']
 
@@ -249,7 +250,7 @@ class NeedleTissue(MembraneContact):
             point = position + s * self.geometry.length_m * axis
             element, _ = locate_point(self.rest, disp, self.tetrahedra, point, 1e-9 * size)
             if element >= 0:
-                raise NeedleInputError(field_name, {'position': position.tolist(), 'orientation': orientation.tolist()},
+                raise PoseError(field_name, {'position': position.tolist(), 'orientation': orientation.tolist()},
                                        f'the needle starts inside the tissue (point {np.round(point, 6).tolist()} m '
                                        f'lies in element {element}); start it outside')
 
@@ -260,7 +261,7 @@ class NeedleTissue(MembraneContact):
         position, orientation = validate_pose(position, orientation, field_name)
         jump = pose_jump(self.position, self.orientation, position, orientation, self.geometry.length_m)
         if jump.exceeds(self.geometry.max_jump_m):
-            raise NeedleInputError(f'{field_name}.position', position.tolist(),
+            raise PoseError(f'{field_name}.position', position.tolist(),
                                    f'moves the needle by {jump.distance_m * 1e3:.4g} mm in one call, more than '
                                    f'max_jump_m = {self.geometry.max_jump_m * 1e3:.4g} mm')
         return position, orientation
@@ -582,4 +583,4 @@ class NeedleTissue(MembraneContact):
             return self.wrench_force.copy(), self.wrench_torque.copy()
         if frame == 'needle':
             return self.rotation.T @ self.wrench_force, self.rotation.T @ self.wrench_torque
-        raise NeedleInputError('frame', frame, "expected 'world' or 'needle'")
+        raise PoseError('frame', frame, "expected 'world' or 'needle'")

@@ -8,6 +8,8 @@ the needle tip is from it, and how far the needle's line passes beside it (the l
 """
 import numpy as np
 
+from tissue_sim_ros.errors import SceneError
+
 from tissue_sim_ros.engine.needle.kernels import locate_point
 
 __all__ = ['Targets', 'check_targets']
@@ -19,11 +21,11 @@ def check_targets(entries, name='targets'):
     seen = set()
     for i, entry in enumerate(entries):
         if not entry.get('name'):
-            raise ValueError(f'{name}[{i}].name = {entry.get("name")!r}: expected a non-empty name')
+            raise SceneError(f'{name}[{i}].name = {entry.get("name")!r}: expected a non-empty name')
         if entry.get('position_m') is None:
-            raise ValueError(f'{name}[{i}].position_m: required, the rest position [x, y, z] in metres')
+            raise SceneError(f'{name}[{i}].position_m: required, the rest position [x, y, z] in metres')
         if entry['name'] in seen:
-            raise ValueError(f'{name}[{i}].name = {entry["name"]!r}: another target has this name')
+            raise SceneError(f'{name}[{i}].name = {entry["name"]!r}: another target has this name')
         seen.add(entry['name'])
 
 
@@ -47,7 +49,7 @@ class Targets:
         for i in range(k):
             element, weights = locate_point(rest_positions, zero, tetrahedra, self.rest[i], tolerance)
             if element < 0:
-                raise ValueError(f'{name}[{i}].position_m = {self.rest[i].tolist()}: outside the tissue mesh; '
+                raise SceneError(f'{name}[{i}].position_m = {self.rest[i].tolist()}: outside the tissue mesh; '
                                  'a target must lie inside it')
             self.elements[i] = element
             self.weights[i] = weights

@@ -18,24 +18,10 @@ from numba import njit, prange
 
 from tissue_sim_ros.engine.model.kernels import FASTMATH, take_node_force
 from tissue_sim_ros.engine.solver.implicit import INTEGRATORS, ImplicitStep
+from tissue_sim_ros.errors import SimulationDiverged
 
 FREE, FIXED, PRESCRIBED = 0, 1, 2
 _AXES = {'x': 0, 'y': 1, 'z': 2}
-
-
-class SimulationDiverged(RuntimeError):
-    """The watchdog stopped a run: what diverged, at which step, with which time step."""
-
-    def __init__(self, reason, step, time, time_step, critical_time_step):
-        self.reason = reason
-        self.step = step
-        self.time = time
-        self.time_step = time_step
-        self.critical_time_step = critical_time_step
-        super().__init__(
-            f'simulation diverged at step {step} (t = {time:.6g} s): {reason}; time step '
-            f'{time_step:.4g} s against the estimated critical step {critical_time_step:.4g} s '
-            f'({time_step / critical_time_step:.2f}x)')
 
 
 @njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False, nogil=True)

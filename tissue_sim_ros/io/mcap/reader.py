@@ -25,18 +25,14 @@ from mcap_ros2.decoder import DecoderFactory
 
 from tissue_sim_ros.io.mcap.profile import DEFAULT_METADATA_NAME
 from tissue_sim_ros.units import NS_PER_S
+from tissue_sim_ros.errors import TruncatedLogError
 
-__all__ = ['LogMessage', 'LogReading', 'TolerantScan', 'TruncatedLogError',
-           'UndecodableMessages', 'has_summary', 'read_log', 'read_metadata', 'summarize_log']
+__all__ = ['LogMessage', 'LogReading', 'TolerantScan', 'UndecodableMessages', 'has_summary', 'read_log', 'read_metadata', 'summarize_log']
 
 _log = logging.getLogger(__name__)
 
 #: How many log times of undecodable messages :class:`UndecodableMessages` keeps per topic.
 FIRST_LOG_TIMES_KEPT = 5
-
-
-class TruncatedLogError(McapError):
-    """The file has no valid footer/summary (a hard kill); see :func:`recover_truncated`."""
 
 
 class LogMessage(NamedTuple):

@@ -19,15 +19,12 @@ from mcap.writer import CompressionType, Writer
 from tissue_sim_ros.io.mcap.profile import PROFILE, library_name
 from tissue_sim_ros.io.mcap.reader import TolerantScan, has_summary
 from tissue_sim_ros.units import NS_PER_S
+from tissue_sim_ros.errors import NotAnMcapError, RecoverError
 
-__all__ = ['MCAP_MAGIC', 'NotAnMcapError', 'RecoverError', 'check_mcap_magic', 'recover_log',
+__all__ = ['MCAP_MAGIC', 'check_mcap_magic', 'recover_log',
            'recover_truncated', 'recovery_summary']
 
 MCAP_MAGIC = b'\x89MCAP0\r\n'
-
-
-class NotAnMcapError(ValueError):
-    """The file does not start with the MCAP magic bytes."""
 
 
 def check_mcap_magic(path) -> None:
@@ -149,10 +146,6 @@ def recover_truncated(path, repaired_path=None) -> dict:
         'lost_s': lost_s,
         'repaired_path': None if repaired_path is None else str(repaired_path),
     }
-
-
-class RecoverError(ValueError):
-    """Bad input to :func:`recover_log` (missing file, not an MCAP, output exists): one line."""
 
 
 def _clock(ns: int) -> str:

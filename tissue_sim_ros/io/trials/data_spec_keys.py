@@ -12,14 +12,11 @@ from __future__ import annotations
 import math
 import re
 
-from tissue_sim_ros.io.trials.measurement_units import UnitError, unit_factor
+from tissue_sim_ros.io.trials.measurement_units import unit_factor
+from tissue_sim_ros.errors import DataSpecError, UnitError
 
-__all__ = ['DATA_SPEC_KEYS', 'DataSpecError', 'check_data_spec', 'check_section',
+__all__ = ['DATA_SPEC_KEYS', 'check_data_spec', 'check_section',
            'describe_data_keys']
-
-
-class DataSpecError(ValueError):
-    """A data description (or a reader's column options) that cannot be used; names the key."""
 
 
 # -- the keys: key -> (default, kind, meaning); a nested dict is a section ---------------------

@@ -15,9 +15,12 @@ from pathlib import Path
 import numpy as np
 from mcap.exceptions import McapError
 
-from tissue_sim_ros.io.mcap.reader import TruncatedLogError, read_log, summarize_log
-from tissue_sim_ros.io.mcap.recovery import NotAnMcapError, check_mcap_magic
-from tissue_sim_ros.io.trials.trial import DataError, Trial, check_increasing_time, drop_nonfinite_rows
+from tissue_sim_ros.io.mcap.reader import read_log, summarize_log
+from tissue_sim_ros.errors import TruncatedLogError
+from tissue_sim_ros.io.mcap.recovery import check_mcap_magic
+from tissue_sim_ros.errors import NotAnMcapError
+from tissue_sim_ros.io.trials.trial import Trial, check_increasing_time, drop_nonfinite_rows
+from tissue_sim_ros.errors import DataError
 from tissue_sim_ros.units import NS_PER_S
 
 __all__ = ['read_mcap_trial']

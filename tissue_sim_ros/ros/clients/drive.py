@@ -49,11 +49,12 @@ def _axis(orientation) -> np.ndarray:
     return needle_axis(orientation)
 
 
-def scene_start(scene_file: str | None = None) -> DriveStart:
+def scene_start(scene_file: str | None = None, resolve_auto=None) -> DriveStart:
     """The needle's initial pose and its tip's distance to the surface along the axis in a scene
-    (``Scene.start_gap_m``, the rule every command uses)."""
+    (``Scene.start_gap_m``, the rule every command uses); ``resolve_auto``: as
+    ``Scene.from_file``'s (the command line passes the analysis layer's)."""
     from tissue_sim_ros.engine.scene.scene import Scene
-    scene = Scene.from_file(scene_file or None)
+    scene = Scene.from_file(scene_file or None, resolve_auto=resolve_auto)
     position, orientation = scene.needle_pose
     return DriveStart(position, orientation, _axis(orientation), float(scene.spec['needle']['length_m']),
                       scene.start_gap_m, scene.mesh_frame_id)
@@ -141,7 +142,7 @@ def publish_trajectory(publisher, message, times, positions, now_ns, *,
 def run_drive(speed_mm_s: float, depth_mm: float, *, start_height_mm: float | None = None,
               rate_hz: float = 100.0, hold_s: float = 0.5, scene_file: str | None = None,
               topic: str = 'needle/pose', frame_id: str | None = None,
-              wait_for_node_s: float = 10.0, args=None) -> int:
+              wait_for_node_s: float = 10.0, args=None, resolve_auto=None) -> int:
     """Publish the scripted insertion; 0 when every pose was sent and acknowledged."""
     import rclpy
     from geometry_msgs.msg import PoseStamped
@@ -149,7 +150,7 @@ def run_drive(speed_mm_s: float, depth_mm: float, *, start_height_mm: float | No
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.signals import SignalHandlerOptions
 
-    start = scene_start(scene_file)
+    start = scene_start(scene_file, resolve_auto)
     t, positions = insertion_trajectory(
         start, speed_mm_s * 1e-3, depth_mm * 1e-3, hold_s, rate_hz,
         None if start_height_mm is None else start_height_mm * 1e-3)

@@ -17,14 +17,12 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable
 
-__all__ = ['NodeProcessError', 'NodeProcess', 'console_script', 'private_domain_id',
+from tissue_sim_ros.errors import NodeProcessError
+
+__all__ = ['NodeProcess', 'console_script', 'private_domain_id',
            'private_ros_env', 'client_context']
 
 _LOCALHOST = 'LOCALHOST'
-
-
-class NodeProcessError(RuntimeError):
-    """The node process exited early or did not come up in time; the message names its log."""
 
 
 def private_domain_id() -> int:
@@ -63,7 +61,7 @@ class NodeProcess:
 
     @property
     def command(self) -> list[str]:
-        cmd = console_script('tissue_sim_node', 'tissue_sim_ros.ros.node') + ['--ros-args']
+        cmd = console_script('tissue_sim_node', 'tissue_sim_ros.cli.node_script') + ['--ros-args']
         for param in self.params:
             cmd += ['-p', param]
         return cmd

@@ -1,0 +1,95 @@
+"""``tissue-sim bench [BENCHMARK]``: every benchmark of :mod:`tissue_sim_ros.bench` but the
+node's (``tissue-sim node-bench``, :mod:`.node_commands`). Each prints its figures; none asserts
+a time. ``tissue-sim bench`` alone (with its options) is the speed benchmark, as before."""
+from tissue_sim_ros.cli.arguments import POSITIVE, add_scene, number, output_dir
+from tissue_sim_ros.errors import CommandLineError
+
+__all__ = ['add_bench_commands']
+
+
+def _speed(args):
+    from tissue_sim_ros.bench import speed
+    unknown = [m for m in args.models or () if m not in speed.MODELS]
+    if unknown:
+        raise CommandLineError(f'--models {" ".join(unknown)}: unknown; expected some of '
+                               f'{", ".join(speed.MODELS)}')
+    speed.run(sizes=args.sizes, models=args.models, precisions=args.precision)
+
+
+def _cold_start(args):
+    from tissue_sim_ros.bench import cold_start
+    cold_start.main(scene=args.scene, modes=args.modes)
+
+
+def _inertia(args):
+    from tissue_sim_ros.bench import inertia
+    inertia.main(scene=args.scene, sets=args.set, speed_mm_s=args.speed_mm_s, travel_mm=args.travel_mm,
+                 scalings=args.scalings, jobs=args.jobs, out=args.out)
+
+
+def _ripple(args):
+    from tissue_sim_ros.bench import ripple
+    ripple.main(scene=args.scene, sets=args.set, speed_mm_s=args.speed_mm_s)
+
+
+def _study(args):
+    from tissue_sim_ros.bench import study
+    study.main(replay_s=args.replay_s, trials=args.trials, samples=args.samples, skip=args.skip)
+
+
+def _calibration(args):
+    from tissue_sim_ros.bench import calibration
+    calibration.main(out=args.out, jobs=args.jobs)
+
+
+def _speed_options(parser):
+    parser.add_argument('--sizes', nargs='+', choices=['1e3', '1e4', '1e5', '5e5'], default=None,
+                        help='mesh sizes to run (default: all)')
+    parser.add_argument('--models', nargs='+', default=None, metavar='MODEL',
+                        help='models to run (default: all): linear, linear+visc, physical, physical+visc, '
+                             'geometric, geometric+visc, full, full+visc, full+thr0.02')
+    parser.add_argument('--precision', nargs='+', choices=['float64', 'float32'], default=['float64'],
+                        help="the element pass's constants and arithmetic (default float64); two "
+                             "(--precision float64 float32) are timed paired, in one process")
+
+
+def add_bench_commands(commands):
+    """Add ``bench`` and its benchmarks to the subparsers ``commands``."""
+    bench = commands.add_parser('bench', help='benchmarks: speed per mesh size (default), cold-start, inertia, '
+                                'ripple, study, calibration')
+    _speed_options(bench)
+    bench.set_defaults(run=_speed)
+    which = bench.add_subparsers(dest='benchmark', required=False, metavar='BENCHMARK')
+    speed = which.add_parser('speed', help='force evaluation and explicit step per model and mesh size')
+    _speed_options(speed)
+    speed.set_defaults(run=_speed)
+    cold = which.add_parser('cold-start', help='a fresh install\'s first start, compiles included')
+    add_scene(cold, sets=False)
+    cold.add_argument('--modes', nargs='+', choices=['parallel', 'one-process', 'warm'],
+                      default=['parallel', 'one-process', 'warm'])
+    cold.set_defaults(run=_cold_start)
+    inertia = which.add_parser('inertia', help="the mass scaling's estimated inertia error against the error "
+                               'it adds')
+    add_scene(inertia)
+    inertia.add_argument('--speed-mm-s', type=POSITIVE, default=5.0, help='needle speed [mm/s] (default 5)')
+    inertia.add_argument('--travel-mm', type=POSITIVE, default=17.0, help='tip travel [mm] (default 17)')
+    inertia.add_argument('--scalings', type=number(1), nargs='+', default=[25.0, 100.0, 400.0, 1600.0],
+                         help='mass scalings to measure, each above 1 (default 25 100 400 1600)')
+    inertia.add_argument('--jobs', type=number(1, inclusive=True, whole=True), default=None,
+                         help='worker processes (default: the cores)')
+    inertia.add_argument('--out', type=output_dir, default='out/bench_inertia', help='output directory')
+    inertia.set_defaults(run=_inertia)
+    ripple = which.add_parser('ripple', help='how smooth the axial force is after a puncture')
+    add_scene(ripple)
+    ripple.add_argument('--speed-mm-s', type=POSITIVE, default=3.0, help='needle speed [mm/s] (default 3)')
+    ripple.set_defaults(run=_ripple)
+    study = which.add_parser('study', help='replay and compare timings')
+    study.add_argument('--replay-s', type=POSITIVE, default=60.0, help='length of the replayed node log [s]')
+    study.add_argument('--trials', type=number(1, inclusive=True, whole=True), default=30)
+    study.add_argument('--samples', type=number(1, inclusive=True, whole=True), default=5000)
+    study.add_argument('--skip', choices=['replay', 'compare'], default=None)
+    study.set_defaults(run=_study)
+    calibration = which.add_parser('calibration', help='calibrate on synthetic data with known values')
+    calibration.add_argument('--out', type=output_dir, default='out/bench_calibration', help='output directory')
+    calibration.add_argument('--jobs', type=number(1, inclusive=True, whole=True), default=None)
+    calibration.set_defaults(run=_calibration)

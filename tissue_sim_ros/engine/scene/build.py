@@ -1,0 +1,145 @@
+"""One builder: a scene's checked keys -> mesh, materials, model, simulation, needle parts.
+
+Every caller that needs a material, a model or a simulation from scene keys builds it here
+(the scene itself, the plate compression of the chart, the benchmarks), so that each key
+reaches the engine the same way and none is lost on the way (relaxation, precision, the
+integrator's tolerance). The keys come checked by the schema (:mod:`.checks`): nothing here
+checks a value again, and no engine error is caught to be rewritten.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from tissue_sim_ros.engine.mesh.files import load_mesh
+from tissue_sim_ros.engine.mesh.generators import box_mesh, graded_box_mesh
+from tissue_sim_ros.engine.model.material import Material, MeanRatioLaw, Viscosity
+from tissue_sim_ros.engine.model.tensor_mass import TensorMassModel
+from tissue_sim_ros.engine.needle.interaction import Friction, Membrane, RegionInteraction, TipShape
+from tissue_sim_ros.engine.solver.explicit import Simulation
+from tissue_sim_ros.errors import SceneError
+
+__all__ = ['build_material', 'build_mesh', 'build_model', 'build_simulation', 'check_combinations',
+           'check_time_step',
+           'fixed_nodes', 'physical_law', 'region_interaction', 'tip_shape', 'viscosity']
+
+
+def check_combinations(spec: dict) -> None:
+    """What no single key's check can see: keys that cannot go together, refused naming both."""
+    integrator, model = spec['solver']['integrator'], spec['model']
+    if integrator != 'explicit' and model['precision'] != 'float64':
+        raise SceneError(f"solver.integrator = {integrator!r} needs model.precision = float64, got "
+                         f"{model['precision']!r}: its Newton tangent differences forces 1e-8 of the body "
+                         "size apart, below float32 arithmetic's resolution (1e-7)")
+    if integrator != 'explicit' and model['relaxation']:
+        raise SceneError(f'solver.integrator = {integrator!r} with model.relaxation: the implicit and '
+                         'quasi-static integrators do not support relaxation yet (its internal variables '
+                         "advance once a step); use integrator 'explicit' or no relaxation")
+
+
+def build_mesh(spec: dict, base_dir) -> object:
+    """The ``mesh`` section's TetMesh (before regions are assigned)."""
+    if spec['generator'] == 'file':
+        if not spec['file']:
+            raise SceneError("mesh.file = '': expected a mesh file name with generator: file")
+        path = Path(spec['file'])
+        return load_mesh(path if path.is_absolute() else Path(base_dir) / path)
+    divisions = [int(round(d)) for d in spec['divisions']]
+    if spec['generator'] == 'box':
+        return box_mesh(spec['size_m'], divisions, spec['origin_m'])
+    return graded_box_mesh(spec['size_m'], divisions, spec['origin_m'], focus=spec['focus_xy_m'],
+                           focus_radius=spec['focus_radius_m'], growth=spec['growth'],
+                           fine_size=spec['fine_size_m'], grade_z=spec['grade_z'])
+
+
+def build_material(region: dict) -> Material:
+    """A region's Material (its values checked by the schema)."""
+    return Material(region['young_modulus_pa'], region['poisson_ratio'], region['density_kg_per_m3'])
+
+
+def physical_law(spec: dict):
+    """``model.physical``'s MeanRatioLaw, or None."""
+    if spec['law'] == 'none':
+        return None
+    if spec['law'] == 'polynomial':
+        return MeanRatioLaw.polynomial(spec['lambda_coefficients'], spec['mu_coefficients'])
+    return MeanRatioLaw.exponential(spec['lambda_amplitude'], spec['lambda_rate'],
+                                    spec['mu_amplitude'], spec['mu_rate'])
+
+
+def viscosity(model: dict):
+    """``model``'s Kelvin-Voigt Viscosity, or None when both coefficients are 0."""
+    if model['viscosity_lambda_pa_s'] > 0 or model['viscosity_mu_pa_s'] > 0:
+        return Viscosity(model['viscosity_lambda_pa_s'], model['viscosity_mu_pa_s'])
+    return None
+
+
+def build_model(mesh, materials, model: dict) -> TensorMassModel:
+    """The TensorMassModel of ``mesh`` with ``materials`` (a Material, or {region: Material})
+    and every key of the ``model`` section."""
+    return TensorMassModel(mesh, materials, geometric=model['geometric'],
+                           physical=physical_law(model['physical']), viscosity=viscosity(model),
+                           nonlinearity_threshold=model['nonlinearity_threshold'],
+                           inversion_safeguard=model['inversion_safeguard'],
+                           relaxation=model['relaxation'], precision=model['precision'])
+
+
+def build_simulation(model, solver: dict, fixed=None, *, dt=None, integrator=None) -> Simulation:
+    """The Simulation of ``model`` with every key of the ``solver`` section; ``dt`` and
+    ``integrator`` replace the section's step and integrator (a study's variants)."""
+    return Simulation(model, damping=solver['damping_per_s'], fixed=fixed,
+                      dt=solver['time_step_s'] if dt is None else dt,
+                      time_step_safety=solver['time_step_safety'], mass_scaling=solver['mass_scaling'],
+                      integrator=integrator or solver['integrator'],
+                      newton_tolerance=solver['newton_tolerance'])
+
+
+def fixed_nodes(mesh, faces) -> np.ndarray:
+    """Mask of the nodes on the named bounding-box faces (``boundary.fixed``)."""
+    x = mesh.rest_positions
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    tol = 1e-9 * float(np.max(hi - lo))
+    on = {'x_min': np.abs(x[:, 0] - lo[0]) <= tol, 'x_max': np.abs(x[:, 0] - hi[0]) <= tol,
+          'y_min': np.abs(x[:, 1] - lo[1]) <= tol, 'y_max': np.abs(x[:, 1] - hi[1]) <= tol,
+          'bottom': np.abs(x[:, 2] - lo[2]) <= tol, 'top': np.abs(x[:, 2] - hi[2]) <= tol}
+    on['walls'] = on['x_min'] | on['x_max'] | on['y_min'] | on['y_max']
+    mask = np.zeros(len(x), dtype=bool)
+    for f in faces:
+        mask |= on[f]
+    return mask
+
+
+def check_time_step(simulation, solver: dict) -> None:
+    """A fixed time step above the estimated critical step diverges within steps: refused at
+    load, naming both (an explicit run only; the implicit ones are stable at any step)."""
+    dt = solver['time_step_s']
+    if solver['integrator'] != 'explicit':
+        return
+    if dt is None and solver['time_step_safety'] > 1:
+        raise SceneError(f"solver.time_step_safety = {solver['time_step_safety']!r}: expected at most "
+                         f'1 (the step would be above the estimated critical step '
+                         f'{simulation.critical_time_step():.4g} s)')
+    if dt is not None and dt > simulation.critical_time_step():
+        raise SceneError(
+            f'solver.time_step_s = {dt!r}: above the estimated critical (largest stable) step '
+            f'{simulation.critical_time_step():.4g} s of this mesh and material (mass scaling '
+            f"{solver['mass_scaling']:g}); use at most that, raise solver.mass_scaling, or leave it "
+            f'null for time_step_safety x the critical step')
+
+
+def region_interaction(region: dict) -> RegionInteraction:
+    """What a region brings to the needle: its membrane, cutting force and friction."""
+    membrane = region['membrane']
+    return RegionInteraction(
+        name=region['name'],
+        membrane=None if membrane['criterion'] == 'none' else Membrane(
+            membrane['criterion'], membrane['rupture_force_n'], membrane['toughness_j_per_m2'],
+            membrane['rate_exponent'], membrane['reference_speed_m_s']),
+        cutting_force_n=region['cutting_force_n'],
+        friction=Friction(**region['friction']))
+
+
+def tip_shape(tip: dict) -> TipShape:
+    """The needle's TipShape (its angles checked by the schema)."""
+    return TipShape(tip['shape'], tip['half_angle_deg'], tip['bevel_angle_deg'], tip['bevel_orientation_deg'])
