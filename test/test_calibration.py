@@ -287,7 +287,8 @@ def test_a_diverging_or_refused_trial_scores_as_a_miss_and_the_search_goes_on(ch
     ('regions[0].young_modulus_pa=50000:5000', 'LOW < HIGH'),
     ('regions[0].young_modulus_pa=0:5000:log', 'log scale needs LOW > 0'),
     ('regions[0].young_modulus_pa=a:5000', "'a'"),
-    ('regions[0].stiffness=1:2', "no key 'stiffness'"),
+    ('regions[0].stiffness=1:2', 'unknown scene key regions[0].stiffness'),
+    ('regions[0].poisson_ratio=0.3:0.6', 'regions[0].poisson_ratio = 0.6'),
     ('model.geometric=0:1', 'is not a number'),
 ])
 def test_a_bad_fit_option_is_one_error_line_naming_it(cheap_study, tmp_path, capsys, fit, says):

@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.engine.needle.interaction import rotation_matrix, validate_pose
-from tissue_sim_ros.errors import PoseError
+from tissue_sim_ros.errors import PoseError, SceneError
 from tissue_sim_ros.engine.scene.scene import Scene
-from tissue_sim_ros.errors import SceneError
 
 DOWN = [1.0, 0.0, 0.0, 0.0]          # needle axis (+z of its frame) along world -z
 E, NU = 16000.0, 0.45
@@ -352,7 +351,7 @@ def test_a_turn_about_the_base_is_limited_by_how_far_the_tip_moves():
 
 
 def test_needle_starting_inside_the_tissue_is_refused():
-    with pytest.raises(SceneError, match='starts inside the tissue'):
+    with pytest.raises(PoseError, match='needle.initial_pose = .*starts inside the tissue'):
         small_scene(gap=-0.003)
 
 

@@ -168,6 +168,17 @@ class Harness:
     def call(self, client, request, timeout=5.0):
         return call_service(client, request, timeout)
 
+    def wait_until(self, read, accept, timeout=10.0, what='the condition'):
+        """Poll ``read()`` until ``accept(value)``; the value (asserts it comes within ``timeout``
+        seconds, a bound generous enough for a loaded machine)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            value = read()
+            if accept(value):
+                return value
+            assert time.monotonic() < deadline, f'{what}: not reached in {timeout} s (last: {value!r})'
+            time.sleep(0.02)
+
     def diagnostics_now(self):
         """Ask the node for diagnostics now (on its executor thread's terms: via the timer
         callback would wait up to a period; the statuses are computed from counters only)."""

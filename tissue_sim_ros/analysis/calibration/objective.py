@@ -248,10 +248,21 @@ class Objective:
 
     def _run(self, vectors, ends, phases) -> list[Evaluation]:
         """The vectors' simulations to ``ends`` (one batch), scored."""
+        from tissue_sim_ros.analysis.compare.trial_simulation import SimulationResult, simulate
         from tissue_sim_ros.analysis.jobs import run_jobs
-        from tissue_sim_ros.analysis.compare.trial_simulation import simulate
-        jobs = [job for k in vectors for job in self.jobs_for(k, ends)]
-        results = [self.store.get(job.key) if self.store is not None else None for job in jobs]
+        from tissue_sim_ros.errors import InputError
+        jobs, results = [], []
+        for k in vectors:
+            try:
+                vector_jobs = self.jobs_for(k, ends)
+            except InputError as exc:          # a value the scene refuses: scored as a miss
+                cut = ends or [None] * len(self.plan.jobs)
+                results += [SimulationResult.refused(len(job.times_s[:end]), exc)
+                            for job, end in zip(self.plan.jobs, cut)]
+                jobs += [None] * len(self.plan.jobs)
+                continue
+            jobs += vector_jobs
+            results += [self.store.get(job.key) if self.store is not None else None for job in vector_jobs]
         todo = [i for i, r in enumerate(results) if r is None]
 
         def keep(position, result):

@@ -76,6 +76,12 @@ class SimulationResult:
     mass_scaling: float = float('nan')
     time_step_s: float = float('nan')
 
+    @classmethod
+    def refused(cls, samples: int, reason) -> 'SimulationResult':
+        """A run whose scene keys the scene refuses: a failed run (every force NaN), not a crash."""
+        nan = np.full(samples, np.nan)
+        return cls(nan, nan, nan, np.zeros(0), np.zeros(0), diverged=f'scene refused: {reason}')
+
 
 _SCENES: dict = {}
 
@@ -105,12 +111,11 @@ def simulate(job: SimulationJob) -> SimulationResult:
     import time
 
     from tissue_sim_ros.engine.driver import SimulationDriver
-    from tissue_sim_ros.errors import SceneError, SimulationDiverged
+    from tissue_sim_ros.errors import InputError, SimulationDiverged
     try:
         scene = _scene(job)
-    except SceneError as exc:            # parameters the scene refuses: a failed run, not a crash
-        nan = np.full(len(job.times_s), np.nan)
-        return SimulationResult(nan, nan, nan, np.zeros(0), np.zeros(0), diverged=f'scene refused: {exc}')
+    except InputError as exc:            # parameters the scene refuses: a failed run, not a crash
+        return SimulationResult.refused(len(job.times_s), exc)
     driver = SimulationDriver(scene, wrench_frame='world', on_divergence='raise')
     driver.reset()
     start, axis = scene.needle_pose[0], scene.needle.axis.copy()

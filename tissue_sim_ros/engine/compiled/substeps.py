@@ -1,16 +1,15 @@
 """A scene's substeps in compiled slices while the needle is outside, at the membrane or inside.
 
-A substep of :meth:`.scene.Scene.advance` is the needle's pose for the step, the force kernel (the
-element pass, then the node update), the watchdog, and the needle's step after the tissue's,
-as Python around compiled calls (``NeedleTissue.set_pose``, ``Simulation.step``,
-``NeedleTissue.after_step``): Python that runs cold, after an element pass has been through the
-caches (issue 19 item 3: one call into compiled code per slice, the needle's bookkeeping inside
-it). Here :func:`run_slice` runs the substeps of an advance in one ``nogil`` call, as many as run
-the same way in a row, each the force kernel, timed on the thread's CPU clock into
-``Simulation.kernel_s`` as Python timed it (:mod:`.compiled_clock`), and then
+A substep of :meth:`~tissue_sim_ros.engine.scene.scene.Scene.advance` is the needle's pose for
+the step, the force kernel (the element pass, then the node update), the watchdog, and the
+needle's step after the tissue's: as Python around compiled calls (``NeedleTissue.set_pose``,
+``Simulation.step``, ``NeedleTissue.after_step``) it runs cold, after an element pass has been
+through the caches. Here :func:`run_slice` runs the substeps of an advance in one ``nogil``
+call, as many as run the same way in a row, each the force kernel, timed on the thread's CPU
+clock into ``Simulation.kernel_s`` as Python timed it (:mod:`.clock`), and then
 
 - the needle outside (phase ``approach``): :func:`after_approach_step`, the needle moved, the
-  watchdog, the needle's kinematics and the test for the surface (``needle_kernels.approach_hit``);
+  watchdog, the needle's kinematics and the test for the surface (``kernels.approach_hit``);
   a step that meets the surface goes on in ``NeedleTissue.after_kinematics``;
 - a sharp tip bonded to the outer membrane (phase ``contact``, before the first puncture):
   :func:`after_contact_step`, the needle moved, the watchdog, the bonds solved and applied, the
@@ -18,37 +17,29 @@ the same way in a row, each the force kernel, timed on the thread's CPU clock in
   end or the membrane may rupture goes on in ``NeedleTissue.after_kinematics``, one where samples
   touched in ``NeedleTissue.after_engaging``;
 - the needle inside (``inserted``, ``retracting``, no membrane): :func:`after_inside_step`, the
-  needle moved, the watchdog, the compiled inside step (``needle_step.inserted_step``) and the
-  outcome the Python would otherwise decide on (the apex still in its layer, no shaft point to
-  add, none to release); a step that needs more goes on in ``NeedleTissue.after_inserted_step``.
+  needle moved, the watchdog, the compiled inside step (``step.inserted_step``) and the outcome
+  the Python would otherwise decide on (the apex still in its layer, no shaft point to add, none
+  to release); a step that needs more goes on in ``NeedleTissue.after_inserted_step``.
 
 The slice calls the element pass, the node update and the step after them by the addresses of
-their compiled code (:mod:`.compiled_call`, each with a check of its types): the machine code a
-Python call runs, the element pass as compile_cache had it compiled (not optimized again inside
+their compiled code (:mod:`.call`, each with a check of its types): the machine code a Python
+call runs, the element pass as the compile cache had it compiled (not optimized again inside
 another function), one machine code of :func:`run_slice` for every model, cached, and a
-dispatch that types arrays and integers only (as numba first-class function values, the three
-cost 11-13 us of Python a slice). It stops at the target time, ``max_steps``, the deadline (by
+dispatch that types arrays and integers only (numba's first-class function values cost
+microseconds of Python a slice). It stops at the target time, ``max_steps``, the deadline (by
 its last substep's wall time, on the monotonic clock, as ``Scene.advance`` does), after a
 watchdog energy-check step (every ``check_interval``-th: the strain energy's element pass before
 it, called the same way, the test after the tissue's step as ``Simulation.step`` makes it) and
-at any outcome but DONE. On node-bench's insertions
-(default scene, in-process, 100 advances a second, thread time) a substep's work outside the
-force kernel fell from 15 / 47 / 50 / 43 us (outside / contact / inserted / retracting) to
-14 / 33 / 44 / 38 us, the kernel then 87 % of the engine's work (85.5 % before the slices); the
-kernel's time lost the calls' dispatch it used to include (about 8 us a substep). The work of the needle's
-forces (``needle_kernels.applied_work``) and the 3-vector dots a contact step decides on
-(``needle_kernels.dot3``) are one function for both paths: numpy's went through BLAS, whose
-kernels may sum in another order. What is left outside the kernel is mostly the needle's own
-physics: inside, about 35 us a step (the shaft's friction, 61 cutting samples found again and 61
-tip-face samples pushed out, after the element pass has been through the caches).
+at any outcome but DONE. The work of the needle's forces (``kernels.applied_work``) and the
+3-vector dots a contact step decides on (``kernels.dot3``) are one function for both paths:
+numpy's went through BLAS, whose kernels may sum in another order. Figures: docs/performance.md.
 
 The same kernels in the same order: a scene advanced this way gives the same state, to the last
 bit, as one advanced through the Python calls (``Scene.compiled_substeps = False``; tested), and
 the watchdog checks the energy at the same steps. It runs where that holds simply: one needle,
 translating (a turning needle's slerp stays in Python), the explicit integrator with no
-prescribed DOFs and no relaxation, the needle at no membrane but a sharp tip at the outer one;
-every other step is the general one. Where compiled code cannot read
-the clocks (not Linux), every step is the general one.
+prescribed DOFs and no relaxation, the needle at no membrane but a sharp tip at the outer one,
+on Linux (where compiled code reads the clocks); every other step is the general one.
 """
 import math
 

@@ -5,7 +5,8 @@
 - :mod:`.kernels`: the numba kernels (surface ray casts, point location, constraints);
 - :mod:`.tip`: the tip's shape, its surface samples and their contact;
 - :mod:`.contact`, :mod:`.membrane`: the flat end bonded to the surface; meeting a layer;
+- :mod:`.inside`: shaft points, friction, cutting and the layers the tip meets inside;
 - :mod:`.step`: the step inside the tissue as one compiled call;
 - :mod:`.interaction`: :class:`NeedleTissue`, one needle's state and its step.
 """
-__all__ = ['contact', 'interaction', 'kernels', 'membrane', 'parameters', 'pose', 'step', 'tip']
+__all__ = ['contact', 'inside', 'interaction', 'kernels', 'membrane', 'parameters', 'pose', 'step', 'tip']

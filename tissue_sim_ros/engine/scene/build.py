@@ -16,7 +16,7 @@ from tissue_sim_ros.engine.mesh.files import load_mesh
 from tissue_sim_ros.engine.mesh.generators import box_mesh, graded_box_mesh
 from tissue_sim_ros.engine.model.material import Material, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.model.tensor_mass import TensorMassModel
-from tissue_sim_ros.engine.needle.interaction import Friction, Membrane, RegionInteraction, TipShape
+from tissue_sim_ros.engine.needle.parameters import Friction, Membrane, RegionInteraction, TipShape
 from tissue_sim_ros.engine.solver.explicit import Simulation
 from tissue_sim_ros.errors import SceneError
 
