@@ -30,12 +30,12 @@ class InsertionResult:
     wall_time: float
     steps: int
     time_step: float
-    target_names: tuple = ()        # the scene's targets (engine.targets)
+    target_names: tuple = ()        # the scene's targets (engine.scene.targets)
     target_positions: np.ndarray = None   # (k, n_targets, 3) m, world frame, each tick
     target_tip_distance: np.ndarray = None  # (k, n_targets) m, needle tip to target
     target_lateral_miss: np.ndarray = None  # (k, n_targets) m, target to the needle's line
     target_positions_at_rest: np.ndarray = None  # (n_targets, 3) m
-    inertia_error: float = None     # the mass scaling's estimated force NRMSE (engine.inertia_estimate)
+    inertia_error: float = None     # the mass scaling's estimated force NRMSE (solver.inertia_estimate)
     inertia_rms_n: float = 0.0      # the same in N
 
     @property

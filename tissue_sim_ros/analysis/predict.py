@@ -1,4 +1,4 @@
-"""``tissue-sim predict``: what a candidate needle path would do, without ROS (issue 18 item 1).
+"""``tissue-sim predict``: what a candidate needle path would do, without ROS.
 
 The same prediction the node answers on ``plan/candidate`` (engine.prediction), from the scene at
 rest: the path is a CSV of the needle base's poses, one per row, with the header

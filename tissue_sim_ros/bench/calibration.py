@@ -1,4 +1,4 @@
-"""Benchmark of ``tissue-sim calibrate`` (issue 16): 6 keys over 3 speeds of the default scene.
+"""Benchmark of ``tissue-sim calibrate``: 6 keys over 3 speeds of the default scene.
 
 ``tissue-sim bench calibration [--out DIR] [--jobs N]``
 

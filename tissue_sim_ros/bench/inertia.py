@@ -1,18 +1,18 @@
-"""The mass scaling's estimated inertia error against the error it really adds (issue 17 item 5)::
+"""The mass scaling's estimated inertia error against the error it really adds::
 
     tissue-sim bench inertia [--scene S] [--set KEY=VALUE]...
         [--speed-mm-s 5] [--travel-mm 17] [--scalings 25 100 400 1600] [--jobs N] --out DIR
 
-An insertion like the chart's (from 1 mm above the surface, in at constant speed; 17 mm here,
-where the chart goes 12), once per mass scaling and once without (the reference: the same mesh, model and step rule, only the masses
-differ, so the difference is what the scaling adds). Each scaled run's force NRMSE against the
-reference is set beside the estimate the run printed (engine.inertia_estimate), and the
-reference's first puncture beside the run's. The runs are the chart's jobs (chart.simulate_job,
-in parallel, resumable from DIR/runs.jsonl); DIR gets the chart's outputs for them (chart.csv
-with ``error`` and ``inertia_error_estimate`` per row) and inertia.csv, inertia.png (estimate
-against measured), inertia.md and inertia.json. The reference is the costly run: without mass
-scaling the default scene's viscosity holds the step at 7.6 us, about 4 minutes of one core for
-the 3.4 s of the default task.
+An insertion like the chart's (from 1 mm above the surface, in at constant speed; 17 mm here, where
+the chart goes 12), once per mass scaling and once without (the reference: the same mesh, model and
+step rule, only the masses differ, so the difference is what the scaling adds). Each scaled run's
+force NRMSE against the reference is set beside the estimate the run printed
+(engine.solver.inertia_estimate), and the reference's first puncture beside the run's. The runs are
+the chart's jobs (chart.simulate_job, in parallel, resumable from DIR/runs.jsonl); DIR gets the
+chart's outputs for them (chart.csv with ``error`` and ``inertia_error_estimate`` per row) and
+inertia.csv, inertia.png (estimate against measured), inertia.md and inertia.json. The reference is
+the costly run: without mass scaling the default scene's viscosity holds the step at 7.6 us, about 4
+minutes of one core for the 3.4 s of the default task.
 """
 from __future__ import annotations
 

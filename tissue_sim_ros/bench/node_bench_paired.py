@@ -1,9 +1,9 @@
 """``tissue-sim node-bench --against REV --out DIR``: this checkout's node against an earlier
 revision's, on one scene, in alternating runs, for a before/after figure on a shared machine.
 
-Why paired: on the 2-core VM these figures come from, the same node's CPU went from 48 % to 75 %
-of a core within half an hour (other tenants); one run of each, taken at different times, cannot show
-a change of a third. Each pair runs both versions back to back, the first of the two alternating
+Why paired: on a shared 2-core VM the same node's CPU moves between 48 % and 75 % of a core within
+half an hour (other tenants); one run of each, taken at different times, cannot show a change of a
+third. Each pair runs both versions back to back, the first of the two alternating
 from pair to pair, and the figures are the ratio within each pair (median and range) and the
 ratio of the mean CPUs.
 
@@ -39,11 +39,11 @@ from tissue_sim_ros.errors import BenchError
 __all__ = ['run', 'summarise', 'resolve_commit', 'export_revision', 'BenchError']
 
 #: figures kept per run (node_bench.json keys both versions write; the kernel share only newer
-#: ones). Each side measures with its own node-bench: revisions before the latency was read
-#: through the engine's trace took the first tick after each receipt (6-10 ms low at p99).
+#: ones). Each side measures with its own node-bench, so a figure whose method differs between
+#: the two revisions (the latency) is not comparable across them.
 COLUMNS = ('node_cpu_pct_of_one_core', 'kernel_share_of_node_cpu', 'wrench_rate_hz',
            'tick_period_dev_ms_p99', 'latency_ms_p99', 'missed_ticks', 'ticks')
-CPU_GOAL_RATIO = 0.6   # issue 19: the node's CPU at most 60 % of what it was
+CPU_GOAL_RATIO = 0.6   # the goal: this checkout's node CPU at most 0.6 of the revision's
 
 
 def _this_tree() -> Path:

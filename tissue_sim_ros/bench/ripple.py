@@ -1,4 +1,4 @@
-"""How smooth the axial force is after puncture, printed (issue 15 item 3)::
+"""How smooth the axial force is after puncture, printed::
 
     tissue-sim bench ripple [--scene S] [--set KEY=VALUE]... [--speed-mm-s 3]
 

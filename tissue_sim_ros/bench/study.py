@@ -1,4 +1,4 @@
-"""Benchmark of replay and compare (issue 14), printed, not asserted::
+"""Benchmark of replay and compare, printed, not asserted::
 
     tissue-sim bench study [--replay-s 60] [--trials 30] [--samples 5000]
 

@@ -1,6 +1,6 @@
 """``tissue-sim bench [BENCHMARK]``: every benchmark of :mod:`tissue_sim_ros.bench` but the
 node's (``tissue-sim node-bench``, :mod:`.node_commands`). Each prints its figures; none asserts
-a time. ``tissue-sim bench`` alone (with its options) is the speed benchmark, as before."""
+a time. ``tissue-sim bench`` alone (with its options) is the speed benchmark."""
 from tissue_sim_ros.cli.arguments import POSITIVE, add_scene, number, output_dir
 from tissue_sim_ros.errors import CommandLineError
 

@@ -1,4 +1,4 @@
-"""What a candidate needle path would do, simulated from a copy of the current state (issue 18).
+"""What a candidate needle path would do, simulated from a copy of the current state.
 
 A planner asks before it commits the robot: from the tissue and needle as they are now
 (deformation, velocity, contact, punctured layers, cut elements: the whole scene), follow these
@@ -224,7 +224,7 @@ def predict_snapshot(snapshot, path: CandidatePath, wrench_frame: str = 'world',
     :func:`write_snapshot` wrote (a path): a worker process's entry. The element pass runs on
     ``threads`` numba threads;
     ``threshold`` and ``mass_scaling`` (None: as the snapshot has them) are a degradation-ladder
-    rung's settings (engine.degradation_ladder), for a prediction cheaper than the live scene."""
+    rung's settings (engine.ladder), for a prediction cheaper than the live scene."""
     import numba
     scene = scene_from_snapshot(snapshot) if isinstance(snapshot, bytes) else read_snapshot(snapshot)
     numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))

@@ -11,8 +11,8 @@ _WARM = []
 
 # The warm-up tissue is linear (small strain, elastic): the needle's kernels do not depend on the
 # model, and the linear element pass is compiled anyway (the critical time step's Lanczos runs it),
-# so the warm-up adds no element-pass variant to a first start (its default geometric model added
-# one: 13-15 s of the default scene's first start, 2 cores).
+# so the warm-up adds no element-pass variant to a first start (a geometric warm-up model would
+# add one, seconds of every first start).
 WARM_UP_SCENE = {
     'mesh': {'size_m': [0.01, 0.01, 0.006], 'origin_m': [-0.005, -0.005, -0.006], 'divisions': [3, 3, 2]},
     'needle': {'initial_position_m': [0.0, 0.0, 0.1505], 'length_m': 0.15,
@@ -28,8 +28,8 @@ def warm_up():
     """Compile (or load from numba's cache) the kernels of every needle phase once per process,
     on a tiny scene driven through contact, puncture, cutting with friction and retraction.
     Otherwise a fresh clone compiles each at its first use: seconds in which the node falls
-    behind its robot at first contact (the demo's engine then refused a 6.4 mm pose jump).
-    On a first start this is what the second compile process runs (compile_cache)."""
+    behind its robot at first contact (and may then refuse the robot's next pose as a jump).
+    On a first start this is what the second compile process runs (engine.compiled.cache)."""
     if _WARM:
         return
     _WARM.append(True)

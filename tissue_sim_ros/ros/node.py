@@ -357,8 +357,8 @@ class TissueSimNode(Node):
             self._publish(publisher, self._wrench_bytes[k].serialized(snap.forces[k], snap.torques[k], now_ns))
         publish_ns = self._now_ns()
         if not snap.held:
-            # the cloud is built only for a subscriber or the log: unsubscribed, it was a third
-            # of the tick's work (the publish alone about 100 us of thread time, 70 kB a tick)
+            # the cloud is built only for a subscriber or the log: unsubscribed, it would be a
+            # third of the tick's work (the publish alone about 100 us of thread time, 70 kB a tick)
             record = self._recorder is not None and bool(self._record_nodes_every) and \
                 self.ticks % self._record_nodes_every == 0
             marker = bool(self._marker_every) and self.ticks % self._marker_every == 0

@@ -1,5 +1,5 @@
 """The node's parameters: every name with its default, range and meaning, and the checks that
-ranges cannot express. No rclpy here (declaring them is :mod:`parameter_declaration`), so tests,
+ranges cannot express. No rclpy here (declaring them is :mod:`.parameter_declaration`), so tests,
 the help text and the parameter file are built without a ROS graph.
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Predictions for a planner: ``plan/candidate`` in, ``plan/prediction`` out (issue 18 item 1).
+"""Predictions for a planner: ``plan/candidate`` in, ``plan/prediction`` out.
 
 A planner publishes a candidate path of the needle base (``nav_msgs/Path`` in ``frame_id``, each
 pose's stamp its time, the first pose where the needle is now). The node answers on
@@ -18,9 +18,10 @@ processes, which run at a lower priority (nice +{niceness}) so the live engine k
 (their numba threads: the cores less the engine's, shared). Answers go out in the order the
 requests came, from the pool's thread, never from the tick. Requests arrive as bytes and are
 decoded and checked on a thread of their own, so a burst costs the executor (which runs the tick)
-no more than queueing them. (Sending the 12 MB through the pool's
-pipe instead held the interpreter lock long enough to stall the tick by 256 ms in a burst of 20.) ``prediction.max_error`` > 0 runs predictions on the
-cheapest degradation-ladder rung whose measured error (engine.ladder_probe) is within it.
+no more than queueing them. A file, not the pool's pipe: sending the 12 MB through the pipe would
+hold the interpreter lock long enough to stall the tick in a burst. ``prediction.max_error`` > 0
+runs predictions on the cheapest degradation-ladder rung whose measured error
+(engine.ladder_probe) is within it.
 """
 from __future__ import annotations
 

@@ -2,9 +2,9 @@
 
 ``concurrent.futures`` joins a ProcessPoolExecutor's manager thread at interpreter exit (and
 ``shutdown(wait=True)`` waits), and that thread waits for the items the workers are running: a
-node whose prediction workers were still in their start-up run took 22-31 s to end on SIGINT
-beside two busy processes on 2 cores, and an analysis whose batch failed waited for every
-simulation still running. The node's predictions and the analyses' runner stop their pools here.
+node whose prediction workers are still in their start-up run would take tens of seconds to end
+on SIGINT on a busy machine, and an analysis whose batch failed would wait for every simulation
+still running. The node's predictions and the analyses' runner stop their pools here.
 """
 from __future__ import annotations
 

@@ -14,25 +14,24 @@ when the force drops would dominate the sum); the puncture stage fits the events
 
 A simulated puncture later (or earlier) than the measured one puts the samples between the two
 on opposite sides of the drop: each misses by the drop, and how many there are changes in whole
-samples as the parameters move, a staircase no finite difference reads. On the calibration
-benchmark two such samples held 82 % of a trial's objective at the search's result, and the fine
-Jacobian's predictions missed by 12-21x. So those samples count 0 too, and each measured
+samples as the parameters move, a staircase no finite difference reads: two such samples can
+hold most of a trial's objective, and a Jacobian's predictions then miss by an order of
+magnitude. So those samples count 0 too, and each measured
 puncture adds one residual instead: the measured drop over the force range times the signed root
 of the Huber cost of the matched simulated puncture's shift (k-th with k-th) counted in scored
 samples, with the inserted phase's weight (:func:`huber_root`). Its square grows as the shift's
 square within half a sample (smooth where the finish works) and by one sample's cost per sample
-beyond, as the samples it replaces did. Growing as the square all the way, a shift of ten
-samples weighed ten times what the pointwise error did, and on the bovine liver (one trial,
-25 mm) the search traded the curve for the puncture's depth (NRMSE 0.077 where the pointwise
-objective had reached 0.063; 0.073 with the Huber cost).
+beyond, as the samples it replaces would. Growing as the square all the way, a shift of ten
+samples would weigh ten times what the pointwise error does, and the search would trade the
+curve for the puncture's depth.
 
 A run that diverges, trips the watchdog, or whose keys the scene refuses, scores 1 at every
 residual (a miss by the whole force range: worse than any run that finishes) and its reason is
 logged; a sample the simulation did not reach scores 1 likewise. The samples are chosen among
 those the first finished run reached, and the plan's simulations run past the end of every repeat
-they are compared with (:mod:`~tissue_sim_ros.analysis.compare.measured_motion`), so a miss is a run's,
-not the data's: the last sample of a jittered recording scoring 1 in every run was a constant
-that made the search's relative tests stop early. Nothing is NaN and nothing stops the search.
+they are compared with (:mod:`~tissue_sim_ros.analysis.compare.measured_motion`), so a miss is a
+run's, not the data's: a sample no run reaches would be a constant in every evaluation, which
+stops the search's relative tests early. Nothing is NaN and nothing stops the search.
 
 A stage of the search that fits only the first phases of the curve (the loading before the first
 puncture, the puncture itself, the steady insertion) needs the simulations only that far: an

@@ -1,4 +1,4 @@
-"""Speed against accuracy (issue 17 item 2): ``tissue-sim chart --scene SCENE --out DIR``.
+"""Speed against accuracy: ``tissue-sim chart --scene SCENE --out DIR``.
 
 Every configuration runs the scene's insertion task: the needle from 1 mm above the surface,
 ``speed`` along its axis for ``travel`` (through the first layer's puncture on the default

@@ -66,7 +66,7 @@ def plate_compression(size=(0.05, 0.05, 0.03), divisions=(10, 10, 6), material=N
 
 @dataclass
 class SceneBlock:
-    simulation: object          # engine.solver.Simulation
+    simulation: object          # engine.solver.explicit.Simulation
     plate_nodes: np.ndarray     # the top face's nodes (z prescribed)
     steps: int                  # steps of the travel and the hold
     expected_reaction: float    # E A strain [N] (A the top's area), the small-strain plate force at the end

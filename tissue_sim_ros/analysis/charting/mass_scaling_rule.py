@@ -15,7 +15,7 @@ The rule:
 is first order (the added force while loading, and the punctures it moves earlier), 0.79-0.85
 of the measured error on the default scene from 100x up, and at smaller scalings it is an
 expectation over where the force samples fall (25x: 0.011-0.024 estimated, 0.0024-0.059
-measured; README). A bound wants the error itself.
+measured; docs/performance.md). A bound wants the error itself.
 
 It is found by probes, from s = START:
 

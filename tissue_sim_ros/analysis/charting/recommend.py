@@ -1,4 +1,4 @@
-"""The least model a scene needs (issue 17 item 4): ``tissue-sim recommend --scene SCENE
+"""The least model a scene needs: ``tissue-sim recommend --scene SCENE
 --tolerance 0.05 [--rate-hz 50] --out DIR``.
 
 Runs the chart's grid (:mod:`.chart`, into DIR/chart, resumable; ``--quick`` for its preset) and

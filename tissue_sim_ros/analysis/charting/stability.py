@@ -1,5 +1,5 @@
 """Where each model and integrator stops being stable, and what happens when a run is pushed past
-it (issue 17 item 3): ``tissue-sim stability --scene SCENE --out DIR``.
+it: ``tissue-sim stability --scene SCENE --out DIR``.
 
 1. **Largest stable step.** For each model (linear, physically non-linear, geometric, full; the
    scene's law and viscosity) and integrator, the scene's own loading is run at a time step

@@ -7,8 +7,8 @@ The rules (module constants, SI units):
 - Pre-contact level: the median (``baseline``) and the robust standard deviation (``noise``,
   1.4826 x the median absolute deviation) of the first 10 % of the samples (at least 10): robust
   to a few spikes, and zero for a noiseless simulated curve. A recording that starts just above
-  the tissue has the loading's rise in its first 10 %: taken as noise it hid a 0.4 N puncture
-  behind an 8-noise threshold of 0.87 N, and raising the median it put the contact 1 mm late.
+  the tissue has the loading's rise in its first 10 %: taken as noise it would hide a small
+  puncture behind the 8-noise threshold, and raising the median it would put the contact late.
   So the baseline is the smaller of that median and the median of the first third of those
   samples, and with 20 samples or more the noise is the smaller of that spread and the spread
   about a quadratic fit to them.

@@ -23,7 +23,7 @@ Figures (default scene, 2 cores): tissue-sim bench cold-start.
 
 Two processes must not compile different signatures of one function at the same time (numba's
 index of a function's cached signatures is one file: one entry can be lost, or point at the other
-process's code). Each model's element pass has its own index (``forces.element_kernel``), the
+process's code). Each model's element pass has its own index (``kernels.element_kernel``), the
 parts compiled per model are not cached on their own, and what both processes compile is the same
 (the same signature, the same code).
 
@@ -64,7 +64,7 @@ def _say(text):
 
 
 def _label(dispatcher):
-    """A kernel's name for the progress lines, e.g. 'forces.reduce_buffers' or 'element pass,
+    """A kernel's name for the progress lines, e.g. 'kernels.reduce_buffers' or 'element pass,
     geometric_physical_viscous model'."""
     name = dispatcher.py_func.__qualname__
     if '<locals>.kernel_' in name:
@@ -103,7 +103,7 @@ class _Reporter(event.Listener):
     def on_start(self, ev):
         # numba calls on_end for every on_start, one that raises included (trigger_event pushes
         # the end before it starts), so the depth is counted before a refusal: counted after it,
-        # a refusal left the depth at -1 and the next probed kernel compiled here unseen.
+        # a refusal would leave the depth at -1 and the next probed kernel would compile here unseen.
         dispatcher = ev.data['dispatcher']
         self.depth += 1
         if self.depth != 1:

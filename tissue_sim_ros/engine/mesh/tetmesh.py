@@ -1,11 +1,11 @@
 """Tetrahedral meshes: the validated :class:`TetMesh`, its quality measures and its faces.
 
-Generators (box_mesh, graded_box_mesh) are in :mod:`mesh_generators`, meshio files
-(load_mesh, save_mesh) in :mod:`mesh_io`. Every array is SI (metres) and every function is
+Generators (box_mesh, graded_box_mesh) are in :mod:`.generators`, meshio files
+(load_mesh, save_mesh) in :mod:`.files`. Every array is SI (metres) and every function is
 vectorised with numpy: no Python loop runs over elements, so meshes of 5e5 tetrahedra build and
 validate in a fraction of a second.
 
-Conventions (DESIGN.md):
+Conventions (docs/engine.md, "TetMesh"):
 
 - positions ``(n, 3)`` float64; tetrahedra ``(m, 4)`` int64 node indices, positively oriented,
   i.e. ``det([p1 - p0, p2 - p0, p3 - p0]) > 0``;

@@ -67,7 +67,8 @@ class MeanRatioLaw:
     """Physically non-linear Lamé corrections (seed section 4.1) driven by element distortion.
 
     The distortion of an element is s = max(0, 1 - q / q_rest), q its Liu-Joe mean ratio
-    (FORMULAS.md); the element's coefficients become lambda (1 + g_lambda(s)), mu (1 + g_mu(s)).
+    (docs/method.md, "Liu-Joe mean ratio"); the element's coefficients become
+    lambda (1 + g_lambda(s)), mu (1 + g_mu(s)).
     Build one with ``MeanRatioLaw.none()``, ``.polynomial(...)`` or ``.exponential(...)``;
     ``kind`` and ``parameters`` are what the force kernel reads, and ``corrections(s)`` is the
     same law in numpy (for tests and fitting).

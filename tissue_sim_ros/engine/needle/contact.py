@@ -13,7 +13,7 @@ The bond is a hard constraint solved exactly each step: the mass-weighted smalle
 that puts every sample point on its target (a rigid-body point of the needle end),
 Delta u = M^-1 W^T lambda with (W M^-1 W^T) lambda = -(W x - T); the force on the tissue is
 W^T lambda / dt^2. The pseudo-inverse of W M^-1 W^T is computed once per contact, so samples that
-share one coarse triangle are fine. The caller (:class:`~.needle.NeedleTissue`) lets the contact
+share one coarse triangle are fine. The caller (:class:`~.interaction.NeedleTissue`) lets the contact
 go when the needle, not advancing, would pull the tissue, and decides puncture with
 :meth:`ContactPatch.ruptured`.
 """

@@ -4,7 +4,7 @@ Contact (phase ``contact``). When the tip crosses the deformed surface, a flat e
 the surface under it as a hard constraint solved exactly each step
 (:mod:`~tissue_sim_ros.engine.needle.contact`); the contact lets go when the needle, not
 advancing, would pull the tissue (while it advances, a momentary pull from the tissue's rebound
-keeps the bond: letting go there made the contact chatter on visco-elastic tissue). A conical or
+keeps the bond: letting go there would make the contact chatter on visco-elastic tissue). A conical or
 bevelled tip touches the tissue point by point as it goes in and each point is bonded to the
 tip where it touched, so the loaded area grows with the indentation as under a real sharp tip
 (:mod:`~tissue_sim_ros.engine.needle.tip`); its contact ends when no point is pushed and the
@@ -22,9 +22,10 @@ law; a flat punch on a linear material is about neutral). At puncture the contac
 the tissue relaxes and the needle is inside (a sharp tip's faces go on pushing the tissue they
 displace, :meth:`~tissue_sim_ros.engine.needle.tip.SharpTipContact.follow`).
 
-Layers are surfaces, not element sets: a region's selector (:mod:`.region_selectors`) says which
-material point belongs to which layer, so :meth:`MembraneContact._region_of` reads the region of
-the material point itself, wherever the element faces lie.
+Layers are surfaces, not element sets: a region's selector
+(:mod:`~tissue_sim_ros.engine.mesh.selectors`) says which material point belongs to which layer,
+so :meth:`MembraneContact._region_of` reads the region of the material point itself, wherever the
+element faces lie.
 
 :class:`MembraneContact` is the part of :class:`~tissue_sim_ros.engine.needle.interaction.NeedleTissue` that
 does this; it reads and writes the needle's state (the arrays made in its constructor).
@@ -45,7 +46,7 @@ class MembraneContact:
     def _detect_surface_contact(self, inverse_mass):
         """Start a contact when the tip has crossed the deformed surface (not while the needle
         goes back: the tip coming up through the surface it left is not a new contact; a bevel
-        gripped the surface there and ruptured it again, at 2.4 N, on its way out)."""
+        would grip the surface there and rupture it again on its way out)."""
         # the tip is past the surface if the surface lies within the last step's travel or one
         # diameter behind the tip (the surface may have come up to a needle at rest)
         hit, t, w0, w1, w2, back = approach_hit(self.rest, self.simulation.displacement, self.surface_triangles,
@@ -129,8 +130,8 @@ class MembraneContact:
     def _engage_tip(self):
         """A sharp tip against a membrane: new points touch (at the outer surface, or in the layer
         met inside); :meth:`_take_engaged` takes them. Called after the patch's correction: a point
-        taken before it was off by the step's rebound of the nodes it shares with the bonds (0.36 mm
-        under a cone's apex), and the exact solve moved their other nodes by 2.3 mm to agree."""
+        taken before it would be off by the step's rebound of the nodes it shares with the bonds,
+        and the exact solve would move their other nodes by much more to agree."""
         contact, disp = self.tip_contact, self.simulation.displacement
         if contact.on_surface:
             back = math.sqrt(dot3(self._travel, self._travel)) + self.geometry.diameter_m

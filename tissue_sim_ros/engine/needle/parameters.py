@@ -34,7 +34,7 @@ class Friction:
     retraction_constant_n: float = 0.0
 
     def as_array(self):
-        """(9,) the coefficients in the order :func:`~.needle_kernels.shaft_solve` reads them."""
+        """(9,) the coefficients in the order :func:`~.kernels.shaft_solve` reads them."""
         return np.array([self.insertion_static_n_per_m, self.insertion_coulomb_n_per_m,
                          self.insertion_viscous_n_s_per_m2, self.retraction_static_n_per_m,
                          self.retraction_coulomb_n_per_m, self.retraction_viscous_n_s_per_m2,
@@ -63,8 +63,8 @@ class Membrane:
     decade or more, the force falling with speed in soft tissue (Mahvash and Dupont 2010 explain
     the fall by the tissue's fracture toughness and viscoelasticity: the 'energy' criterion is
     that mechanism; the power law is the empirical form such data are fitted with). Exponent 0:
-    the force does not depend on speed (the criterion as it was). The speed is held to at least
-    ``MIN_RATE_SPEED_M_S`` (a needle stopped at the membrane would make the law 0 or infinite)."""
+    the force does not depend on speed. The speed is held to at least ``MIN_RATE_SPEED_M_S`` (a
+    needle stopped at the membrane would make the law 0 or infinite)."""
     criterion: str = 'force'
     rupture_force_n: float = 1.0
     toughness_j_per_m2: float = 0.0
@@ -88,7 +88,7 @@ MIN_RATE_SPEED_M_S = 1e-5
 @njit(cache=True)
 def rupture_force_at(rupture_force_n, rate_exponent, reference_speed_m_s, speed_m_s):
     """:meth:`Membrane.rupture_force` (the rate law) with the membrane's numbers: one function
-    for the Python and the compiled contact step (engine.compiled_substep)."""
+    for the Python and the compiled contact step (engine.compiled.substeps)."""
     if rate_exponent == 0.0:
         return rupture_force_n
     return rupture_force_n * (max(abs(speed_m_s), MIN_RATE_SPEED_M_S) / reference_speed_m_s) ** rate_exponent

@@ -1,8 +1,9 @@
 """Needle pose maths and the rules a pose must meet, shared by the engine and the node's input.
 
 A pose is the position of the needle's base frame and its orientation as a unit quaternion
-(x, y, z, w); the needle axis is that frame's +z (DESIGN.md, Frames). Pure numpy, no numba and
-no ROS, so :mod:`tissue_sim_ros.ros.loop.pose_input` and ``tissue-sim drive`` import it cheaply.
+(x, y, z, w); the needle axis is that frame's +z (docs/scene-guide.md, "Needle and tip shapes").
+Pure numpy, no numba and no ROS, so :mod:`tissue_sim_ros.ros.loop.pose_input` and
+``tissue-sim drive`` import it cheaply.
 
 Each rule has one home here:
 
@@ -132,7 +133,7 @@ def pose_jump(position0, orientation0, position1, orientation1, length_m=0.0) ->
     """The jump from pose 0 to pose 1 (validated arrays): the larger of the base's move and, for
     ``length_m`` > 0, the move of the point at +z * length_m (the tip), and the rotation angle."""
     # plain floats: this runs on every advance of every caller, and numpy's per-call cost on
-    # 3-vectors made it 10 us (3 us so)
+    # 3-vectors would make it three times dearer
     x0, y0, z0 = _floats(position0)
     x1, y1, z1 = _floats(position1)
     dx, dy, dz = x1 - x0, y1 - y0, z1 - z0

@@ -1,19 +1,18 @@
 """The step of a needle inside the tissue in one compiled call.
 
 Once the needle is in (phases ``inserted`` and ``retracting``, no membrane contact), every step
-runs the same sequence, :meth:`.needle.NeedleTissue.after_step` in order: the needle's kinematics,
-the shaft's lateral hold and friction (:func:`~.needle_kernels.shaft_solve`), the cutting samples
-found again under the end (:func:`~.needle_kernels.follow_rigid_samples`), a sharp tip's faces
-pushing the displaced tissue aside (:func:`~.needle_tip.tip_contact_solve`), the cutting law on
-the samples, the reaction wrench with the work the needle put in, and the walk that finds the
-tip's apex in the deformed mesh. As a dozen Python calls into numba that sequence cost 63-71 us
-a step on the default scene (the kernels about 42 us of it, the calls and the Python between
-them the rest), 30 % of a coarse calibration run (issue 19 item 3, issue 16); here it is one
+runs the same sequence, :meth:`.interaction.NeedleTissue.after_step` in order: the needle's
+kinematics, the shaft's lateral hold and friction (:func:`~.kernels.shaft_solve`), the cutting
+samples found again under the end (:func:`~.kernels.follow_rigid_samples`), a sharp tip's faces
+pushing the displaced tissue aside (:func:`~.tip.tip_contact_solve`), the cutting law on the
+samples, the reaction wrench with the work the needle put in, and the walk that finds the tip's
+apex in the deformed mesh. As a dozen Python calls into numba, the calls and the Python between
+them would cost about half as much again as the kernels themselves; here the sequence is one
 call to the same kernels in the same order, so the forces are the same to the last bit. What
 the Python after it decides on the outcome (shaft points released behind the tip, the layer of
 the apex's material point, a new membrane met, a new shaft point) reads the floats returned;
-:mod:`~.compiled_substep` calls it from compiled code and decides the common outcome (nothing
-to do) there, handing the other steps to that Python.
+:mod:`~tissue_sim_ros.engine.compiled.substeps` calls it from compiled code and decides the
+common outcome (nothing to do) there, handing the other steps to that Python.
 """
 import numpy as np
 from numba import njit
@@ -46,9 +45,9 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
     without, it keeps the forces and the work is a dot product over the whole array. The tip's
     apex is walked to from element ``apex_start`` (< 0: not walked), its weights in
     ``apex_weights`` and its rest coordinates in ``apex_rest``. (The two arguments that change
-    from step to step come last: the rest are :meth:`.needle.NeedleTissue.inserted_arguments`.) Returns
-    (friction force, cutting force, cutting samples found, points of action written, work of the
-    needle's forces over the step [J], the apex's element (locate_walk: -1 outside, -2 not
+    from step to step come last: the rest are :meth:`.interaction.NeedleTissue.inserted_arguments`.)
+    Returns (friction force, cutting force, cutting samples found, points of action written, work
+    of the needle's forces over the step [J], the apex's element (locate_walk: -1 outside, -2 not
     found), the tip's travel along the axis [m], the deepest shaft point's axial coordinate [m],
     the base's speed along the axis [m/s]): what the Python that follows decides on."""
     if clear_first:

@@ -188,7 +188,7 @@ class Scene:
         steps = 0
         step_wall = 0.0
         # one needle translating, explicit, nothing prescribed: the substeps it allows run in
-        # compiled slices (engine.compiled_substep); the same arithmetic
+        # compiled slices (engine.compiled.substeps); the same arithmetic
         compiled = None
         if self.compiled_substeps and CLOCKS_IN_COMPILED_CODE and len(moves) == 1 and not moves[0][7] \
                 and sim.integrator == 'explicit' and not sim.has_prescribed:
@@ -265,7 +265,7 @@ class Scene:
         return self.needle.tip_depth()
 
     def target_positions(self):
-        """(k, 3) where the scene's targets are now [m] (engine.targets)."""
+        """(k, 3) where the scene's targets are now [m] (engine.scene.targets)."""
         return self.targets.positions(self.simulation.displacement)
 
     def targets_relative_to_needle(self):

@@ -1,4 +1,4 @@
-"""Named points carried by the tissue: a tumour a planner aims at, a fiducial (issue 18 item 2).
+"""Named points carried by the tissue: a tumour a planner aims at, a fiducial.
 
 A target is given at rest (``targets: [{name, position_m}]`` in a scene) and embedded in the
 element that contains it by its barycentric weights, so it moves with the deformation exactly as

@@ -1,6 +1,6 @@
 """Explicit time integration of the lumped-mass tensor-mass model, with a stability watchdog.
 
-Each node obeys m_i a_i + gamma_i v_i - f_i(u, v) = f_ext,i (DESIGN.md). We integrate with
+Each node obeys m_i a_i + gamma_i v_i - f_i(u, v) = f_ext,i (docs/method.md). We integrate with
 symplectic (semi-implicit) Euler, velocity first:
 
     v_{n+1} = (v_n + dt (f_n + f_ext) / m) / (1 + dt gamma / m),   u_{n+1} = u_n + dt v_{n+1}
@@ -174,7 +174,7 @@ class Simulation:
     def _warm_up(self):
         """Compile (or load from numba's cache) the step kernels at start-up: one step from rest
         with no input changes nothing, then the state is reset. On a first start a second process
-        may be compiling them (compile_cache): wait for it, then they load."""
+        may be compiling them (engine.compiled.cache): wait for it, then they load."""
         from tissue_sim_ros.engine.compiled import cache as compile_cache
         compile_cache.wait_for_helper()
         saved = self._prescribed
@@ -215,11 +215,10 @@ class Simulation:
         square root, so the step keeps its fraction of the critical step (which grows as
         sqrt(mass)). The damping force is kept: the rate falls by the same ratio, so gamma_i =
         m_i rate_i is the one the scene was set up (and calibrated) with and only the added
-        inertia changes the response. Scaled with the masses, as it was, the mass-proportional
-        damping dominated the change: on the default insertion (3 mm/s, 30 mm) mass scaling x16
-        moved the axial force by 0.117 of its range from the scene's own, with the damping kept
-        by 0.038 (x4: 0.075 and 0.035). Velocities are kept; the kinetic energy this changes
-        counts as work put in (the watchdog's budget)."""
+        inertia changes the response. Scaled with the masses, the mass-proportional damping would
+        dominate the change (on the default insertion at x16 it would move the axial force three
+        times as far as the added inertia alone does). Velocities are kept; the kinetic energy this
+        changes counts as work put in (the watchdog's budget)."""
         if not (isinstance(mass_scaling, (int, float)) and math.isfinite(mass_scaling) and mass_scaling >= 1.0):
             raise ValueError(f'mass_scaling = {mass_scaling!r}: expected a finite factor >= 1')
         ratio = float(mass_scaling) / self.mass_scaling
@@ -233,7 +232,7 @@ class Simulation:
 
     def advance_arguments(self):
         """The arguments of the node update ``_advance_free`` after the element pass (the explicit
-        step's, and a compiled substep's, engine.compiled_substep)."""
+        step's, and a compiled substep's, engine.compiled.substeps)."""
         return (self.displacement, self.velocity, *self.model.force_buffers, self.internal_force,
                 self.external_forces, self.inverse_mass, self.damping_rate, self.dof_kind, self.dt,
                 self.displacement_limit)
@@ -337,7 +336,7 @@ class Simulation:
     def watch(self, bad, free_kinetic):
         """The watchdog after a step: raise SimulationDiverged for ``bad`` components (not
         finite, or past the displacement limit) or, unless None, free DOFs' kinetic energy above
-        the limit (``_energy_limit``; a compiled substep, engine.compiled_substep, tests the same)."""
+        the limit (``_energy_limit``; a compiled substep, engine.compiled.substeps, tests the same)."""
         if bad:
             self._diverged(f'{bad} displacement or velocity components became NaN or infinite, '
                            f'or a displacement passed {self.displacement_limit:.3g} m (100 body sizes)')

@@ -1,7 +1,8 @@
 """ROS 2 type names and message definitions, read from the installed .msg/.srv files.
 
 The one home for parsing a ROS type name (``pkg/msg/Type``, ``pkg/srv/Type``, ``pkg/Type``):
-the MCAP writer names schemas with it and ``ros.message_yaml`` finds message classes with it.
+the MCAP writer names schemas with it and ``ros.messages.from_yaml`` finds message classes with
+it.
 The ``ros2msg`` schema text of a type (:func:`message_definition`) is its .msg followed, for each
 dependency (depth first, field order, each once), by a line of 80 ``=``, ``MSG: pkg/Type`` and
 that type's .msg, as rosbag2 writes it. No rclpy: the files are found on disk.

@@ -4,7 +4,7 @@ Messages are decoded by ``mcap_ros2`` from the schemas in the file. A payload th
 decode with its schema (a malformed message the node received and recorded as it came) is
 skipped and reported, never raised: see :class:`LogReading`. A file without a valid summary (a
 hard kill) raises :class:`TruncatedLogError` unless the caller allows it; then the intact chunks
-are read with a stream read (:class:`TolerantScan`), which ``mcap_recovery`` shares.
+are read with a stream read (:class:`TolerantScan`), which :mod:`.recovery` shares.
 """
 from __future__ import annotations
 

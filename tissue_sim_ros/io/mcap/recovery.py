@@ -90,7 +90,7 @@ def recover_truncated(path, repaired_path=None) -> dict:
     survived) and ``lost_s``: 0.0 when nothing was lost, the log time from the last kept
     message to the end of a torn chunk (a lower bound: a file cut off may have lost later
     chunks too), or None when the file does not say (a hard kill ends the file at a chunk
-    boundary; the open chunk never reached it: ``mcap_chunk_age.ChunkAge`` has the bound).
+    boundary; the open chunk never reached it: ``chunk_age.ChunkAge`` has the bound).
     With ``repaired_path`` (must not exist) it also
     writes every intact schema, channel, metadata record and message to a new complete MCAP
     file (same payloads, same channel metadata, zstd chunks, summary).

@@ -2,7 +2,7 @@
 
 The force comes from geometry_msgs/WrenchStamped on one topic, the needle base pose from
 geometry_msgs/PoseStamped or TransformStamped on another (both named by the user); messages are
-decoded by :func:`tissue_sim_ros.io.mcap.reader.read_log`. Conventions (DESIGN.md): the needle
+decoded by :func:`tissue_sim_ros.io.mcap.reader.read_log`. Conventions (docs/data.md): the needle
 axis is its base frame's +z (or ``needle_axis`` in that frame); the wrench is the force on the
 needle, so the axial force ``sign x (F . axis)`` with ``sign = -1`` is positive while the tissue
 resists insertion. Rows in errors are a message's 1-based index on its topic, in log order.

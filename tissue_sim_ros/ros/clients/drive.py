@@ -44,7 +44,8 @@ class DriveStart:
 
 
 def _axis(orientation) -> np.ndarray:
-    """The needle axis (base +z) of a quaternion x y z w: the engine's rule, engine.pose.needle_axis."""
+    """The needle axis (base +z) of a quaternion x y z w: the engine's rule,
+    engine.needle.pose.needle_axis."""
     from tissue_sim_ros.engine.needle.pose import needle_axis  # light: numpy only, no numba
     return needle_axis(orientation)
 

@@ -98,8 +98,8 @@ class _Wake:
     """The engine thread's wake-up call: :meth:`set` from any thread, :meth:`wait` on the
     engine's (it returns at a set since the last wait, or after ``timeout_s``). A
     ``queue.SimpleQueue``, whose put and get are C: a ``threading.Event``'s Python-level
-    condition cost the running node about 60 us of thread time a wait and 10-15 us a set (run
-    cold, between element passes), 150 waits and 150 sets a second."""
+    condition costs the running node about 60 us of thread time a wait and 10-15 us a set (run
+    cold, between element passes), at 150 waits and 150 sets a second."""
 
     def __init__(self):
         self._queue = queue.SimpleQueue()
@@ -185,8 +185,7 @@ class EngineLoop:
         (sim time), return once the engine has simulated up to now. The engine is woken for it
         only when it is behind (a deadline left substeps for this window) or with ``wait``: else
         its next pose wakes it, or its wait's timeout (a period) when none comes: a cycle of its
-        own for the tick, 50 a second, had nothing to do (in the engine-only loop the engine's CPU
-        did not change measurably without them)."""
+        own for the tick, 50 a second, would have nothing to do."""
         self._tick_wall = time.perf_counter()
         with self._cond:
             self._tick_seq += 1

@@ -1,11 +1,10 @@
 """The node's per-tick messages written straight into their CDR bytes: the wrench, the mesh
 state's point cloud, the engine trace and the surface marker.
 
-Why: in the running node, building these as rclpy message objects and serializing them took
-about 500 us of the executor thread's 700 us a tick (thread time: wrench 290 us, cloud 210 us,
-trace 100 us; ten times what the same calls take on a quiet core, since the physics leaves the
-interpreter's data out of the caches between ticks), 2.5 % of a core at 50 Hz, while their
-layouts are fixed. Each writer here serializes one message through rclpy when it is made, with
+Why: in the running node, building these as rclpy message objects and serializing them would
+take most of the executor thread's time a tick (ten times what the same calls take on a quiet
+core, since the physics leaves the interpreter's data out of the caches between ticks), while
+their layouts are fixed. Each writer here serializes one message through rclpy when it is made, with
 sentinel values, finds where the stamp and the values lie, and checks the layout (little-endian
 plain CDR, as ROS 2's rmw layers write it); each call then writes the stamp and the values into
 those bytes. They decode to the message rclpy would serialize for the same values (the tests
@@ -148,10 +147,10 @@ class TraceBytes:
 
 class SurfaceMarkerBytes:
     """The surface marker as CDR bytes, built without a Python object per point: the marker of
-    :func:`conversions.surface_marker_msg` is serialized once per topology with sentinel corners, and each
-    :meth:`serialized` call writes the corners (float64, the TRIANGLE_LIST order) and the stamp
-    into those bytes. 5.7 ms per marker of 3366 points (build 1.8, serialize 3.9) becomes a
-    numpy gather. ``serialize``: rclpy's serialize_message (passed in)."""
+    :func:`conversions.surface_marker_msg` is serialized once per topology with sentinel
+    corners, and each :meth:`serialized` call writes the corners (float64, the TRIANGLE_LIST
+    order) and the stamp into those bytes: a numpy gather, not milliseconds of Python objects a
+    marker. ``serialize``: rclpy's serialize_message (passed in)."""
 
     def __init__(self, triangles, n_vertices: int, frame_id: str, max_triangles: int, serialize):
         tri = cv._triangles('triangles', triangles, n_vertices)

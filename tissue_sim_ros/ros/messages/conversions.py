@@ -3,7 +3,7 @@
 Every builder takes numpy arrays in SI units (REP 103) and returns a ready-to-publish rclpy
 message; every reader returns numpy arrays. Nothing here publishes, logs or keeps state.
 
-Message cost, measured on this machine (see ``benchmarks``/the closing note of issue 5):
+Message cost:
 
 - ``point_cloud_msg`` packs the whole cloud into one float32 buffer with numpy: no per-point
   Python object. It is the message to send the mesh state in at the full rate.
