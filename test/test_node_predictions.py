@@ -112,19 +112,18 @@ def test_a_path_not_starting_at_the_needle_is_refused_and_the_live_ticks_go_on(h
     assert h.node.ticks - ticks0 >= 0.8 * elapsed * h.node.config.publish_rate_hz
 
 
-def test_the_readme_planner_gets_its_answer(harness, monkeypatch, capfd):
-    """The README's ten-line planner, run as written against a node (its candidate: the
+def test_the_documented_planner_gets_its_answer(harness, monkeypatch, capfd):
+    """docs/node.md's ten-line planner, run as written against a node (its candidate: the
     msg_examples path, which starts at the default needle pose the test scene shares)."""
     from pathlib import Path as FilePath
     root = FilePath(__file__).resolve().parents[1]
-    readme = (root / 'README.md').read_text()
-    start = readme.index('  ```python\n  import rclpy\n')
-    block = readme[start:readme.index('  ```\n', start + 10)].splitlines()[1:]
-    code = '\n'.join(line[2:] for line in block)
+    page = (root / 'docs' / 'node.md').read_text()
+    start = page.index('```python\nimport rclpy\n') + len('```python\n')
+    code = page[start:page.index('```\n', start)]
     harness(**{'prediction.workers': 1, 'prediction.threads': 1})
     monkeypatch.chdir(root)
     try:
-        exec(compile(code, 'README planner', 'exec'), {})
+        exec(compile(code, 'docs/node.md planner', 'exec'), {})
     finally:
         rclpy.shutdown()
     import ast

@@ -1,5 +1,6 @@
-"""The README's promises: its Python example runs, the CLI answers, and the set-up script finds a
-working Python 3.12 (skipping shims that refuse to run) or names what it needs."""
+"""The documentation's promises: docs/engine.md's first Python example runs, the CLI answers, and
+the set-up script finds a working Python 3.12 (skipping shims that refuse to run) or names what it
+needs."""
 import os
 import re
 import subprocess
@@ -13,10 +14,10 @@ import tissue_sim_ros
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_readme_python_example_runs():
-    code = re.findall(r'```python\n(.*?)```', (ROOT / 'README.md').read_text(), re.S)[0]
+def test_engine_page_python_example_runs():
+    code = re.findall(r'```python\n(.*?)```', (ROOT / 'docs' / 'engine.md').read_text(), re.S)[0]
     namespace = {}
-    exec(compile(code, 'README.md', 'exec'), namespace)
+    exec(compile(code, 'docs/engine.md', 'exec'), namespace)
     sim = namespace['sim']
     assert sim.step_count == 100 and sim.reaction_force(namespace['top'])[2] > 0.0
 
