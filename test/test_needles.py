@@ -1,4 +1,4 @@
-"""Several needles in one tissue (scene key ``needles``, issue 18 item 3).
+"""Several needles in one tissue (scene key ``needles``).
 
 Truths: the one-needle scene (a list of one needle, or a second needle that never touches the
 tissue, changes nothing, bit for bit); the run without the other needle's push (each wrench

@@ -1,4 +1,4 @@
-"""The node's predictions over ROS: plan/candidate in, plan/prediction out (issue 18 item 1).
+"""The node's predictions over ROS: plan/candidate in, plan/prediction out.
 
 Truths: the engine's own prediction of the same path from a scene at rest (the node's tissue is
 at rest while no pose comes; the schedules of substeps differ only by where the node's clock

@@ -1,6 +1,6 @@
 """PoseInput, the node's pose stream (pure, no ROS): interpolation between samples, each refusal
-kind named and counted, floods, staleness; and re-synchronisation (issue 13, "jump lock-out never
-ends"): a robot that moved past the jump limit during a gap in its stream is followed again, the
+kind named and counted, floods, staleness; and re-synchronisation (so that a jump lock-out ends):
+a robot that moved past the jump limit during a gap in its stream is followed again, the
 needle joining it at a bounded speed that the engine accepts; a wild pose in a live stream is
 still refused.
 

@@ -1,5 +1,4 @@
-"""A target in the tissue under the needle moves down as a static solve of the same indentation
-says (issue 18's test of targets).
+"""A target in the tissue under the needle moves as a static solve of the same indentation says.
 
 The needle indents the surface (before any puncture) on the linear model and is held until the
 tissue has settled. At equilibrium every free node satisfies K u = f, and f is zero except where

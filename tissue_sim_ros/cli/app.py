@@ -180,7 +180,7 @@ def build_parser():
     compare.add_argument('files', nargs='*', metavar='FILE', help='data files (CSV/TSV/text or MCAP) '
                          'read with the column options below; or give --data-spec')
     compare.add_argument('--data-spec', type=input_file, default=None, metavar='SPEC.yaml',
-                         help='a data description of the whole study (README: compare with your '
+                         help='a data description of the whole study (docs/data.md: describing your '
                               'load-cell data)')
     add_scene(compare)
     compare.add_argument('--align', choices=['contact', 'xcorr', 'depth'], default='contact',

@@ -1,7 +1,8 @@
 """A rigid needle against the tissue: contact, puncture, cutting, friction, reaction wrench.
 
 The needle is a straight rigid cylinder given by the pose of its base frame (position, unit
-quaternion x y z w); its axis is the frame's +z and the tip is at +z * length (DESIGN.md). The
+quaternion x y z w); its axis is the frame's +z and the tip is at +z * length
+(docs/scene-guide.md, "Needle and tip shapes"). The
 tissue is a :class:`~tissue_sim_ros.engine.solver.explicit.Simulation`. Each time step the scene moves the needle
 (:meth:`NeedleTissue.set_pose`), calls ``Simulation.step`` and then
 :meth:`NeedleTissue.after_step`, which applies the needle's constraints and forces as follows

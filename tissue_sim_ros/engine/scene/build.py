@@ -85,11 +85,16 @@ def build_model(mesh, materials, model: dict) -> TensorMassModel:
                            relaxation=model['relaxation'], precision=model['precision'])
 
 
-def build_simulation(model, solver: dict, fixed=None, *, dt=None, integrator=None) -> Simulation:
-    """The Simulation of ``model`` with every key of the ``solver`` section; ``dt`` and
-    ``integrator`` replace the section's step and integrator (a study's variants)."""
+#: build_simulation's ``dt`` default: the section's ``time_step_s``
+SCENE_STEP = 'scene'
+
+
+def build_simulation(model, solver: dict, fixed=None, *, dt=SCENE_STEP, integrator=None) -> Simulation:
+    """The Simulation of ``model`` with every key of the ``solver`` section; ``dt`` (None: the
+    section's ``time_step_safety`` of this model's critical step) and ``integrator`` replace the
+    section's step and integrator (a study's variants on another mesh)."""
     return Simulation(model, damping=solver['damping_per_s'], fixed=fixed,
-                      dt=solver['time_step_s'] if dt is None else dt,
+                      dt=solver['time_step_s'] if dt is SCENE_STEP else dt,
                       time_step_safety=solver['time_step_safety'], mass_scaling=solver['mass_scaling'],
                       integrator=integrator or solver['integrator'],
                       newton_tolerance=solver['newton_tolerance'])

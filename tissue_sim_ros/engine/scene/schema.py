@@ -125,7 +125,7 @@ SCHEMA = {
                                          'prints its estimated inertia error); auto: the largest whose '
                                          "force NRMSE on the scene's insertion at design_speed_m_s, "
                                          'against 4x, is within inertia_error_bound (probed once, '
-                                         'cached; analysis.mass_scaling_rule)'),
+                                         'cached; analysis.charting.mass_scaling_rule)'),
         'inertia_error_bound': (0.02, 'float+', 'mass_scaling auto: the force NRMSE the mass scaling may add'),
         'design_speed_m_s': (0.005, 'float+', 'mass_scaling auto: the needle speed it is chosen for [m/s] '
                                               '(tissue-sim insert sets its own)'),
