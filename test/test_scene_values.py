@@ -136,3 +136,48 @@ def test_an_auto_scene_is_refused_by_the_engine_and_resolved_above_it(tmp_path, 
     plain = tmp_path / 'plain.yaml'
     plain.write_text('solver: {mass_scaling: 100}\n')
     assert auto_keys.concrete_scene_file(plain, ['model.geometric=false'], tmp_path / 'x') == (plain, ['model.geometric=false'])
+
+
+def test_a_mistyped_mesh_size_is_refused_at_once_in_bounded_memory():
+    """fine_size_m 1e-5 m (a millimetre value written as metres) asks for about 2e7 tetrahedra:
+    refused before meshing, naming the key, the estimate and the limit, in a fresh process that
+    stays small (before the check existed it grew to 8 GB in 10 s)."""
+    import subprocess
+    import sys
+    import textwrap
+    code = textwrap.dedent('''
+        import resource, sys, time
+        from tissue_sim_ros.engine.scene.scene import Scene
+        from tissue_sim_ros.errors import SceneError
+        t = time.perf_counter()
+        try:
+            Scene.from_file(None, values={'mesh.fine_size_m': 0.00001})
+        except SceneError as exc:
+            print(time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, exc)
+            sys.exit(0)
+        sys.exit('not refused')''')
+    done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    seconds, kilobytes, message = done.stdout.split(' ', 2)
+    assert float(seconds) < 1.0 and int(kilobytes) < 600_000
+    assert 'mesh.fine_size_m = 1e-05' in message and 'tetrahedra' in message and 'mesh.max_elements' in message
+
+
+def test_the_mesh_limit_is_a_key_and_a_large_mesh_is_announced(capsys, monkeypatch):
+    from tissue_sim_ros.engine.mesh.generators import box_axes, grid_elements
+    from tissue_sim_ros.engine.scene import build
+    assert grid_elements(box_axes((1, 1, 1), (3, 4, 5))) == 6 * 3 * 4 * 5
+    with pytest.raises(SceneError, match=r'about 480 tetrahedra, more than mesh.max_elements = 100'):
+        Scene.from_file(None, values={'mesh.generator': 'box', 'mesh.divisions': [4, 4, 5], 'mesh.max_elements': 100})
+    monkeypatch.setattr(build, 'ANNOUNCE_ELEMENTS', 100)
+    scene = Scene.from_file(None, values={'mesh.generator': 'box', 'mesh.divisions': [4, 4, 5]})
+    assert scene.mesh.n_elements == 480
+    assert 'building a mesh of about 480 tetrahedra' in capsys.readouterr().err
+
+
+@pytest.mark.parametrize('text', ['', '# only a comment\n', '{}\n'])
+def test_an_empty_scene_file_is_refused_saying_what_it_would_run(tmp_path, text):
+    path = tmp_path / 'empty.yaml'
+    path.write_text(text)
+    with pytest.raises(SceneError, match=r"scene_file = '.*empty.yaml': no scene keys .*force stays 0 N"):
+        Scene.from_file(path)

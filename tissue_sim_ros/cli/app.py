@@ -1,7 +1,9 @@
 """``tissue-sim``: the parser, the dispatch, and one line for any refusal (exit status 2).
 
 Thin: each command is a call into the layers below with the options it was given."""
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from tissue_sim_ros.cli.arguments import (NON_NEGATIVE, POSITIVE, Parser, add_max_depth, add_pool_and_out,
@@ -335,16 +337,34 @@ def _describe(exc):
     return ' '.join(text.split())
 
 
+class _Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that the command ends as from Ctrl-C: its worker
+    processes stopped, its outputs closed (a resumable study resumes)."""
+
+
+def _on_sigterm(signum, frame):
+    raise _Terminated
+
+
 def main(argv=None):
     """Run a command; bad input (a scene, a mesh, a file, a value), a diverged simulation or a
-    node that would not start is one error line naming it (exit status 2), not a traceback."""
+    node that would not start is one error line naming it (exit status 2), not a traceback;
+    Ctrl-C and SIGTERM end it cleanly (130, 143)."""
     args = build_parser().parse_args(argv)
+    previous = signal.signal(signal.SIGTERM, _on_sigterm) if threading.current_thread() is threading.main_thread() \
+        else None
     try:
         args.run(args)
     except KeyboardInterrupt:
         print(f'tissue-sim {args.command}: interrupted', file=sys.stderr)
         return 130
+    except _Terminated:
+        print(f'tissue-sim {args.command}: terminated', file=sys.stderr)
+        return 128 + signal.SIGTERM
     except (TissueSimError, OSError) as exc:
         print(f'tissue-sim {args.command}: error: {_describe(exc)}', file=sys.stderr)
         return 2
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return 0

@@ -14,7 +14,7 @@ def _drive(args):
     depth = depth_below_surface(args, args.start_height_mm, None, args.scene)
     code = run_drive(args.speed_mm_s, depth, start_height_mm=args.start_height_mm,
                      rate_hz=args.rate_hz, hold_s=args.hold_s, scene_file=args.scene,
-                     resolve_auto=resolve_auto_keys)
+                     wait_for_node_s=args.wait_for_node_s, resolve_auto=resolve_auto_keys)
     if code:
         sys.exit(code)
 
@@ -67,6 +67,9 @@ def add_node_commands(commands):
                        help="tip height above the surface at the start [mm] (default: the scene's)")
     drive.add_argument('--rate-hz', type=POSITIVE, default=100.0, help='pose rate [Hz] (default 100)')
     drive.add_argument('--hold-s', type=NON_NEGATIVE, default=0.5, help='pause at full depth [s] (default 0.5)')
+    drive.add_argument('--wait-for-node-s', type=POSITIVE, default=10.0,
+                       help='how long to wait for the node to publish its wrench and take the poses [s] '
+                            '(default 10)')
     add_scene(drive, sets=False, help_text='scene the node runs (default: the packaged one)')
     drive.set_defaults(run=_drive)
     node_bench = commands.add_parser('node-bench', help='run the node as a process and print its timing figures')

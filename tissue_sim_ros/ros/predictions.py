@@ -49,7 +49,8 @@ from tissue_sim_ros.engine.prediction import (check_path, predict_snapshot, pred
                                               write_snapshot)
 from tissue_sim_ros.errors import SimulationDiverged
 from tissue_sim_ros.system.thread_names import name_os_thread
-from tissue_sim_ros.system.process_pools import stop_pool
+from tissue_sim_ros.system.process_pools import sigint_blocked, start_worker, stop_pool
+from tissue_sim_ros.ros.diagnostics import NONE_YET
 from tissue_sim_ros.ros.messages.conversions import header, stamp_to_ns
 from tissue_sim_ros.units import NS_PER_S
 
@@ -125,16 +126,11 @@ def prediction_msg(stamp, frame_id: str, columns, prediction=None) -> JointTraje
 
 
 def _start_worker(niceness: int, parent_pid: int) -> None:
-    """A worker's start: lower priority, a watch on the node (a worker whose node is gone, even
-    by SIGKILL, exits within a second instead of living on), the engine's modules loaded."""
+    """A worker's start: Ctrl-C left to the node and an end with it (``process_pools``), lower
+    priority, the engine's modules loaded."""
+    start_worker(parent_pid)
     with contextlib.suppress(OSError):        # not allowed here: the worker runs at the node's priority
         os.nice(niceness)
-
-    def watch_parent():
-        while os.getppid() == parent_pid:
-            time.sleep(1.0)
-        os._exit(0)
-    threading.Thread(target=watch_parent, name='tissue_sim-prediction-parent-watch', daemon=True).start()
     from tissue_sim_ros.engine.warm_up import warm_up
     warm_up()
 
@@ -257,8 +253,9 @@ class PredictionService:
             threshold, mass_scaling = self._rung()
             with self._lock:
                 self._users[snapshot] += 1
-            future = self._ensure_pool().submit(_work, str(snapshot), path, self.wrench_frame,
-                                                self.threads, threshold, mass_scaling)
+            with sigint_blocked():            # a first submit starts the workers
+                future = self._ensure_pool().submit(_work, str(snapshot), path, self.wrench_frame,
+                                                    self.threads, threshold, mass_scaling)
         except PoseError as exc:
             self._finish(request, None, f'refused: {exc}')
             return
@@ -332,8 +329,9 @@ class PredictionService:
             path = check_path([0.0, 0.01], [position, position], [orientation, orientation],
                               max_jump_m=self.max_jump_m)
             pool = self._ensure_pool()
-            self._warming = [pool.submit(_work, str(snapshot), path, self.wrench_frame, self.threads, None, None)
-                             for _ in range(self.workers)]
+            with sigint_blocked():            # the workers start here, with Ctrl-C left to the node
+                self._warming = [pool.submit(_work, str(snapshot), path, self.wrench_frame, self.threads, None,
+                                             None) for _ in range(self.workers)]
         except Exception as exc:  # noqa: BLE001 - the first request will start them instead
             self._log_once('prediction: start', f'the prediction workers did not start: {exc}', 'warning')
 
@@ -352,14 +350,15 @@ class PredictionService:
         """The DiagnosticStatus tuple ``<node>: predictions``."""
         with self._lock:
             queued = len(self._queue)
-        answer = np.array(self.answer_s) if self.answer_s else np.zeros(1)
-        rtf = np.array(self.real_time_factors) if self.real_time_factors else np.full(1, np.nan)
+        answer = np.array(self.answer_s)
+        rtf = np.array(self.real_time_factors)
         threshold, mass_scaling = self._rung()
         values = {'requests': self.requests, 'answered': self.answered, 'refused': self.refused,
                   'queued': queued, 'workers': self.workers, 'threads_per_worker': self.threads,
                   'snapshots': self.snapshots, 'workers_state': self.workers_state,
-                  'answer_s_p50': float(np.percentile(answer, 50)),
-                  'answer_s_max': float(answer.max()), 'real_time_factor_median': float(np.median(rtf)),
+                  'answer_s_p50': float(np.percentile(answer, 50)) if answer.size else NONE_YET,
+                  'answer_s_max': float(answer.max()) if answer.size else NONE_YET,
+                  'real_time_factor_median': float(np.median(rtf)) if rtf.size else NONE_YET,
                   'settings': 'as the live scene' if threshold is None else
                   f'non-linearity threshold {threshold:g}, mass scaling {mass_scaling:g}',
                   'columns': ', '.join(self.columns), 'last_refusal': self.last_reason}

@@ -144,6 +144,7 @@ class Objective:
         self.keep_time_step_s, self.max_mass_scaling = keep_time_step_s, max_mass_scaling
         self.store, self.workers, self.scheduler, self.pool = store, workers, scheduler, pool
         self.log_path = None if log_path is None else Path(log_path)
+        self._logged = _logged_keys(self.log_path)       # a resumed run logs each evaluation once
         self._cache: dict = {}           # (vector key, horizon key) -> Evaluation; horizon None: whole
         self._points = None              # per trial: (sample indices, phases there)
         self._horizons: dict = {}        # stage phases -> per job the schedule's end index (None: whole)
@@ -358,13 +359,39 @@ class Objective:
     def _log(self, evaluation: Evaluation) -> None:
         if self.log_path is None:
             return
-        record = {'time': time.strftime('%Y-%m-%dT%H:%M:%S'), 'values': evaluation.values,
-                  'phases': None if evaluation.phases is None else str(evaluation.phases),
+        phases = None if evaluation.phases is None else str(evaluation.phases)
+        key = _log_key(evaluation.values, phases)
+        if key in self._logged:
+            return
+        self._logged.add(key)
+        record = {'time': time.strftime('%Y-%m-%dT%H:%M:%S'), 'values': evaluation.values, 'phases': phases,
                   'objective': evaluation.objective, 'nrmse_mean': evaluation.nrmse_mean,
                   'failures': evaluation.failures,
                   'mass_scaling': max((r.mass_scaling for r in evaluation.results), default=float('nan'))}
         with self.log_path.open('a') as log:
             log.write(json.dumps(record, default=float) + '\n')
+
+
+def _log_key(values: dict, phases) -> str:
+    return json.dumps([values, phases], sort_keys=True, default=float)
+
+
+def _logged_keys(path) -> set:
+    """The evaluations an earlier run of the study logged (a line cut by a kill is skipped)."""
+    keys = set()
+    if path is None or not path.exists():
+        return keys
+    text = path.read_text()
+    if text and not text.endswith('\n'):
+        with path.open('a') as log:                      # the next record starts on its own line
+            log.write('\n')
+    for line in text.splitlines():
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        keys.add(_log_key(record.get('values'), record.get('phases')))
+    return keys
 
 
 def _cut(schedule, end):

@@ -8,19 +8,21 @@ checks a value again, and no engine error is caught to be rewritten.
 """
 from __future__ import annotations
 
+import os
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from tissue_sim_ros.engine.mesh.files import load_mesh
-from tissue_sim_ros.engine.mesh.generators import box_mesh, graded_box_mesh
+from tissue_sim_ros.engine.mesh.generators import box_axes, graded_box_axes, grid_elements, grid_mesh
 from tissue_sim_ros.engine.model.material import Material, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.model.tensor_mass import TensorMassModel
 from tissue_sim_ros.engine.needle.parameters import Friction, Membrane, RegionInteraction, TipShape
 from tissue_sim_ros.engine.solver.explicit import Simulation
 from tissue_sim_ros.errors import SceneError
 
-__all__ = ['build_material', 'build_mesh', 'build_model', 'build_simulation', 'check_combinations',
+__all__ = ['build_material', 'build_mesh', 'element_limit', 'build_model', 'build_simulation', 'check_combinations',
            'check_time_step',
            'fixed_nodes', 'physical_law', 'region_interaction', 'tip_shape', 'viscosity']
 
@@ -38,19 +40,58 @@ def check_combinations(spec: dict) -> None:
                          "advance once a step); use integrator 'explicit' or no relaxation")
 
 
+#: memory a tetrahedron takes in a running scene (the model's arrays, the solver's, the per-thread
+#: force buffers), with a margin: 1.2 kB measured on the default scene's model at 288000
+BYTES_PER_ELEMENT = 2000
+#: a mesh this large is announced on stderr before it is built (it takes seconds)
+ANNOUNCE_ELEMENTS = 200_000
+
+
+def element_limit(spec: dict) -> tuple[int, str]:
+    """(the largest mesh a scene may build, how it was set): ``mesh.max_elements``, or half this
+    machine's memory at BYTES_PER_ELEMENT a tetrahedron."""
+    if spec['max_elements'] is not None:
+        return int(spec['max_elements']), f"mesh.max_elements = {spec['max_elements']:g}"
+    try:
+        memory = os.sysconf('SC_PAGE_SIZE') * os.sysconf('SC_PHYS_PAGES')
+    except (ValueError, OSError, AttributeError):          # no sysconf: a small machine's bound
+        memory = 8 << 30
+    limit = int(0.5 * memory / BYTES_PER_ELEMENT)
+    return limit, (f'mesh.max_elements = null: {limit:.3g} on this machine (half its {memory / 2**30:.0f} GiB '
+                   f'at about {BYTES_PER_ELEMENT / 1e3:g} kB a tetrahedron)')
+
+
+def _check_size(elements: int, spec: dict, what: str) -> None:
+    limit, how = element_limit(spec)
+    if elements > limit:
+        raise SceneError(f'mesh: {what} makes about {elements:.3g} tetrahedra, more than {how}; check '
+                         'the mesh keys (a size in mm written as metres?) or raise mesh.max_elements')
+    if elements > ANNOUNCE_ELEMENTS:
+        print(f'tissue_sim_ros: building a mesh of about {elements:.3g} tetrahedra ({what}; about '
+              f'{elements * BYTES_PER_ELEMENT / 2**30:.1f} GiB once running)', file=sys.stderr, flush=True)
+
+
 def build_mesh(spec: dict, base_dir) -> object:
-    """The ``mesh`` section's TetMesh (before regions are assigned)."""
+    """The ``mesh`` section's TetMesh (before regions are assigned), its size checked against
+    :func:`element_limit` before anything large is made."""
     if spec['generator'] == 'file':
         if not spec['file']:
             raise SceneError("mesh.file = '': expected a mesh file name with generator: file")
         path = Path(spec['file'])
-        return load_mesh(path if path.is_absolute() else Path(base_dir) / path)
+        mesh = load_mesh(path if path.is_absolute() else Path(base_dir) / path)
+        _check_size(mesh.n_elements, spec, f'mesh.file = {spec["file"]!r}')
+        return mesh
     divisions = [int(round(d)) for d in spec['divisions']]
     if spec['generator'] == 'box':
-        return box_mesh(spec['size_m'], divisions, spec['origin_m'])
-    return graded_box_mesh(spec['size_m'], divisions, spec['origin_m'], focus=spec['focus_xy_m'],
-                           focus_radius=spec['focus_radius_m'], growth=spec['growth'],
-                           fine_size=spec['fine_size_m'], grade_z=spec['grade_z'])
+        axes = box_axes(spec['size_m'], divisions, spec['origin_m'])
+        what = f'mesh.divisions = {divisions}'
+    else:
+        axes = graded_box_axes(spec['size_m'], divisions, spec['origin_m'], focus=spec['focus_xy_m'],
+                               focus_radius=spec['focus_radius_m'], growth=spec['growth'],
+                               fine_size=spec['fine_size_m'], grade_z=spec['grade_z'])
+        what = f"mesh.fine_size_m = {spec['fine_size_m']:g} and mesh.divisions = {divisions}"
+    _check_size(grid_elements(axes), spec, what)
+    return grid_mesh(axes)
 
 
 def build_material(region: dict) -> Material:

@@ -337,7 +337,12 @@ def read_scene_keys(path=None, sets=(), values=None, **sections) -> tuple[dict, 
     if spec is not None and not isinstance(spec, dict):
         raise SceneError(f'scene_file = {str(path)!r}: expected a mapping of scene keys at the top '
                          f'level, found a {type(spec).__name__}')
-    spec = set_keys(apply_overrides(merge(_auto_model_section(spec or {}), sections), sets), values)
+    if not spec:
+        # the built-in defaults are not a tissue anyone measured: an empty file is a mistake
+        raise SceneError(f'scene_file = {str(path)!r}: no scene keys (an empty file runs every built-in '
+                         'default, a tissue with no membrane: the force stays 0 N); give the keys, start '
+                         'from config/liver_sample.yaml, or leave the scene out for that packaged scene')
+    spec = set_keys(apply_overrides(merge(_auto_model_section(spec), sections), sets), values)
     return apply_schema('', spec, SCHEMA), text, path.parent
 
 

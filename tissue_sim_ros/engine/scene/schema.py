@@ -30,6 +30,9 @@ SCHEMA = {
         'focus_xy_m': (None, 'vec2', 'graded_box: (x, y) the mesh is refined around; default the centre'),
         'growth': (1.3, 'float+', 'graded_box: width ratio of neighbouring cells (>= 1)'),
         'grade_z': (True, 'bool', 'graded_box: grade z toward the top face too'),
+        'max_elements': (None, 'float+', 'the largest mesh the scene may build, in tetrahedra, checked '
+                                         'before it is built; null: half this machine\'s memory at about '
+                                         '2 kB a tetrahedron'),
     },
     'regions': [{
         'name': ('tissue', 'str', 'region name (reported in puncture events)'),

@@ -313,7 +313,9 @@ class EngineLoop:
             self._receipts.append((receipt, self.advances + 1))
         for receiver, other in zip(self.other_receivers, self.other_inputs):
             receiver.decode_into(other, self._decode, self._log_once)
-        if self.paused or self.driver.held:
+        if self.paused or self.driver.held or self._tick_seq == 0:
+            # before the first tick the node is still starting (its set-up holds the GIL for
+            # tenths of a second): time not simulated then is not owed, and no lag is warned of
             self.pacing.hold(now_ns)
         else:
             stamps = [newest[0] for newest in (i.newest() for i in [self.input] + self.other_inputs)

@@ -46,6 +46,14 @@ live stream is still refused as a jump; after a start or a reset, with no pose a
 a jump from the needle is refused whatever the wait (the needle's pose is the reference the
 ``~/reset`` service promises).
 
+Delivery stalls. A pose received more than ``stale_after_s`` after its stamp, when the one
+before came on time, starts a *delivery stall*: the stream was held up on the way and arrives as
+a late burst (the publisher did not pause: it stamped these poses on time). Fast DDS does this
+to a reliable subscription for about a second after an empty (0-byte) payload on its topic; a
+best-effort subscription (``input.reliability: best_effort``) is not held up. Stalls are counted
+(``delivery_stalls``, ``delivery_stall_max_s``) and diagnostics warn of them; the late poses are
+judged as any others.
+
 The pose at tick time ``t`` is interpolated (linear position, slerp orientation) between the
 accepted samples whose stamps bracket ``t``; after the newest sample it is held (no
 extrapolation); before the oldest it is the oldest. With nothing buffered, :meth:`pose_at`
@@ -112,6 +120,10 @@ class PoseInput:
         self._reference = None
         self._handed = None  # (t_ns, p, q) of the last pose pose_at handed out
         self._catching_up = False
+        self.delivery_stalls = 0           # late bursts after on-time poses (module docstring)
+        self.delivery_stall_max_s = 0.0    # the latest pose of any of them, after its stamp [s]
+        self.last_stall_ns: int | None = None    # receipt time of the last stall's first pose
+        self._on_time = True
         self.reset(reference_pose)
 
     def reset(self, reference_pose=None) -> None:
@@ -139,6 +151,8 @@ class PoseInput:
         'resynchronised') are stored too (the caller may log them). ``detail`` says what was wrong, with the values.
         """
         self.received += 1
+        if stamp_ns != 0:
+            self._watch_delivery(stamp_ns, receipt_ns)
         lim = self.limits
         p = np.asarray(position, dtype=np.float64)
         q = np.asarray(orientation, dtype=np.float64)
@@ -197,6 +211,17 @@ class PoseInput:
         elif note == 'unstamped':
             detail = 'header.stamp is 0; stamped with the receipt time'
         return note, detail
+
+    def _watch_delivery(self, stamp_ns: int, receipt_ns: int) -> None:
+        """Count a delivery stall: a pose late by more than ``stale_after_s`` after one on time."""
+        late_s = (receipt_ns - stamp_ns) / NS_PER_S
+        late = late_s > self.limits.stale_after_s
+        if late and self._on_time:
+            self.delivery_stalls += 1
+            self.last_stall_ns = receipt_ns
+        if late:
+            self.delivery_stall_max_s = max(self.delivery_stall_max_s, late_s)
+        self._on_time = not late
 
     def _resynchronise(self, p, q, stamp_ns: int, receipt_ns: int, what: str):
         """Start a new stream at this pose; pose_at joins it gradually (module docstring)."""

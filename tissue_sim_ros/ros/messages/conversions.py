@@ -19,6 +19,7 @@ nanoseconds, or anything with ``to_msg()`` (``rclpy.time.Time``).
 from __future__ import annotations
 
 import array
+import math
 import sys
 from collections.abc import Iterable, Mapping, Sequence
 
@@ -399,7 +400,8 @@ def _format_value(value) -> str:
     if isinstance(value, (bool, np.bool_)):
         return 'true' if value else 'false'
     if isinstance(value, (float, np.floating)):
-        return f'{float(value):.6g}'
+        # a figure that does not exist says so (the statuses write 'none yet'); never 'nan'
+        return f'{float(value):.6g}' if math.isfinite(value) else 'not available'
     return str(value)
 
 
@@ -408,7 +410,8 @@ def diagnostic_array_msg(stamp, statuses: Iterable[Sequence]) -> DiagnosticArray
 
     ``level`` is 'OK'/'WARN'/'ERROR'/'STALE' (any case), 0..3, or the message's byte constant.
     An optional fifth item is the hardware_id. Values become strings: floats with 6
-    significant digits, bools as true/false, the rest with ``str``.
+    significant digits (a non-finite one 'not available'), bools as true/false, the rest with
+    ``str``.
     """
     msg = DiagnosticArray(header=header('', stamp))
     out = []
