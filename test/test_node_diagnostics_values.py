@@ -37,3 +37,18 @@ def test_a_figure_that_does_not_exist_is_never_written_as_nan():
     from tissue_sim_ros.ros.messages.conversions import diagnostic_array_msg
     msg = diagnostic_array_msg(0, [('x', 'OK', '', {'a': float('nan'), 'b': 1.5, 'c': float('inf')})])
     assert [kv.value for kv in msg.status[0].values] == ['not available', '1.5', 'not available']
+
+
+def test_node_bench_reads_a_figure_that_does_not_exist_as_nan():
+    """node-bench's figures from the node's diagnostics: 'none yet' is a missing number, not an
+    error (it read every value as a float)."""
+    from types import SimpleNamespace
+
+    from tissue_sim_ros.bench.node_bench_figures import diagnostic_figures
+    from tissue_sim_ros.ros.messages.conversions import diagnostic_array_msg
+    msg = diagnostic_array_msg(0, [('tissue_sim: engine', 'OK', '', {'budget_use': 'none yet', 'lag_s': 0.001,
+                                                                     'ticks': 10}),
+                                   ('tissue_sim: predictions', 'OK', '', {'real_time_factor_median': 'none yet'})])
+    figures = diagnostic_figures([SimpleNamespace(header=msg.header, status=msg.status)])
+    assert math.isnan(figures['budget_use']) and math.isnan(figures['prediction_real_time_factor'])
+    assert figures['lag_s'] == 0.001 and figures['ticks'] == 10
