@@ -1,12 +1,14 @@
 """The house's rules, read from the sources: layers one way, no import loops, small modules in
 small folders, a map in every package, no history in the code, and every file it cites there."""
+
 import ast
 import re
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from support.paths import ROOT
+
 PACKAGE = ROOT / 'tissue_sim_ros'
 
 #: layers bottom up: a module may import its own layer and those below, never one above

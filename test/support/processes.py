@@ -1,0 +1,29 @@
+"""Processes seen through /proc: running or not, and the spinners this process started."""
+
+import os
+from pathlib import Path
+
+from tissue_sim_ros.bench.background_load import SPIN
+
+
+def _alive(pid):
+    """True while the process runs (a zombie or a reaped process is not running)."""
+    try:
+        state = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0]
+    except OSError:
+        return False
+    return state not in ('Z', 'X')
+
+
+def _my_spinners():
+    """Pids of running spinner processes this test process started."""
+    found = []
+    for proc in Path('/proc').iterdir():
+        try:
+            argv = (proc / 'cmdline').read_bytes().split(b'\0')
+        except OSError:
+            continue
+        if len(argv) > 3 and argv[2] == SPIN.encode() and argv[3] == str(os.getpid()).encode():
+            if _alive(int(proc.name)):
+                found.append(int(proc.name))
+    return found
