@@ -117,7 +117,7 @@ def test_bad_inputs_are_counted_and_never_stop_or_poison_the_node(harness):
     time.sleep(0.1)  # so that its receipt time is after the flood's last stamp
     h.publish_pose(pos, 0, kind='unstamped')
     sent['unstamped'] = 1
-    time.sleep(0.5)
+    h.wait_until(lambda: h.node.input.received, lambda n: n >= len(h.published), what='every pose sent judged')
     d = h.diagnostics_now()
     level, message, values = d['tissue_sim: input']
     for kind in BAD_INPUT_KINDS:
@@ -140,13 +140,9 @@ def test_bad_inputs_are_counted_and_never_stop_or_poison_the_node(harness):
     # logged once per kind: one WARN line per kind on /rosout, whatever the count
     kinds = ('non_finite', 'non_unit_quaternion', 'wrong_frame', 'time_backwards', 'future_stamp',
              'jump', 'flood', 'unstamped')
-    deadline = time.monotonic() + 5
-    while True:
-        lines = [m.msg for _, m in h.get('log') if m.name == 'tissue_sim' and m.level == Log.WARN]
-        if all(any(f'needle/pose: {k}:' in line for line in lines) for k in kinds) \
-                or time.monotonic() > deadline:
-            break
-        time.sleep(0.05)
+    h.wait_until(lambda: [m.msg for _, m in h.get('log') if m.name == 'tissue_sim' and m.level == Log.WARN],
+                 lambda lines: all(any(f'needle/pose: {k}:' in line for line in lines) for k in kinds),
+                 what='a WARN line for every kind')
     time.sleep(0.2)  # and nothing more comes
     lines = [m.msg for _, m in h.get('log') if m.name == 'tissue_sim' and m.level == Log.WARN]
     for kind in kinds:
@@ -158,14 +154,14 @@ def test_pause_freezes_and_reset_restores(harness):
     start = h.scene.needle_pose[0]
     stamps, positions = straight_descent(start, 0.02, 1.2, 100.0, h.now_ns())
     publish_at_stamps(h, stamps[:60], positions[:60])  # 0.6 s: 12 mm down, tip 2 mm in
-    time.sleep(0.1)
+    h.wait_until(lambda: h.scene.needle_pose[0][2], lambda z: z <= positions[59][2] + 1e-9,
+                 what='the needle at the last pose')
     response = h.call(h.pause_client, SetBool.Request(data=True))
     assert response.success and 'paused' in response.message
     t_sim = h.scene.time
     n0 = len(h.get('wrench'))
     publish_at_stamps(h, stamps[60:], positions[60:])  # keep moving: ignored while paused
-    time.sleep(0.2)
-    frozen = h.get('wrench')[n0 + 1:]
+    frozen = h.wait_for('wrench', n0 + 26)[n0 + 1:]
     assert len(frozen) >= 25  # still publishing
     assert len({w.wrench.force.z for _, w in frozen}) == 1 and frozen[0][1].wrench.force.z < 0
     assert h.scene.time == t_sim
@@ -173,12 +169,14 @@ def test_pause_freezes_and_reset_restores(harness):
     assert d['tissue_sim: engine'][2]['state'] == 'paused'
     response = h.call(h.pause_client, SetBool.Request(data=False))
     assert response.success and 'running' in response.message
-    time.sleep(0.2)
+    h.wait_until(lambda: h.scene.time, lambda t: t > t_sim + 0.1, what='0.1 s simulated after the pause')
     assert h.scene.time > t_sim + 0.1
     t_call = time.monotonic()
     response = h.call(h.reset_client, Trigger.Request())
     assert response.success
-    time.sleep(0.15)
+    h.wait_until(lambda: (h.get('wrench')[-1][1], h.get('nodes')[-1][1]),
+                 lambda last: last[0].wrench.force.z == 0.0
+                 and np.abs(cv.point_cloud_arrays(last[1])[1]).max() < 1e-12, what='a wrench and a cloud at rest')
     # back to 0, then at most the ticks since the call
     assert h.scene.time <= time.monotonic() - t_call + 0.02 + h.scene.dt
     np.testing.assert_allclose(h.scene.needle_pose[0], start)
@@ -196,7 +194,12 @@ def test_use_sim_time_ticks_on_the_clock_topic(harness, executor):
         h.clock_pub.publish(Clock(clock=TimeMsg(sec=int((t0 + k * 5_000_000) // NS),
                                                 nanosec=int((t0 + k * 5_000_000) % NS))))
         time.sleep(0.005)
-    time.sleep(0.2)
+    # every tick the clock made (the last within a period of its end), each tick's wrench here,
+    # and the engine at the last tick's time
+    h.wait_until(lambda: (h.node.ticks, h.get('wrench'), h.scene.time),
+                 lambda v: v[1] and len(v[1]) == v[0]
+                 and cv.stamp_to_ns(v[1][-1][1].header.stamp) >= t0 + NS // 2 - 25_000_000
+                 and v[2] >= len(v[1]) * 0.02 - h.scene.dt, what="the last tick's wrench and state")
     stamps = np.array([cv.stamp_to_ns(w.header.stamp) for _, w in h.get('wrench')])
     assert 23 <= len(stamps) <= 26  # 0.5 s / 20 ms
     assert stamps.min() >= t0 and stamps.max() <= t0 + NS // 2
@@ -219,9 +222,7 @@ def test_surface_is_latched_and_follows_topology(harness):
     late = []
     sub = h.client.create_subscription(Mesh, 'tissue/surface', late.append, QoSProfile(
         depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
-    deadline = time.monotonic() + 5
-    while not late and time.monotonic() < deadline:
-        time.sleep(0.01)
+    h.wait_until(lambda: len(late), lambda n: n > 0, what='the surface for a late subscriber')
     assert len(late) == 1 and len(late[0].triangles) == len(first[0][1].triangles)
     h.client.destroy_subscription(sub)
     # remove the elements at one top corner, on the node's thread, between two ticks
@@ -239,7 +240,10 @@ def test_surface_is_latched_and_follows_topology(harness):
             scene.model.remove_elements(corner)
         return steps
     scene.advance = advance
-    time.sleep(0.5)
+    h.wait_until(lambda: (h.get('surface'), h.get('marker')),
+                 lambda got: len(got[0]) >= 2 and scene.topology_version == 1
+                 and len(got[1][-1][1].points) == 3 * len(scene.surface_triangles()),
+                 what='the new surface and its marker')
     surfaces = h.get('surface')
     assert len(surfaces) == 2 and scene.topology_version == 1
     triangles = np.array([t.vertex_indices for t in surfaces[1][1].triangles])
@@ -334,10 +338,11 @@ def test_the_cloud_is_built_only_for_a_subscriber_or_the_log(harness, tmp_path):
             time.sleep(0.01)
     h.client.destroy_subscription(next(s for s in h.client.subscriptions if s.topic_name == '/tissue/nodes'))
     subscribers_become(0)
-    time.sleep(0.1)
+    settled = h.node.ticks + 2                       # a tick under way when the count changed: done
+    h.wait_until(lambda: h.node.ticks, lambda n: n >= settled, what='two more ticks')
     built.clear()
     first = h.node.ticks
-    time.sleep(1.0)
+    h.wait_until(lambda: h.node.ticks, lambda n: n >= first + 50, what='a window of 50 ticks')
     ticks = range(first + 1, h.node.ticks - 1)       # whole ticks inside the window
     assert len(ticks) >= 25
     assert all(t % 5 == 0 for t in built)
@@ -345,9 +350,10 @@ def test_the_cloud_is_built_only_for_a_subscriber_or_the_log(harness, tmp_path):
     h.client.create_subscription(PointCloud2, 'tissue/nodes', h._keeper('nodes'),
                                  QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
     subscribers_become(1)
-    time.sleep(0.1)
+    settled = h.node.ticks + 2
+    h.wait_until(lambda: h.node.ticks, lambda n: n >= settled, what='two more ticks')
     before, first = len(h.get('nodes')), h.node.ticks
-    time.sleep(1.0)
+    h.wait_until(lambda: h.node.ticks, lambda n: n >= first + 50, what='a window of 50 ticks')
     assert len(h.get('nodes')) - before >= h.node.ticks - first - 2
 
 
@@ -367,7 +373,11 @@ def test_each_needle_is_driven_by_its_topic_and_reports_on_its_own(two_needle_no
         while client.get_clock().now().nanoseconds < target:
             time.sleep(0.0005)
         publishers['fixation'].publish(_pose(start + [0.0, 0.0, -speed * k / rate_hz], target))
-    time.sleep(0.5)
+    deadline = time.monotonic() + 10                    # every pose judged, and 5 ticks past the last
+    while node.engine.other_inputs[0].received < int(seconds * rate_hz) + 1 or not received['fixation'] or \
+            cv.stamp_to_ns(received['fixation'][-1].header.stamp) < t0 + int(seconds * NS) + 100_000_000:
+        assert time.monotonic() < deadline, 'the fixation poses judged and their ticks published'
+        time.sleep(0.02)
     ticks = node.ticks - ticks0
     fixation = np.array([[m.wrench.force.x, m.wrench.force.y, m.wrench.force.z] for m in received['fixation']])
     biopsy = np.array([[m.wrench.force.x, m.wrench.force.y, m.wrench.force.z] for m in received['biopsy']])
@@ -379,7 +389,10 @@ def test_each_needle_is_driven_by_its_topic_and_reports_on_its_own(two_needle_no
     assert [n.phase for n in node.scene.needles] == ['approach', 'contact']
     # a jump on one needle's topic is refused for that needle alone, counted in its own status
     publishers['biopsy'].publish(_pose([0.0, 0.0, 0.12], client.get_clock().now().nanoseconds))
-    time.sleep(0.3)
+    deadline = time.monotonic() + 10
+    while node.input.counts['jump'] < 1:
+        assert time.monotonic() < deadline, "the biopsy needle's jump not judged"
+        time.sleep(0.02)
     statuses = {s[0]: s[3] for s in node.diagnostics_statuses(client.get_clock().now().nanoseconds)}
     assert statuses['tissue_sim: input biopsy']['bad_input.jump'] == 1
     assert statuses['tissue_sim: input fixation']['bad_input.jump'] == 0

@@ -17,7 +17,7 @@ rclpy = pytest.importorskip('rclpy')
 
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
-from support.node_process import (BIN, Client, NS, _DOMAINS, check_log_against_received, play, ros_env,
+from support.node_process import (wait_for_the_log, BIN, Client, NS, _DOMAINS, check_log_against_received, play, ros_env,
                                   start_node, stop_node, wrench_array)  # noqa: E402
 from tissue_sim_ros.io import mcap as ml  # noqa: E402
 from tissue_sim_ros.ros.clients.drive import insertion_trajectory, scene_start  # noqa: E402
@@ -50,8 +50,9 @@ def scenario(tmp_path_factory, scene_file):
         time.sleep(0.1)
         # reset: the needle back at its initial pose, the tissue at rest
         out['reset_response'] = client.call(client.reset_client, Trigger.Request())
-        time.sleep(0.2)
-        out['after_reset'] = client.get('wrench')[-1][1]
+        out['after_reset'] = client.wait_until(lambda: client.get('wrench')[-1][1],
+                                               lambda w: (w.wrench.force.x, w.wrench.force.y, w.wrench.force.z)
+                                               == (0.0, 0.0, 0.0), what='a wrench at rest')
         # B: every kind of bad input, a known number of times, between good poses
         p0 = start.initial_position
         before = client.next_diagnostics()
@@ -81,15 +82,16 @@ def scenario(tmp_path_factory, scene_file):
         client.pose(p0, q, 0)
         sent['unstamped'] = 1
         out['phase_b'] = (n_b, t_b, time.monotonic())
-        time.sleep(0.3)
-        after = client.next_diagnostics()
+        after = client.poses_judged()
         out['bad_sent'] = sent
         out['diag_before_b'], out['diag_after_b'] = before, after
         # C: pause in the tissue, the pose kept still; the state must freeze
         c_times, c_positions = insertion_trajectory(start, 0.01, 0.003, 0.0, 100.0)
         half = int(np.argmax(c_positions[:, 2] <= c_positions[:, 2].min()))  # at full depth
         play(client, c_times[:half + 1], c_positions[:half + 1], q)
-        time.sleep(0.3)
+        t_deep = client.now_ns()                  # a tick after this has the needle at full depth
+        client.wait_until(lambda: client.get('wrench')[-1][1].header.stamp,
+                          lambda stamp: cv.stamp_to_ns(stamp) > t_deep, what='a tick at full depth')
         out['pause_response'] = client.call(client.pause_client, SetBool.Request(data=True))
         n_c = len(client.get('wrench'))
         d1 = client.next_diagnostics()
@@ -99,11 +101,11 @@ def scenario(tmp_path_factory, scene_file):
         out['resume_response'] = client.call(client.pause_client, SetBool.Request(data=False))
         out['resumed'] = client.wait_for('wrench', len(client.get('wrench')) + 1, 25)
         play(client, c_times[half:], c_positions[half:], q)
-        time.sleep(0.2)
+        client.poses_judged()
         # stop with SIGINT; the client keeps listening until the process is gone
         out['published'] = client.published
         out['rc'] = stop_node(proc, signal.SIGINT)
-        time.sleep(0.5)
+        wait_for_the_log(client, tmp / 'logs')
         out['received'] = {k: client.get(k) for k in client.received}
     finally:
         if proc.poll() is None:

@@ -46,7 +46,7 @@ def test_recording_holds_every_message_in_and_out(harness, tmp_path):
     stamps, positions = straight_descent(start, 0.02, 1.0, 100.0, h.now_ns())
     publish_at_stamps(h, stamps, positions)
     h.publish_pose([np.nan, 0, 0], h.now_ns(), kind='non_finite')  # bad input is recorded too
-    time.sleep(0.2)
+    h.wait_until(lambda: h.node.input.received, lambda n: n >= len(h.published), what='every pose received')
     pause = h.call(h.pause_client, SetBool.Request(data=True))   # service calls are recorded too
     h.call(h.pause_client, SetBool.Request(data=False))
     h.node.publish_diagnostics()
@@ -156,7 +156,10 @@ def test_sigkill_loses_at_most_the_open_chunk(tmp_path, scene_file):
     client = Client(domain)
     try:
         client.wait_ready(proc)
-        time.sleep(3.0)
+        client.wait_for('wrench', 0, 150, timeout=20.0)   # 3 s of ticks: chunks closed on the way
+        client.wait_until(lambda: _children(proc.pid),
+                          lambda pids: any('spawn_main' in _cmdline(pid) for pid in pids),
+                          what='the prediction workers')
         children = _children(proc.pid)        # the prediction workers (prediction.prestart)
         assert any('spawn_main' in _cmdline(pid) for pid in children), children
         proc.kill()

@@ -125,6 +125,22 @@ class Client:
             time.sleep(0.02)
         return self.get(key)[since:]
 
+    def wait_until(self, read, accept, timeout=10.0, what='the condition'):
+        """Poll ``read()`` until ``accept(value)``; the value (asserts it comes within ``timeout``
+        seconds, a bound generous enough for a loaded machine)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            value = read()
+            if accept(value):
+                return value
+            assert time.monotonic() < deadline, f'{what}: not reached in {timeout} s (last: {value!r})'
+            time.sleep(0.02)
+
+    def poses_judged(self, timeout=10.0):
+        """The node's diagnostics once it has judged every pose this client sent."""
+        return self.wait_until(self.next_diagnostics, lambda d: int(d['tissue_sim: input'][2]['poses_received'])
+                               >= self.published, timeout, 'every pose sent judged')
+
     def now_ns(self):
         return self.node.get_clock().now().nanoseconds
 
@@ -182,6 +198,24 @@ def play(client, times, positions, orientation):
 
 _STAMPED = {'/needle/wrench': 'wrench', '/tissue/nodes': 'nodes', '/tissue/marker': 'marker',
             '/diagnostics': 'diag'}
+
+
+def wait_for_the_log(client, logs, timeout=10.0):
+    """After the node exited: wait until ``client`` holds the last message of each stamped topic of
+    the node's log in the folder ``logs`` (what was still on its way when the node stopped)."""
+    from tissue_sim_ros.io import mcap as ml
+    paths = sorted(Path(logs).glob('*.mcap'))
+    if len(paths) != 1:
+        return                                           # the tests say what is wrong
+    last = {}
+    for m in ml.read_log(paths[0], topics=list(_STAMPED), allow_truncated=True):
+        last[_STAMPED[m.topic]] = cv.stamp_to_ns(m.message.header.stamp)
+
+    def newest():
+        return {key: cv.stamp_to_ns(client.get(key)[-1][1].header.stamp) if client.get(key) else None
+                for key in last}
+    client.wait_until(newest, lambda got: all(got[k] is not None and got[k] >= s for k, s in last.items()),
+                      timeout, 'the messages the log ends with')
 
 
 def check_log_against_received(path, received, published_poses, reset_calls=0, pause_calls=0):

@@ -97,10 +97,13 @@ class Harness:
             executor.spin_once(timeout_sec=0.05)
 
     def stop_node(self, drain_s=0.3):
-        """Stop the node's executor, close the node (its recording), let the client drain."""
+        """Stop the node's executor, close the node (its recording), let the client drain: every
+        tick's wrench is waited for, then ``drain_s`` more for the other topics' last messages."""
         self._stops[0].set()
         self._threads[0].join(timeout=5)
         self.node.close()
+        self.wait_until(lambda: len(self.get('wrench')), lambda n: n >= self.node.ticks,
+                        what="every tick's wrench")
         time.sleep(drain_s)
 
     def get(self, key):

@@ -3,7 +3,6 @@ numbers, and a drive against the node as a process stopped with SIGTERM."""
 
 import signal
 import subprocess
-import time
 
 import numpy as np
 import pytest
@@ -119,7 +118,8 @@ def test_publish_trajectory_repeats_the_schedule_for_a_duration():
 # tissue-sim drive against the node, stopped with SIGTERM
 def test_drive_then_sigterm_leaves_a_complete_log(tmp_path, scene_file):
     pytest.importorskip('rclpy')
-    from support.node_process import BIN, Client, _DOMAINS, check_log_against_received, ros_env, start_node, stop_node
+    from support.node_process import (BIN, Client, _DOMAINS, check_log_against_received, ros_env, start_node,
+                                      stop_node, wait_for_the_log)
     domain = next(_DOMAINS)
     proc = start_node(tmp_path, domain, scene_file, f'recording.directory:={tmp_path / "logs"}',
                       'recording.nodes_rate_hz:=50.0')
@@ -131,9 +131,11 @@ def test_drive_then_sigterm_leaves_a_complete_log(tmp_path, scene_file):
              '--hold-s', '0', '--rate-hz', '100', '--scene-file', scene_file],
             env=ros_env(domain), capture_output=True, text=True, timeout=60)
         assert drive.returncode == 0, drive.stderr
-        time.sleep(0.3)
+        sent = len(insertion_trajectory(scene_start(scene_file), 0.02, 0.004, 0.0, 100.0)[0])   # by the drive
+        client.wait_until(client.next_diagnostics, lambda d: int(d['tissue_sim: input'][2]['poses_received']) >= sent,
+                          what="every pose of the drive judged")
         rc = stop_node(proc, signal.SIGTERM)
-        time.sleep(0.5)
+        wait_for_the_log(client, tmp_path / 'logs')
         received = {k: client.get(k) for k in client.received}
     finally:
         if proc.poll() is None:

@@ -100,17 +100,19 @@ def test_divergence_hold_republishes_last_wrench_until_reset(harness):
     start = scene.needle_pose[0]
     stamps, positions = straight_descent(start, 0.05, 0.3, 100.0, h.now_ns())
     publish_at_stamps(h, stamps, positions)
-    time.sleep(0.4)
+    h.wait_until(lambda: h.node.held, bool, what='the engine held')
+    n_held = len(h.get('wrench'))
     assert h.node.held and calls['n'] == 10  # no advance since
     n_nodes = len(h.get('nodes'))
     time.sleep(0.2)
     assert len(h.get('nodes')) == n_nodes  # no cloud while held
-    held = h.get('wrench')[-10:]
+    held = h.wait_for('wrench', n_held + 10)[-10:]
     assert len({w.wrench.force.z for _, w in held}) == 1
     d = h.diagnostics_now()
     assert d['tissue_sim: engine'][0] == 2  # ERROR
     assert h.call(h.reset_client, Trigger.Request()).success
-    time.sleep(0.2)
+    h.wait_until(lambda: (h.node.held, calls['n'], len(h.get('nodes'))),
+                 lambda v: not v[0] and v[1] > 10 and v[2] > n_nodes, what='the engine running again')
     assert not h.node.held and calls['n'] > 10 and len(h.get('nodes')) > n_nodes
 
 
@@ -204,14 +206,17 @@ def test_a_fast_pose_stream_is_advanced_in_batches_that_still_make_their_tick(ha
     h = harness()
     engine = h.node.engine
     start = h.scene.needle_pose[0]
-    time.sleep(0.3)                                  # the engine's cost measured on the held needle
+    h.wait_until(lambda: engine.pacing.cost_per_sim_s, lambda cost: cost is not None,
+                 what="the engine's cost measured on the held needle")
     stamps, positions = straight_descent(start, 0.002, 1.5, 1000.0, h.now_ns())
     advances0, n0 = engine.advances, len(h.get('wrench'))
     t0 = time.monotonic()
     publish_at_stamps(h, stamps, positions)
     elapsed = time.monotonic() - t0
     advances = engine.advances - advances0
-    time.sleep(0.2)
+    # the ticks up to 0.15 s past the last pose's stamp (0.2 s after it was sent), each wrench here
+    h.wait_until(lambda: h.get('wrench')[-1][1].header.stamp,
+                 lambda stamp: cv.stamp_to_ns(stamp) >= stamps[-1] + 150_000_000, what='the ticks after the last pose')
     d = h.diagnostics_now()
     published = len(h.get('wrench')) - n0
     latency_p99 = float(d['tissue_sim: input'][2]['latency_ms_p99'])
