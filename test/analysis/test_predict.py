@@ -26,17 +26,17 @@ def test_predict_command_writes_its_four_files(tmp_path):
             'targets=[{name: tumour, position_m: [0.002, 0.0, -0.012]}]']
     out = tmp_path / 'out'
     prediction = predict_main(None, path_csv, out, sets=sets, stream=open(tmp_path / 'log.txt', 'w'))
-    with open(out / 'prediction.csv') as f:
+    with open(out / 'predict.csv') as f:
         table = list(csv.DictReader(f))
     assert len(table) == stamps.size
     direct = predict(scene, check_path(stamps, positions, orientations, max_jump_m=0.005), wrench_frame='needle')
     np.testing.assert_allclose([float(r['force_z_n']) for r in table], direct.column('force_z_n'), atol=1e-6)
-    summary = json.loads((out / 'prediction.json').read_text())
+    summary = json.loads((out / 'predict.json').read_text())
     assert summary['points'] == stamps.size and summary['wrench_frame'] == 'needle'
     assert summary['peak_force_n'] == pytest.approx(np.linalg.norm(prediction.values[:, :3], axis=1).max())
     assert summary['real_time_factor'] > 0 and math.isfinite(summary['real_time_factor'])
-    assert (out / 'prediction.png').stat().st_size > 10_000
-    assert 'answered in' in (out / 'prediction.md').read_text()
+    assert (out / 'predict.png').stat().st_size > 10_000
+    assert 'answered in' in (out / 'predict.md').read_text()
 
 
 def test_predict_with_a_max_error_runs_on_the_cheapest_rung_within_it(tmp_path, monkeypatch):
@@ -55,7 +55,7 @@ def test_predict_with_a_max_error_runs_on_the_cheapest_rung_within_it(tmp_path, 
     live = predict_main(None, path_csv, tmp_path / 'live', sets=sets, stream=log)
     monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path / 'cache'))
     cheap = predict_main(None, path_csv, tmp_path / 'cheap', sets=sets, max_error=0.02, stream=log)
-    summary = json.loads((tmp_path / 'cheap' / 'prediction.json').read_text())
+    summary = json.loads((tmp_path / 'cheap' / 'predict.json').read_text())
     probed = Scene.from_file(None, sets=sets)
     ladder = DegradationLadder(probed)
     errors = probe_errors(probed, ladder)
