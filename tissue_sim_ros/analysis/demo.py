@@ -84,7 +84,8 @@ def run(out='out', speed_mm_s=5.0, depth_mm=15.0):
     k = int(np.argmin(np.where(inserting[1:], drops, np.inf)))
     print(f'wrench rate {rate:.2f} Hz over {t[-1] - t[0]:.1f} s; peak axial force {axial.max():.3f} N '
           f'at travel {travel[int(np.argmax(axial))] * 1e3:.2f} mm')
-    print(f'largest force drop while inserting (the capsule giving way): {axial[k]:.3f} -> {axial[k + 1]:.3f} N '
+    print(f'largest force drop while inserting (the capsule giving way): {axial[k]:.3f} -> '
+          f'{axial[k + 1]:.3f} N '
           f'at travel {travel[k] * 1e3:.2f} mm')
     plot_force_against_travel(out / 'demo.png', travel, axial, ~inserting,
                               title=f'tissue_sim_node, insertion at {speed_mm_s:g} mm/s',
@@ -95,7 +96,8 @@ def run(out='out', speed_mm_s=5.0, depth_mm=15.0):
     print(f'against the bovine-liver insertion (Okamura et al. 2004, 3 mm/s), by depth since contact: '
           f'NRMSE {float("nan") if nrmse is None else nrmse:.3f} over the insertion')
     figures = {'log': str(log), 'node_exit': node_status,
-               'messages': {topic: entry['count'] for topic, entry in summary['topics'].items()}, 'rate_hz': rate, 'peak_axial_n': float(axial.max()), 'puncture_travel_m': float(travel[k]),
+               'messages': {topic: entry['count'] for topic, entry in summary['topics'].items()},
+               'rate_hz': rate, 'peak_axial_n': float(axial.max()), 'puncture_travel_m': float(travel[k]),
                'puncture_force_n': [float(axial[k]), float(axial[k + 1])], 'bovine_liver_nrmse': nrmse}
     _write_figures(out, t, travel, axial, figures, speed_mm_s)
     print(f'wrote {out / "demo.png"}, demo_vs_bovine_liver.png, demo.csv, demo.md and demo.json')
