@@ -85,8 +85,7 @@ def run(out='out', speed_mm_s=5.0, depth_mm=15.0):
     print(f'wrench rate {rate:.2f} Hz over {t[-1] - t[0]:.1f} s; peak axial force {axial.max():.3f} N '
           f'at travel {travel[int(np.argmax(axial))] * 1e3:.2f} mm')
     print(f'largest force drop while inserting (the capsule giving way): {axial[k]:.3f} -> '
-          f'{axial[k + 1]:.3f} N '
-          f'at travel {travel[k] * 1e3:.2f} mm')
+          f'{axial[k + 1]:.3f} N at travel {travel[k] * 1e3:.2f} mm')
     plot_force_against_travel(out / 'demo.png', travel, axial, ~inserting,
                               title=f'tissue_sim_node, insertion at {speed_mm_s:g} mm/s',
                               labels=('node, insertion (from the MCAP log)', 'node, retraction'))
@@ -112,7 +111,8 @@ def _write_figures(out: Path, t, travel, axial, figures: dict, speed_mm_s: float
         writer.writerows([f'{a:.6f}', f'{b:.7f}', f'{c:.6g}'] for a, b, c in zip(t, travel, axial))
     (out / 'demo.json').write_text(json.dumps(figures, indent=1))
     lines = [f'# The main job: the node, an insertion at {speed_mm_s:g} mm/s, its log read back', '',
-             f"Wrench rate {figures['rate_hz']:.2f} Hz; peak axial force {figures['peak_axial_n']:.3f} N; the "
+             f"Wrench rate {figures['rate_hz']:.2f} Hz; peak axial force "
+             f"{figures['peak_axial_n']:.3f} N; the "
              f"capsule gave way at travel {figures['puncture_travel_m'] * 1e3:.2f} mm "
              f"({figures['puncture_force_n'][0]:.3f} -> {figures['puncture_force_n'][1]:.3f} N).", '',
              '| topic | messages |', '|---|---|']
