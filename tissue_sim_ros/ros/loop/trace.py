@@ -72,8 +72,9 @@ class TickTrace:
     def clock_ns(self) -> np.ndarray:
         """(k,) the node-clock time [ns] of each advance row (-1 for the other rows)."""
         offsets = self.rows[:, COLUMNS.index('clock_s')]
-        return np.where(np.isnan(offsets), -1, self.stamp_ns + np.round(np.nan_to_num(offsets) * 1e9)
-                        ).astype(np.int64)
+        # in integers: a stamp of today's epoch as a float64 is only good to 256 ns
+        clock = np.int64(self.stamp_ns) + np.round(np.nan_to_num(offsets) * 1e9).astype(np.int64)
+        return np.where(np.isnan(offsets), np.int64(-1), clock)
 
 
 def encode(stamp_ns: int, published_index: int, rows) -> list[float]:
