@@ -80,17 +80,18 @@ def _snapshot_directory() -> Path:
 
 
 def path_arrays(msg, frame_id: str, to_tissue=None):
-    """(stamps [s], positions (k, 3), quaternions (k, 4)) of a nav_msgs/Path in ``frame_id``; a pose
+    """(stamps [s from the first pose], positions (k, 3), quaternions (k, 4)) of a nav_msgs/Path in ``frame_id``; a pose
     in another frame (the path's header frame, or the pose's own when it names one) is brought into
     it by ``to_tissue(position, orientation, frame, stamp_ns)`` (the node's TF input) and raises
     PoseError naming it when that cannot (or when there is no ``to_tissue``)."""
     k = len(msg.poses)
     stamps, positions, orientations = np.empty(k), np.empty((k, 3)), np.empty((k, 4))
+    first_ns = stamp_to_ns(msg.poses[0].header.stamp) if k else 0
     for i, stamped in enumerate(msg.poses):
         frame = stamped.header.frame_id or msg.header.frame_id
         p, q = stamped.pose.position, stamped.pose.orientation
         stamp_ns = stamp_to_ns(stamped.header.stamp)
-        stamps[i] = stamp_ns / NS_PER_S
+        stamps[i] = (stamp_ns - first_ns) / NS_PER_S      # from the first pose: a float of today's epoch is 0.2 us coarse
         positions[i] = p.x, p.y, p.z
         orientations[i] = q.x, q.y, q.z, q.w
         if frame != frame_id:
