@@ -25,6 +25,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from std_msgs.msg import Bool  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
+from tf2_msgs.msg import TFMessage  # noqa: E402
 from geometry_msgs.msg import WrenchStamped  # noqa: E402
 
 from tissue_sim_ros.ros import node as node_mod  # noqa: E402
@@ -295,3 +296,33 @@ def test_needle_at_first_pose_and_readiness(graph):
     g.publish_pose(away, time.time_ns())
     g.wait(lambda: np.allclose(g.scene.needle_pose[0], away), 'the needle at the first pose')
     assert g.node.input.bad_total == 0
+
+
+def test_the_console_script_node_says_ready_and_serves_the_registration(tmp_path):
+    """tissue_sim_node as a child process (its own interpreter imports the built interfaces):
+    NodeProcess waits on ~/ready, then ~/set_tissue_pose answers and /tf_static carries it."""
+    from tissue_sim_ros.ros.clients.node_process import NodeProcess, client_context
+    from tissue_sim_msgs.srv import SetTissuePose
+    with NodeProcess(['prediction.workers:=-1', 'registration.parent_frame_id:=base_link'],
+                     tmp_path / 'node.log', domain_id=DOMAIN_ID + 20) as process:
+        started = process.wait_until_ready(timeout_s=180)
+        with client_context(process.domain_id) as context:
+            client = rclpy.create_node('registrar', context=context)
+            statics = []
+            client.create_subscription(TFMessage, '/tf_static', statics.append, LATCHED)
+            service = client.create_client(SetTissuePose, '/tissue_sim/set_tissue_pose')
+            executor = SingleThreadedExecutor(context=context)
+            executor.add_node(client)
+            assert service.wait_for_service(timeout_sec=10)
+            request = SetTissuePose.Request()
+            request.pose.pose.position.x, request.pose.pose.orientation.w = 0.4, 1.0
+            answer = service.call_async(request)
+            executor.spin_until_future_complete(answer, timeout_sec=10)
+            assert answer.result().success and 'base_link' in answer.result().message
+            deadline = time.monotonic() + 10
+            while not any(t.child_frame_id == 'world' and t.transform.translation.x == 0.4
+                          for m in statics for t in m.transforms):
+                assert time.monotonic() < deadline, 'the new registration on /tf_static'
+                executor.spin_once(timeout_sec=0.05)
+            client.destroy_node()
+    print(f'\nthe node said ready {started:.1f} s after its start')
