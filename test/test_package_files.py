@@ -1,6 +1,7 @@
 """What the package installs for a ROS user: package.xml names every ROS package the code imports,
 the launch file declares its arguments and runs the node with them (read with ast: there is no
 launch package here), and the RViz and Foxglove views name only topics and frames the node has."""
+
 import ast
 import json
 import re
@@ -27,6 +28,7 @@ def _imported_top_level(paths):
 def _ros_packages():
     """Every ROS package installed here (the ament index of the environment)."""
     import sys
+
     index = Path(sys.prefix) / 'share' / 'ament_index' / 'resource_index' / 'packages'
     return {p.name for p in index.iterdir()} if index.is_dir() else set()
 
@@ -50,11 +52,19 @@ def _launch_file():
 
 def test_the_launch_file_declares_its_arguments_and_passes_them_to_one_node():
     tree = _launch_file()
-    arguments = next(node.value for node in tree.body if isinstance(node, ast.Assign)
-                     and node.targets[0].id == 'ARGUMENTS')
+    arguments = next(
+        node.value for node in tree.body if isinstance(node, ast.Assign) and node.targets[0].id == 'ARGUMENTS'
+    )
     names = [ast.literal_eval(k) for k in arguments.keys]
-    assert names == ['scene', 'params_file', 'namespace', 'use_sim_time', 'recording_directory', 'input_source',
-                     'tf_frame']
+    assert names == [
+        'scene',
+        'params_file',
+        'namespace',
+        'use_sim_time',
+        'recording_directory',
+        'input_source',
+        'tf_frame',
+    ]
     calls = [n for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, 'id', '') == 'Node']
     assert len(calls) == 1
     keywords = {k.arg: k.value for k in calls[0].keywords}
@@ -64,11 +74,15 @@ def test_the_launch_file_declares_its_arguments_and_passes_them_to_one_node():
     parameters = keywords['parameters'].elts
     overrides = {ast.literal_eval(k): v for k, v in zip(parameters[1].keys, parameters[1].values)}
     from tissue_sim_ros.ros.parameters import PARAMETERS
+
     declared = {p.name for p in PARAMETERS} | {'use_sim_time'}
-    assert set(overrides) <= declared                    # parameters the node has
-    used = {n.args[0].value for n in ast.walk(tree) if isinstance(n, ast.Call)
-            and getattr(n.func, 'id', '') == 'LaunchConfiguration'}
-    assert used == set(names)                            # each argument reaches the node (installed: test_colcon)
+    assert set(overrides) <= declared  # parameters the node has
+    used = {
+        n.args[0].value
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Call) and getattr(n.func, 'id', '') == 'LaunchConfiguration'
+    }
+    assert used == set(names)  # each argument reaches the node (installed: test_colcon)
 
 
 @pytest.fixture(scope='module')
@@ -79,12 +93,16 @@ def node_names():
     from tissue_sim_ros.ros.messages.topics import NODE_TOPIC_TYPES
     from tissue_sim_ros.ros.parameters import NODE_NAME, PARAMETERS
     from tissue_sim_ros.ros.tf_out import needle_frames
+
     defaults = {p.name: p.default for p in PARAMETERS}
-    scene_frame = 'world'              # Scene.from_file's mesh frame for the packaged scene
+    scene_frame = 'world'  # Scene.from_file's mesh frame for the packaged scene
     assert Scene.__init__.__defaults__[-2] == scene_frame
-    topics = {('/' + t if not t.startswith('/') else t).replace('/~', f'/{NODE_NAME}') for t in NODE_TOPIC_TYPES}
-    frames = {defaults['frame_id'] or scene_frame} | {f for pair in needle_frames(defaults['needle_frame_id'],
-                                                                              ['needle']) for f in pair}
+    topics = {
+        ('/' + t if not t.startswith('/') else t).replace('/~', f'/{NODE_NAME}') for t in NODE_TOPIC_TYPES
+    }
+    frames = {defaults['frame_id'] or scene_frame} | {
+        f for pair in needle_frames(defaults['needle_frame_id'], ['needle']) for f in pair
+    }
     return topics, frames
 
 
@@ -94,12 +112,13 @@ def test_the_rviz_configuration_names_only_topics_and_frames_of_the_node(node_na
     manager = config['Visualization Manager']
     displays = manager['Displays']
     named_topics = {d['Topic']['Value'] for d in displays if 'Topic' in d}
-    named_frames = {manager['Global Options']['Fixed Frame'], manager['Views']['Current']['Target Frame']} | \
-        {d['Reference Frame'] for d in displays if d.get('Reference Frame', '<Fixed Frame>') != '<Fixed Frame>'}
+    named_frames = {manager['Global Options']['Fixed Frame'], manager['Views']['Current']['Target Frame']} | {
+        d['Reference Frame'] for d in displays if d.get('Reference Frame', '<Fixed Frame>') != '<Fixed Frame>'
+    }
     assert named_topics and named_topics <= topics
     assert named_frames <= frames
     kinds = {d['Class'].split('/')[-1] for d in displays}
-    assert {'TF', 'Marker', 'PointCloud2', 'Wrench', 'PoseArray'} <= kinds   # mesh, cloud, wrench, targets, TF
+    assert {'TF', 'Marker', 'PointCloud2', 'Wrench', 'PoseArray'} <= kinds  # mesh, cloud, wrench, targets, TF
 
 
 def test_the_foxglove_layout_names_only_topics_and_frames_of_the_node(node_names):
@@ -107,11 +126,14 @@ def test_the_foxglove_layout_names_only_topics_and_frames_of_the_node(node_names
     layout = json.loads((ROOT / 'foxglove' / 'tissue_sim.json').read_text())
     text = json.dumps(layout['configById'])
     named_topics = set(re.findall(r'"(/[a-z_/]+?)(?:\.|")', text))
-    named_frames = set(re.findall(r'frame:([a-z_]+)', text)) | {c['followTf'] for c in layout['configById'].values()
-                                                                 if 'followTf' in c}
+    named_frames = set(re.findall(r'frame:([a-z_]+)', text)) | {
+        c['followTf'] for c in layout['configById'].values() if 'followTf' in c
+    }
     assert named_topics and named_topics <= topics, named_topics - topics
     assert named_frames <= frames
     panels = set(layout['configById'])
+
     def leaves(node):
         return [node] if isinstance(node, str) else leaves(node['first']) + leaves(node['second'])
+
     assert set(leaves(layout['layout'])) == panels

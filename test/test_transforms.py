@@ -1,12 +1,18 @@
 """The TF maths without rclpy (ros/loop/transforms.py, ros/tf_in.py, ros/registration.py), against
 transforms composed by hand with scipy's Rotation, scipy's Slerp, and round trips."""
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
 from tissue_sim_ros.errors import PoseError
-from tissue_sim_ros.ros.loop.transforms import (TransformBuffer, TransformUnavailable, compose, invert,
-                                                transform_point)
+from tissue_sim_ros.ros.loop.transforms import (
+    TransformBuffer,
+    TransformUnavailable,
+    compose,
+    invert,
+    transform_point,
+)
 from tissue_sim_ros.ros.registration import Registration, needle_start_rule
 from tissue_sim_ros.ros.tf_in import TfInput
 
@@ -32,7 +38,9 @@ def test_compose_invert_and_apply_agree_with_homogeneous_matrices():
         np.testing.assert_allclose(matrix(compose(a, b)), matrix(a) @ matrix(b), atol=1e-12)
         np.testing.assert_allclose(matrix(invert(a)), np.linalg.inv(matrix(a)), atol=1e-12)
         point = RNG.uniform(-1, 1, 3)
-        np.testing.assert_allclose(transform_point(a, point), (matrix(a) @ np.append(point, 1.0))[:3], atol=1e-12)
+        np.testing.assert_allclose(
+            transform_point(a, point), (matrix(a) @ np.append(point, 1.0))[:3], atol=1e-12
+        )
         there_and_back = compose(invert(a), a)
         np.testing.assert_allclose(there_and_back[0], 0.0, atol=1e-12)
         assert abs(abs(there_and_back[1][3]) - 1.0) < 1e-12
@@ -77,10 +85,10 @@ def test_interpolation_between_stamps_is_linear_and_slerp():
 
 def test_latest_common_time_and_out_of_order_stamps():
     buffer = TransformBuffer()
-    for k, stamp in enumerate((1, 3, 2)):                  # the third arrives late
+    for k, stamp in enumerate((1, 3, 2)):  # the third arrives late
         buffer.set_transform('base', 'link', stamp * NS, (float(stamp), 0.0, 0.0), (0, 0, 0, 1))
     buffer.set_transform('link', 'tool0', 2 * NS, (0.0, 1.0, 0.0), (0, 0, 0, 1))
-    (t, _), stamp = buffer.lookup('base', 'tool0', 0)       # the chain's latest common time: 2 s
+    (t, _), stamp = buffer.lookup('base', 'tool0', 0)  # the chain's latest common time: 2 s
     assert stamp == 2 * NS
     np.testing.assert_allclose(t, [2.0, 1.0, 0.0])
 
@@ -88,20 +96,26 @@ def test_latest_common_time_and_out_of_order_stamps():
 def test_tf_input_follows_the_tool_frame_and_brings_other_frames_into_the_tissue():
     """The needle base 150 mm along tool0, the tissue registered 0.4 m away and rotated: the pose
     from TF equals the one composed by hand; a pose in base_link comes into the tissue frame."""
-    registration = (np.array([0.4, 0.1, -0.05]), Rotation.from_euler('zyx', [30, 10, -5], degrees=True).as_quat())
+    registration = (
+        np.array([0.4, 0.1, -0.05]),
+        Rotation.from_euler('zyx', [30, 10, -5], degrees=True).as_quat(),
+    )
     offset = (np.array([0.0, 0.0, 0.15]), np.array([0.0, 0.0, 0.0, 1.0]))
     tf = TfInput('tissue', tf_frame='tool0', offset=offset, own_frames={'needle'})
-    assert isinstance(tf.receive([('base_link', 'tool0', NS, (0.1, 0, 0.5), (1, 0, 0, 0))]), TransformUnavailable)
+    assert isinstance(
+        tf.receive([('base_link', 'tool0', NS, (0.1, 0, 0.5), (1, 0, 0, 0))]), TransformUnavailable
+    )
     assert tf.receive([('base_link', 'tissue', 0, *registration)], static=True) is not None
     tool = (np.array([0.42, 0.05, 0.3]), Rotation.from_euler('x', 170, degrees=True).as_quat())
-    position, orientation, frame, stamp = tf.receive([('base_link', 'tool0', 2 * NS, *tool),
-                                                      ('tissue', 'needle', 2 * NS, (9, 9, 9), (0, 0, 0, 1))])
+    position, orientation, frame, stamp = tf.receive(
+        [('base_link', 'tool0', 2 * NS, *tool), ('tissue', 'needle', 2 * NS, (9, 9, 9), (0, 0, 0, 1))]
+    )
     expected = np.linalg.inv(matrix(registration)) @ matrix(tool) @ matrix(offset)
     assert frame == 'tissue' and stamp == 2 * NS
     np.testing.assert_allclose(position, expected[:3, 3], atol=1e-12)
     np.testing.assert_allclose(Rotation.from_quat(orientation).as_matrix(), expected[:3, :3], atol=1e-12)
-    assert 'needle' not in tf.buffer.frames()            # the node's own frame is skipped
-    assert tf.receive([('base_link', 'tool0', 2 * NS, *tool)]) is None      # not newer: nothing
+    assert 'needle' not in tf.buffer.frames()  # the node's own frame is skipped
+    assert tf.receive([('base_link', 'tool0', 2 * NS, *tool)]) is None  # not newer: nothing
     p, q, frame, _ = tf.to_tissue(tool[0], tool[1], 'base_link', 2 * NS)
     back = np.linalg.inv(matrix(registration)) @ matrix(tool)
     np.testing.assert_allclose(p, back[:3, 3], atol=1e-12)

@@ -184,7 +184,8 @@ def _motion(traces, poses):
         rows = [(c, r) for t in traces for c, r in zip(t.clock_ns(), t.rows)
                 if r[0] == ADVANCE and not math.isnan(r[3])]
         resets = [t.stamp_ns for t in traces if np.any(t.rows[:, 0] == RESET)]
-        places = {t.stamp_ns: (r[3:6].copy(), r[6:10].copy()) for t in traces for r in t.rows if r[0] == PLACE}
+        places = {t.stamp_ns: (r[3:6].copy(),
+                               r[6:10].copy()) for t in traces for r in t.rows if r[0] == PLACE}
         return (np.array([c for c, _ in rows], dtype=np.int64), np.array([r[3:6] for _, r in rows]),
                 np.array([r[6:10] for _, r in rows]), resets, places)
     good = [p for p in poses if np.all(np.isfinite(p[1])) and np.all(np.isfinite(p[2]))]

@@ -184,7 +184,8 @@ def predict(scene, path: CandidatePath, *, wrench_frame: str = 'world', copy: bo
     ``copy`` (default): the scene is copied first and left as it was; False runs on ``scene``
     itself (a worker's own copy). ``on_row(k, row)``: called with each row as soon as it is
     computed (a caller streaming partial results); an exception it raises stops the prediction
-    and reaches the caller (how a caller cancels). Time asked of the scene but not yet stepped is kept up to one
+    and reaches the caller (how a caller cancels). Time asked of the scene but not yet stepped is kept up
+    to one
     step (the fraction the live scene carries into its next call, so the prediction steps on the
     live schedule) and dropped beyond it (the lag of an engine that ran late: the path starts
     from the state as it is). Raises SimulationDiverged

@@ -7,23 +7,16 @@
 
 Node ``tissue_sim``; its topics, their types and QoS: :mod:`tissue_sim_ros.ros.messages.topics`.
 
-Predictions (a candidate path simulated off the live loop): ``plan/candidate`` -> ``plan/prediction``
-and the action ``~/predict_path`` (:mod:`~tissue_sim_ros.ros.predictions`,
-:mod:`~tissue_sim_ros.ros.prediction_action`). Services: :mod:`~tissue_sim_ros.ros.services`. TF out
-and in, registration, readiness (``~/ready``): :mod:`~tissue_sim_ros.ros.tf_out`,
-:mod:`~tissue_sim_ros.ros.tf_in`, :mod:`~tissue_sim_ros.ros.registration`,
-:mod:`~tissue_sim_ros.ros.readiness`.
+Predictions: ``plan/candidate`` -> ``plan/prediction`` and the action ``~/predict_path``
+(:mod:`~.predictions`, :mod:`~.prediction_action`). Services: :mod:`~.services`. TF out and in,
+registration, readiness (``~/ready``): :mod:`~.tf_out`, :mod:`~.tf_in`, :mod:`~.registration`,
+:mod:`~.readiness`.
 
-Timing: the engine runs on its own thread (:mod:`~tissue_sim_ros.ros.loop.engine_thread`), advancing
-toward the newest pose within a budget of each tick period (``engine.budget_fraction``). The
-tick (:mod:`~tissue_sim_ros.ros.loop.tick_thread`: its own thread on the monotonic clock, started by
-the executor's first spin; with ``use_sim_time`` a timer on the node clock) publishes the latest
-state every period, whatever the engine's progress: the tick never waits for the physics. When
-the engine cannot keep real time its lag is reported and bounded (``engine.max_lag_s``; the
-excess is dropped), and the degradation ladder (``engine.ladder``) steps down and back up. With
-``use_sim_time`` the node is lock-step: each tick waits until the engine reached it. A divergence
-(``SimulationDiverged`` or a non-finite state) is logged at ERROR and, by ``on_divergence``, reset
-to rest or held until ``~/reset`` (the last finite wrench republished).
+Timing (:mod:`~tissue_sim_ros.ros.loop.engine_thread`, :mod:`~tissue_sim_ros.ros.loop.tick_thread`): the
+engine advances on its own thread toward the newest pose within a budget of each tick; the tick
+publishes the latest state every period and never waits for the physics (with ``use_sim_time`` it
+is lock-step); lag is bounded (``engine.max_lag_s``), the degradation ladder steps down and up, and
+a divergence is logged at ERROR and reset or held by ``on_divergence``.
 
 Bad input never stops the node and never reaches a topic as NaN (``BAD_INPUT_KINDS`` in
 :mod:`~tissue_sim_ros.ros.loop.pose_input`, each logged once and counted in diagnostics); received
@@ -185,7 +178,8 @@ class TissueSimNode(Node):
                                                    'needle/<name>/pose and /wrench when there are several',
                                                    read_only=True))
         self.node_services = NodeServices(self)
-        self.reset_srv, self.pause_srv = self.node_services.services['~/reset'], self.node_services.services['~/pause']
+        services = self.node_services.services
+        self.reset_srv, self.pause_srv = services['~/reset'], services['~/pause']
         self.ready_pub = self.create_publisher(Bool, '~/ready', READY_QOS)
         self.readiness = Readiness(lambda ready: self._publish(self.ready_pub, Bool(data=ready)))
         self.trace_topic = self.resolve_topic_name('~/engine_trace')
@@ -228,15 +222,19 @@ class TissueSimNode(Node):
         self.tf_frames = TfFrames(cfg.frame_id, needle_frames(cfg.needle_frame_id, scene.needle_names),
                                   [n.geometry.length_m for n in scene.needles], scene.targets.names)
         self.tf_input = TfInput(cfg.frame_id, tf_frame=cfg.tf_frame if cfg.input_source == 'tf' else None,
-                                offset=cfg.tf_offset, timeout_s=cfg.tf_timeout_s, own_frames=self.tf_frames.own_frames)
+                                offset=cfg.tf_offset, timeout_s=cfg.tf_timeout_s,
+                                own_frames=self.tf_frames.own_frames)
         self.registration = Registration(cfg.frame_id, cfg.registration_parent, *cfg.tissue_pose,
                                          tolerance=cfg.input_limits.unit_quaternion_tolerance)
         self.tf_pub = self.create_publisher(TFMessage, '/tf', TF_QOS) if cfg.tf_publish else None
-        self.tf_static_pub = self.create_publisher(TFMessage, '/tf_static', TF_STATIC_QOS) if cfg.tf_publish else None
+        self.tf_static_pub = self.create_publisher(TFMessage, '/tf_static',
+                                                   TF_STATIC_QOS) if cfg.tf_publish else None
         self._needle_poses = (np.zeros((len(scene.needles), 3)), np.zeros((len(scene.needles), 4)))
-        self.tf_subs = [self.create_subscription(TFMessage, topic, lambda data, s=static: self._on_tf(data, s),
+        self.tf_subs = [self.create_subscription(TFMessage, topic, lambda data, s=static: self._on_tf(data,
+                                                                                                      s),
                                                  qos, raw=True)
-                        for topic, qos, static in (('/tf', TF_QOS, False), ('/tf_static', TF_STATIC_QOS, True))]
+                        for topic, qos, static in (('/tf', TF_QOS, False), ('/tf_static', TF_STATIC_QOS,
+                                                                            True))]
 
     def _decode_input(self, data):
         """(position, orientation, frame, stamp ns) of a pose as bytes or made from TF (a tuple; a TF
@@ -246,8 +244,9 @@ class TissueSimNode(Node):
         position, orientation, frame_id, stamp_ns = data if isinstance(data, tuple) else decode_pose(data)
         expected = self.config.input_limits.expected_frame_id
         if frame_id == expected or frame_id not in self.tf_input.buffer.frames():
-            return position, orientation, frame_id, stamp_ns          # (a frame TF does not know: wrong_frame)
-        position, orientation, _, stamp_ns = self.tf_input.to_tissue(position, orientation, frame_id, stamp_ns)
+            return position, orientation, frame_id, stamp_ns      # (a frame TF does not know: wrong_frame)
+        position, orientation, _, stamp_ns = self.tf_input.to_tissue(position, orientation, frame_id,
+                                                                     stamp_ns)
         return position, orientation, expected, stamp_ns
 
     def _on_tf(self, data: bytes, static: bool) -> None:
@@ -269,7 +268,8 @@ class TissueSimNode(Node):
         now_ns = self._now_ns()
         if registration is not None:
             parent, position, orientation = registration
-            self.tf_input.receive([(parent, self.config.frame_id, now_ns, position, orientation)], static=True)
+            self.tf_input.receive([(parent, self.config.frame_id, now_ns, position, orientation)],
+                                  static=True)
         if self.tf_static_pub is not None:
             self._publish(self.tf_static_pub, self.tf_frames.static_msg(now_ns, registration), now_ns)
 

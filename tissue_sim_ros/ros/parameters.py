@@ -229,11 +229,13 @@ def make_config(values: dict, scene_frame_id: str | None = None) -> NodeConfig:
         except OSError as exc:
             refuse('recording.directory', f'a writable directory ({exc.strerror})')
     tf_offset = _pose_parameter(v, 'input.tf_offset_position_m', 'input.tf_offset_orientation_xyzw', refuse)
-    tissue_pose = _pose_parameter(v, 'registration.tissue_position_m', 'registration.tissue_orientation_xyzw', refuse)
+    tissue_pose = _pose_parameter(v, 'registration.tissue_position_m',
+                                  'registration.tissue_orientation_xyzw', refuse)
     if v['input.source'] == 'tf':
         own = {frame_id, v['needle_frame_id'], f"{v['needle_frame_id']}_tip"}
         if not v['input.tf_frame'] or v['input.tf_frame'] in own:
-            refuse('input.tf_frame', f'a TF frame the robot publishes (input.source is tf), not one of {sorted(own)}')
+            refuse('input.tf_frame',
+                   f'a TF frame the robot publishes (input.source is tf), not one of {sorted(own)}')
     parent = v['registration.parent_frame_id']
     if parent and (parent == frame_id or parent != parent.strip() or parent.startswith('/')):
         refuse('registration.parent_frame_id', f'a frame name other than frame_id ({frame_id!r})')
@@ -261,7 +263,8 @@ def make_config(values: dict, scene_frame_id: str | None = None) -> NodeConfig:
         on_divergence=v['on_divergence'], input_source=v['input.source'], tf_frame=v['input.tf_frame'],
         tf_offset=tf_offset, tf_timeout_s=v['input.tf_timeout_s'], tf_publish=v['tf.publish'],
         registration_parent=parent, tissue_pose=tissue_pose,
-        needle_at_first_pose=v['registration.needle_at_first_pose'], prediction_workers=v['prediction.workers'],
+        needle_at_first_pose=v['registration.needle_at_first_pose'],
+        prediction_workers=v['prediction.workers'],
         prediction_threads=v['prediction.threads'], prediction_prestart=v['prediction.prestart'],
         prediction_max_error=v['prediction.max_error'],
         prediction_max_duration_s=v['prediction.max_duration_s'], values=dict(values))

@@ -19,6 +19,7 @@ rclpy's EventsExecutor spins without pause while a goal's coroutine awaits its a
 worth of thread time, measured), which would take the interpreter lock from the tick. Goals are
 coroutines on that executor, each awaiting its prediction, so any number run at once.
 """
+
 from __future__ import annotations
 
 import array
@@ -30,8 +31,14 @@ from tissue_sim_ros.engine.prediction import WRENCH_COLUMNS
 from tissue_sim_ros.ros.messages.conversions import header
 from tissue_sim_ros.ros.predictions import CANCELLED
 
-__all__ = ['ACTION_NAME', 'ACTION_TYPE', 'DEFAULT_FEEDBACK_PERIOD_S', 'PredictPathServer', 'result_arrays',
-           'start_predictions']
+__all__ = [
+    'ACTION_NAME',
+    'ACTION_TYPE',
+    'DEFAULT_FEEDBACK_PERIOD_S',
+    'PredictPathServer',
+    'result_arrays',
+    'start_predictions',
+]
 
 ACTION_NAME = '~/predict_path'
 ACTION_TYPE = 'tissue_sim_msgs/action/PredictPath'
@@ -70,16 +77,26 @@ class PredictPathServer:
         from rclpy.action import ActionServer, CancelResponse, GoalResponse
         from rclpy.executors import SingleThreadedExecutor
         from tissue_sim_msgs.action import PredictPath
+
         self.type, self.predictions, self.target_names = PredictPath, predictions, list(target_names)
-        self.name = node.resolve_service_name(ACTION_NAME)      # '/<namespace>/<node>/predict_path'
+        self.name = node.resolve_service_name(ACTION_NAME)  # '/<namespace>/<node>/predict_path'
         self.frame_id = predictions.wrench_frame_id
-        self.node = rclpy.create_node(f'{node.get_name()}_actions', namespace=node.get_namespace(),
-                                      context=node.context, start_parameter_services=False)
+        self.node = rclpy.create_node(
+            f'{node.get_name()}_actions',
+            namespace=node.get_namespace(),
+            context=node.context,
+            start_parameter_services=False,
+        )
         self._requests: dict = {}
         self.goals = self.succeeded = self.aborted = self.canceled = 0
-        self.server = ActionServer(self.node, PredictPath, self.name, execute_callback=self._execute,
-                                   goal_callback=lambda goal: GoalResponse.ACCEPT,
-                                   cancel_callback=self._cancel_requested)
+        self.server = ActionServer(
+            self.node,
+            PredictPath,
+            self.name,
+            execute_callback=self._execute,
+            goal_callback=lambda goal: GoalResponse.ACCEPT,
+            cancel_callback=self._cancel_requested,
+        )
         self._cancel_response = CancelResponse.ACCEPT
         self.executor = SingleThreadedExecutor(context=node.context)
         self.executor.add_node(self.node)
@@ -89,6 +106,7 @@ class PredictPathServer:
 
     def _spin(self) -> None:
         from tissue_sim_ros.system.thread_names import name_os_thread
+
         name_os_thread()
         while not self._stop.is_set():
             try:
@@ -112,11 +130,13 @@ class PredictPathServer:
 
     async def _execute(self, goal_handle):
         from rclpy.task import Future
+
         goal = goal_handle.request
         period = goal.feedback_period_s if goal.feedback_period_s > 0 else DEFAULT_FEEDBACK_PERIOD_S
         self.goals += 1
-        request = self.predictions.on_candidate(goal.path, reply=lambda r: self._wake(goal_handle),
-                                                live=goal.live_settings)
+        request = self.predictions.on_candidate(
+            goal.path, reply=lambda r: self._wake(goal_handle), live=goal.live_settings
+        )
         self._requests[id(goal_handle)] = request
         sent = 0
         try:
@@ -145,7 +165,9 @@ class PredictPathServer:
         if done <= sent:
             return sent
         rows = progress.read(sent, done)
-        feedback = self.type.Feedback(progress=float(done / progress.rows), first_pose=sent, poses_total=progress.rows)
+        feedback = self.type.Feedback(
+            progress=float(done / progress.rows), first_pose=sent, poses_total=progress.rows
+        )
         times = self._times(request, sent, done)
         _fill_columns(feedback, times, rows)
         goal_handle.publish_feedback(feedback)
@@ -171,9 +193,12 @@ class PredictPathServer:
             return result
         _fill_columns(result, prediction.time_from_start_s, prediction.values)
         from tissue_sim_msgs.msg import TargetDisplacement
+
         first = len(WRENCH_COLUMNS)
-        result.targets = [TargetDisplacement(name=name, displacement_m=_doubles(prediction.values[:, first + k]))
-                          for k, name in enumerate(self.target_names)]
+        result.targets = [
+            TargetDisplacement(name=name, displacement_m=_doubles(prediction.values[:, first + k]))
+            for k, name in enumerate(self.target_names)
+        ]
         goal_handle.succeed()
         self.succeeded += 1
         return result
@@ -198,14 +223,18 @@ def start_predictions(node, cfg) -> None:
     from tissue_sim_ros.engine.ladder import DegradationLadder
     from tissue_sim_ros.ros.messages.topics import PLAN_QOS
     from tissue_sim_ros.ros.predictions import PredictionService
+
     ladder = node.engine.ladder
     if cfg.prediction_max_error > 0 and ladder is None:
-        ladder = DegradationLadder(node.scene)      # its rungs' settings, never switched
+        ladder = DegradationLadder(node.scene)  # its rungs' settings, never switched
         node._measure_ladder(ladder)
 
     def rung():
-        level = None if ladder is None or cfg.prediction_max_error <= 0 else \
-            ladder.cheapest_within(cfg.prediction_max_error)
+        level = (
+            None
+            if ladder is None or cfg.prediction_max_error <= 0
+            else ladder.cheapest_within(cfg.prediction_max_error)
+        )
         if level is None:
             return None, None
         chosen = ladder.rungs[level]
@@ -214,19 +243,30 @@ def start_predictions(node, cfg) -> None:
     node.prediction_pub = node.create_publisher(JointTrajectory, 'plan/prediction', PLAN_QOS)
     geometry = node.scene.needle.geometry
     node.predictions = PredictionService(
-        node.engine, frame_id=cfg.frame_id, wrench_frame=cfg.wrench_frame,
-        wrench_frame_id=cfg.wrench_frame_id, target_names=node.scene.targets.names,
+        node.engine,
+        frame_id=cfg.frame_id,
+        wrench_frame=cfg.wrench_frame,
+        wrench_frame_id=cfg.wrench_frame_id,
+        target_names=node.scene.targets.names,
         other_needles=node.scene.needle_names[1:],
-        max_jump_m=min(cfg.input_limits.max_jump_m, geometry.max_jump_m), length_m=geometry.length_m,
-        max_duration_s=cfg.prediction_max_duration_s, workers=cfg.prediction_workers,
-        threads=cfg.prediction_threads, publish=lambda msg: node._publish(node.prediction_pub, msg),
-        log_once=node._log_once, decode=lambda data: deserialize_message(data, Path), rung=rung,
-        prestart=cfg.prediction_prestart, to_tissue=node.tf_input.to_tissue)
+        max_jump_m=min(cfg.input_limits.max_jump_m, geometry.max_jump_m),
+        length_m=geometry.length_m,
+        max_duration_s=cfg.prediction_max_duration_s,
+        workers=cfg.prediction_workers,
+        threads=cfg.prediction_threads,
+        publish=lambda msg: node._publish(node.prediction_pub, msg),
+        log_once=node._log_once,
+        decode=lambda data: deserialize_message(data, Path),
+        rung=rung,
+        prestart=cfg.prediction_prestart,
+        to_tissue=node.tf_input.to_tissue,
+    )
 
     def on_candidate(data: bytes) -> None:
         """A candidate path as received: recorded as is, handed to the predictions' intake."""
         if node._recorder is not None:
             node._recorder.write(node.candidate_sub.topic_name, data, node._now_ns())
         node.predictions.receive(data)
+
     node.candidate_sub = node.create_subscription(Path, 'plan/candidate', on_candidate, PLAN_QOS, raw=True)
     node.action_server = PredictPathServer(node, node.predictions, node.scene.targets.names)

@@ -54,7 +54,8 @@ from tissue_sim_ros.ros.diagnostics import NONE_YET
 from tissue_sim_ros.ros.messages.conversions import header, stamp_to_ns
 from tissue_sim_ros.units import NS_PER_S
 
-__all__ = ['CANCELLED', 'WORKER_NICENESS', 'PredictionService', 'Progress', 'path_arrays', 'path_msg', 'prediction_msg',
+__all__ = ['CANCELLED', 'WORKER_NICENESS', 'PredictionService', 'Progress', 'path_arrays', 'path_msg',
+           'prediction_msg',
            'auto_workers']
 
 #: How much lower the workers' scheduling priority is than the node's (os.nice).
@@ -80,7 +81,8 @@ def _snapshot_directory() -> Path:
 
 
 def path_arrays(msg, frame_id: str, to_tissue=None):
-    """(stamps [s from the first pose], positions (k, 3), quaternions (k, 4)) of a nav_msgs/Path in ``frame_id``; a pose
+    """(stamps [s from the first pose], positions (k, 3), quaternions (k, 4)) of a nav_msgs/Path in
+    ``frame_id``; a pose
     in another frame (the path's header frame, or the pose's own when it names one) is brought into
     it by ``to_tissue(position, orientation, frame, stamp_ns)`` (the node's TF input) and raises
     PoseError naming it when that cannot (or when there is no ``to_tissue``)."""
@@ -91,17 +93,20 @@ def path_arrays(msg, frame_id: str, to_tissue=None):
         frame = stamped.header.frame_id or msg.header.frame_id
         p, q = stamped.pose.position, stamped.pose.orientation
         stamp_ns = stamp_to_ns(stamped.header.stamp)
-        stamps[i] = (stamp_ns - first_ns) / NS_PER_S      # from the first pose: a float of today's epoch is 0.2 us coarse
+        stamps[i] = (stamp_ns - first_ns) / NS_PER_S      # (a float of today's epoch is 0.2 us coarse)
         positions[i] = p.x, p.y, p.z
         orientations[i] = q.x, q.y, q.z, q.w
         if frame != frame_id:
             if to_tissue is None:
-                raise PoseError(f'path.poses[{i}].header.frame_id', frame, f'expected {frame_id!r}, the node\'s frame')
+                raise PoseError(f'path.poses[{i}].header.frame_id', frame,
+                                f'expected {frame_id!r}, the node\'s frame')
             try:
-                positions[i], orientations[i], _, _ = to_tissue(positions[i], orientations[i], frame, stamp_ns)
+                positions[i], orientations[i], _, _ = to_tissue(positions[i], orientations[i], frame,
+                                                                stamp_ns)
             except InputError as exc:
                 raise PoseError(f'path.poses[{i}].header.frame_id', frame,
-                                f'not {frame_id!r}, the node\'s frame, and TF cannot relate them: {exc}') from None
+                                f'not {frame_id!r}, the node\'s frame, and TF cannot relate them: {exc}'
+                                ) from None
     return stamps, positions, orientations
 
 
@@ -175,7 +180,8 @@ class Progress:
 
     def read(self, start: int, stop: int) -> np.ndarray:
         """Rows ``start`` .. ``stop - 1`` (a copy)."""
-        return np.array(self._data[2 + start * self.columns:2 + stop * self.columns]).reshape(-1, self.columns)
+        return np.array(self._data[2 + start * self.columns:2 + stop * self.columns]).reshape(-1,
+                                                                                              self.columns)
 
     def cancel(self) -> None:
         self._data[1] = 1.0
@@ -292,7 +298,8 @@ class PredictionService:
             return request
         request.times = path.times
         if reply is not None:
-            request.progress = Progress(self._directory / f'goal_{id(request)}.progress', len(path), len(self.columns))
+            request.progress = Progress(self._directory / f'goal_{id(request)}.progress', len(path),
+                                        len(self.columns))
         self.engine.post(lambda: self._submit(request, path))
         return request
 
@@ -328,7 +335,8 @@ class PredictionService:
             snapshot = self._snapshot[1]
             threshold, mass_scaling = (None, None) if request.live else self._rung()
             request.settings = self.settings_text(threshold, mass_scaling)
-            progress = None if request.progress is None else (str(request.progress.path), request.progress.rows,
+            progress = None if request.progress is None else (str(request.progress.path),
+                                                              request.progress.rows,
                                                               request.progress.columns)
             with self._lock:
                 self._users[snapshot] += 1

@@ -7,6 +7,7 @@ flows and every service answers. The engine status of ``/diagnostics`` says the 
 (``ready``: ``starting`` or ``ready``). Prediction workers may still be warming up then (the
 ``predictions`` status says ``workers_state``). No rclpy here: the node hands a publish function.
 """
+
 from __future__ import annotations
 
 __all__ = ['Readiness']

@@ -17,7 +17,8 @@ import datetime as _dt
 from tissue_sim_ros.ros.loop.trace import TRACE_TYPE
 from tissue_sim_ros.ros.parameters import parameters_yaml
 from tissue_sim_ros.ros.messages.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODE_TOPIC_TYPES, NODES_QOS, PLAN_QOS,
-                                                READY_QOS, SERVICE_EVENT_QOS, SURFACE_QOS, TF_QOS, TF_STATIC_QOS,
+                                                READY_QOS, SERVICE_EVENT_QOS, SURFACE_QOS, TF_QOS,
+                                                TF_STATIC_QOS,
                                                 WRENCH_QOS)
 
 __all__ = ['node_log_topics', 'open_node_log', 'every_kth_tick', 'record_service_call']

@@ -18,6 +18,7 @@ Two facts a robot study measures before it inserts, held here without rclpy (the
   does it. The engine trace records the placement (a ``PLACE`` row), so ``tissue-sim replay`` does
   it again at the same point of the run.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -33,7 +34,9 @@ class Registration:
 
     def __init__(self, tissue_frame: str, parent: str, position, orientation, tolerance: float = 0.01):
         self.tissue_frame, self.parent, self.tolerance = tissue_frame, parent, tolerance
-        self.position, self.orientation = np.asarray(position, dtype=np.float64), np.asarray(orientation, dtype=np.float64)
+        self.position, self.orientation = np.asarray(position, dtype=np.float64), np.asarray(
+            orientation, dtype=np.float64
+        )
         self.changes = 0
 
     @property
@@ -48,19 +51,28 @@ class Registration:
         parent = frame_id or self.parent
         p = np.asarray(position, dtype=np.float64)
         if not parent or parent == self.tissue_frame:
-            raise PoseError('pose.header.frame_id', frame_id, f'the robot frame the tissue frame '
-                            f'{self.tissue_frame!r} is registered in (registration.parent_frame_id is '
-                            f'{self.parent!r})')
+            raise PoseError(
+                'pose.header.frame_id',
+                frame_id,
+                f'the robot frame the tissue frame '
+                f'{self.tissue_frame!r} is registered in (registration.parent_frame_id is '
+                f'{self.parent!r})',
+            )
         if p.shape != (3,) or not np.isfinite(p).all():
             raise PoseError('pose.pose.position', p.tolist(), 'three finite numbers [m]')
         q, norm = unit_quaternion(np.asarray(orientation, dtype=np.float64), self.tolerance)
         if q is None:
-            raise PoseError('pose.pose.orientation', np.asarray(orientation).tolist(),
-                            f'a unit quaternion (norm {norm:.6g}, tolerance {self.tolerance})')
+            raise PoseError(
+                'pose.pose.orientation',
+                np.asarray(orientation).tolist(),
+                f'a unit quaternion (norm {norm:.6g}, tolerance {self.tolerance})',
+            )
         self.parent, self.position, self.orientation = parent, p, q
         self.changes += 1
-        return (f'tissue frame {self.tissue_frame!r} registered in {parent!r} at {np.round(p, 6).tolist()} m, '
-                f'orientation {np.round(q, 6).tolist()}')
+        return (
+            f'tissue frame {self.tissue_frame!r} registered in {parent!r} at {np.round(p, 6).tolist()} m, '
+            f'orientation {np.round(q, 6).tolist()}'
+        )
 
 
 def needle_start_rule(seen, frame_id: str):
@@ -68,6 +80,10 @@ def needle_start_rule(seen, frame_id: str):
     value checks, (stamp ns, position, orientation) in the tissue frame, or None. PoseError when
     there is none (nothing received from the robot yet)."""
     if seen is None:
-        raise PoseError('needle pose', None, f'no needle pose received yet (in {frame_id!r} or through TF): '
-                        'the needle is registered where the robot holds it, so it must publish first')
+        raise PoseError(
+            'needle pose',
+            None,
+            f'no needle pose received yet (in {frame_id!r} or through TF): '
+            'the needle is registered where the robot holds it, so it must publish first',
+        )
     return seen[1].copy(), seen[2].copy()

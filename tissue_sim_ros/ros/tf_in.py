@@ -18,6 +18,7 @@ hands over the received transforms as plain values.
 Frames the node itself broadcasts (:mod:`~tissue_sim_ros.ros.tf_out`) are ignored when they come
 back on /tf: the buffer holds the robot's tree and the registration only.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -34,8 +35,15 @@ def transforms_of(msg) -> list:
     out = []
     for t in msg.transforms:
         s, r, q = t.header.stamp, t.transform.translation, t.transform.rotation
-        out.append((t.header.frame_id, t.child_frame_id, int(s.sec) * NS_PER_S + int(s.nanosec),
-                    (r.x, r.y, r.z), (q.x, q.y, q.z, q.w)))
+        out.append(
+            (
+                t.header.frame_id,
+                t.child_frame_id,
+                int(s.sec) * NS_PER_S + int(s.nanosec),
+                (r.x, r.y, r.z),
+                (q.x, q.y, q.z, q.w),
+            )
+        )
     return out
 
 
@@ -45,16 +53,24 @@ class TfInput:
     ``offset``: (position, orientation) of the needle base in ``tf_frame``; ``own_frames``: the child
     frames the node broadcasts (ignored on the way in)."""
 
-    def __init__(self, tissue_frame: str, *, tf_frame: str | None = None, offset=None,
-                 timeout_s: float = 0.1, own_frames=(), cache_s: float = 10.0):
+    def __init__(
+        self,
+        tissue_frame: str,
+        *,
+        tf_frame: str | None = None,
+        offset=None,
+        timeout_s: float = 0.1,
+        own_frames=(),
+        cache_s: float = 10.0,
+    ):
         self.buffer = TransformBuffer(cache_s)
         self.tissue_frame, self.tf_frame = tissue_frame, tf_frame or None
         self.offset = offset if offset is not None else (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
         self.hold_ns = int(timeout_s * NS_PER_S)
         self.own_frames = frozenset(own_frames)
-        self._chain: frozenset | None = None          # child frames of the tissue <- tf_frame chain
+        self._chain: frozenset | None = None  # child frames of the tissue <- tf_frame chain
         self._last_stamp = -1
-        self.poses = 0                                # poses made from TF (input.source tf)
+        self.poses = 0  # poses made from TF (input.source tf)
 
     def receive(self, transforms, static: bool = False):
         """Add the transforms of one /tf (or /tf_static) message; returns the needle base's pose
@@ -97,8 +113,10 @@ class TfInput:
             if newest is None:
                 raise
             tissue_from_frame = newest
-        p, q = compose(tissue_from_frame, (np.asarray(position, dtype=np.float64),
-                                           np.asarray(orientation, dtype=np.float64)))
+        p, q = compose(
+            tissue_from_frame,
+            (np.asarray(position, dtype=np.float64), np.asarray(orientation, dtype=np.float64)),
+        )
         return p, q, self.tissue_frame, stamp_ns
 
     def _newest_usable(self, frame_id: str, stamp_ns: int):
@@ -106,6 +124,8 @@ class TfInput:
         latest, latest_ns = self.buffer.lookup(self.tissue_frame, frame_id, 0)
         if latest_ns <= stamp_ns <= latest_ns + self.hold_ns:
             return latest, latest_ns
-        raise TransformUnavailable(f'transform {self.tissue_frame} <- {frame_id} at {stamp_ns / NS_PER_S:.9f} s: '
-                                   f'the newest is at {latest_ns / NS_PER_S:.9f} s, more than input.tf_timeout_s '
-                                   f'= {self.hold_ns / NS_PER_S:g} s before (or the stamp is older than the buffer)')
+        raise TransformUnavailable(
+            f'transform {self.tissue_frame} <- {frame_id} at {stamp_ns / NS_PER_S:.9f} s: '
+            f'the newest is at {latest_ns / NS_PER_S:.9f} s, more than input.tf_timeout_s '
+            f'= {self.hold_ns / NS_PER_S:g} s before (or the stamp is older than the buffer)'
+        )

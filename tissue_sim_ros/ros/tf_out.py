@@ -14,6 +14,7 @@ frame) all name frames that exist on TF, and RViz or Foxglove place them in the 
 The message type comes from the tf2_msgs package (a ROS install's, or the one the set-up builds);
 no rclpy here: the node publishes what :class:`TfFrames` builds.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -39,6 +40,7 @@ def target_frame(name: str) -> str:
 
 def _transform(parent: str, child: str, stamp, position, orientation=(0.0, 0.0, 0.0, 1.0)):
     from geometry_msgs.msg import TransformStamped
+
     t = TransformStamped(header=header(parent, stamp), child_frame_id=child)
     tr, r = t.transform.translation, t.transform.rotation
     tr.x, tr.y, tr.z = (float(c) for c in position)
@@ -65,6 +67,7 @@ class TfFrames:
         """/tf_static: ``registration`` (parent frame, position, orientation) of the tissue frame
         or None, and each needle's tip on its base."""
         from tf2_msgs.msg import TFMessage
+
         transforms = []
         if registration is not None:
             parent, position, orientation = registration
@@ -77,10 +80,17 @@ class TfFrames:
         """/tf of one tick: each needle's base pose and each target's position in the tissue frame
         (refuses non-finite values: never NaN on a topic)."""
         from tf2_msgs.msg import TFMessage
-        values = [np.asarray(a, dtype=np.float64) for a in (needle_positions, needle_orientations, target_positions)]
+
+        values = [
+            np.asarray(a, dtype=np.float64) for a in (needle_positions, needle_orientations, target_positions)
+        ]
         if not all(np.isfinite(v).all() for v in values):
             raise ValueError('TF: a needle pose or a target position is not finite; refusing to publish')
-        transforms = [_transform(self.tissue_frame, base, stamp_ns, p, q)
-                      for (base, _), p, q in zip(self.needles, values[0], values[1])]
-        transforms += [_transform(self.tissue_frame, frame, stamp_ns, p) for frame, p in zip(self.targets, values[2])]
+        transforms = [
+            _transform(self.tissue_frame, base, stamp_ns, p, q)
+            for (base, _), p, q in zip(self.needles, values[0], values[1])
+        ]
+        transforms += [
+            _transform(self.tissue_frame, frame, stamp_ns, p) for frame, p in zip(self.targets, values[2])
+        ]
         return TFMessage(transforms=transforms)

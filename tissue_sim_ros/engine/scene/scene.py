@@ -254,8 +254,8 @@ class Scene:
     def place_needle(self, position, orientation, needle=0):
         """Start needle ``needle`` (its index) at this pose from now on, resets included
         (``NeedleTissue.set_start``: refused while it touches the tissue or inside it)."""
-        self.needles[needle].set_start(position, orientation,
-                                       f'{self.needle_names[needle]}.start' if len(self.needles) > 1 else 'needle.start')
+        name = f'{self.needle_names[needle]}.start' if len(self.needles) > 1 else 'needle.start'
+        self.needles[needle].set_start(position, orientation, name)
 
     # -- state ----------------------------------------------------------------------------------
     def reaction_wrench(self, frame='world', needle=0):

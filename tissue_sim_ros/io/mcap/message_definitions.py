@@ -51,7 +51,8 @@ def parse_type_name(type_name: str, *, short_form: bool = True) -> RosTypeName:
     else:
         parsed = None
     if parsed is None or not (_TYPE_PART.match(parsed.package) and _TYPE_PART.match(parsed.name)):
-        forms = '"pkg/msg/Type" or "pkg/srv/Type"' + (' (or "pkg/Type")' if short_form else ' (or "pkg/action/Type")')
+        forms = '"pkg/msg/Type" or "pkg/srv/Type"' + (' (or "pkg/Type")' if short_form
+                                                      else ' (or "pkg/action/Type")')
         raise ValueError(f'type_name: {type_name!r}; expected {forms}')
     return parsed
 

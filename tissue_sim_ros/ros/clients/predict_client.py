@@ -3,16 +3,17 @@
 ::
 
     from tissue_sim_ros.client import PredictionClient
-    with PredictionClient() as client:                      # rclpy started here if it is not yet
-        answer = client.predict(path)                       # a nav_msgs/Path, or (times, positions, orientations)
-    answer.columns['force_z_n']                             # numpy arrays by column name
-    answer.dataframe                                        # the same as a pandas DataFrame (None without pandas)
+    with PredictionClient() as client:    # rclpy started here if it is not yet
+        answer = client.predict(path)     # a nav_msgs/Path, or (times, positions, orientations)
+    answer.columns['force_z_n']           # numpy arrays by column name
+    answer.dataframe                      # the same as a pandas DataFrame (None without pandas)
 
 The columns are the topic pair's (``time_from_start_s``, ``force_x_n`` .. ``torque_z_nm``,
 ``tip_depth_m``, ``target/<name>/displacement_m``), from the action's typed result. Feedback, when
 asked for, is called with (progress fraction, the rows so far as a dict of arrays). A goal the node
 refuses raises PredictionRefused with its reason; a timeout cancels the goal and raises TimeoutError.
 """
+
 from __future__ import annotations
 
 import time
@@ -61,6 +62,7 @@ def _path_msg(path, frame_id: str):
     if hasattr(path, 'poses'):
         return path
     from tissue_sim_ros.ros.predictions import path_msg
+
     times, positions, orientations = path
     stamps = (np.asarray(times, dtype=np.float64) * 1e9).round().astype(np.int64) + time.time_ns()
     return path_msg(stamps, positions, orientations, frame_id)
@@ -75,6 +77,7 @@ class PredictionClient:
         from rclpy.action import ActionClient
         from rclpy.executors import SingleThreadedExecutor
         from tissue_sim_msgs.action import PredictPath
+
         self._started = False
         if node is None:
             if not rclpy.ok(context=context):
@@ -95,15 +98,26 @@ class PredictionClient:
                 raise TimeoutError('no answer from the tissue_sim node in time')
             self._executor.spin_once(timeout_sec=0.05)
 
-    def predict(self, path, *, frame_id: str = 'world', live_settings: bool = False, feedback=None,
-                feedback_period_s: float = 0.0, timeout_s: float = 120.0) -> PathPrediction:
+    def predict(
+        self,
+        path,
+        *,
+        frame_id: str = 'world',
+        live_settings: bool = False,
+        feedback=None,
+        feedback_period_s: float = 0.0,
+        timeout_s: float = 120.0,
+    ) -> PathPrediction:
         """Predict ``path`` (a nav_msgs/Path, or (times [s], positions (k, 3), orientations (k, 4))
         in ``frame_id``); see the module docstring."""
         from tissue_sim_ros.ros.prediction_action import result_arrays
+
         deadline = time.monotonic() + timeout_s
         if not self.client.wait_for_server(timeout_sec=max(0.0, min(timeout_s, 30.0))):
-            raise TimeoutError(f'no {self.client._action_name} action server (is tissue_sim_node running, '
-                               'predictions on, the same ROS_DOMAIN_ID?)')
+            raise TimeoutError(
+                f'no {self.client._action_name} action server (is tissue_sim_node running, '
+                'predictions on, the same ROS_DOMAIN_ID?)'
+            )
         received = []
 
         def on_feedback(message):
@@ -111,8 +125,12 @@ class PredictionClient:
             received.append(fb)
             if feedback is not None:
                 feedback(float(fb.progress), result_arrays(fb))
-        goal = self.type.Goal(path=_path_msg(path, frame_id), live_settings=bool(live_settings),
-                              feedback_period_s=float(feedback_period_s))
+
+        goal = self.type.Goal(
+            path=_path_msg(path, frame_id),
+            live_settings=bool(live_settings),
+            feedback_period_s=float(feedback_period_s),
+        )
         started = time.monotonic()
         sent = self.client.send_goal_async(goal, feedback_callback=on_feedback)
         self._spin_until(sent, deadline)
@@ -126,12 +144,18 @@ class PredictionClient:
             self._spin_until(handle.cancel_goal_async(), time.monotonic() + 5.0)
             raise
         result = answer.result().result
-        if answer.result().status != 4:          # action_msgs/GoalStatus.STATUS_SUCCEEDED
+        if answer.result().status != 4:  # action_msgs/GoalStatus.STATUS_SUCCEEDED
             raise PredictionRefused(f'path: {result.message}')
         stamp = result.header.stamp
-        return PathPrediction(result_arrays(result), result.settings, result.header.frame_id,
-                              int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec), len(received),
-                              time.monotonic() - started, [t.name for t in result.targets])
+        return PathPrediction(
+            result_arrays(result),
+            result.settings,
+            result.header.frame_id,
+            int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec),
+            len(received),
+            time.monotonic() - started,
+            [t.name for t in result.targets],
+        )
 
     def close(self) -> None:
         self.client.destroy()
@@ -140,6 +164,7 @@ class PredictionClient:
             self._own_node.destroy_node()
         if self._started:
             import rclpy
+
             rclpy.try_shutdown(context=self.node.context)
 
     def __enter__(self) -> PredictionClient:

@@ -254,7 +254,8 @@ class EngineLoop:
         pose used. PoseError when there is none, or the engine refuses it (in or touching the tissue)."""
         def job():
             from tissue_sim_ros.ros.registration import needle_start_rule
-            position, orientation = pose if pose is not None else needle_start_rule(self.input.seen, 'the tissue frame')
+            position, orientation = pose if pose is not None else needle_start_rule(self.input.seen,
+                                                                                    'the tissue frame')
             self._place(position, orientation)
             return position, orientation
         return self.call(job)

@@ -16,6 +16,7 @@ names or two frames in different trees; the message names the frames and the sta
 
 Thread-safe: the executor's thread adds transforms while the engine's thread looks them up.
 """
+
 from __future__ import annotations
 
 import bisect
@@ -27,8 +28,15 @@ from tissue_sim_ros.engine.needle.pose import rotation_matrix, slerp
 from tissue_sim_ros.errors import InputError
 from tissue_sim_ros.units import NS_PER_S
 
-__all__ = ['IDENTITY', 'TransformBuffer', 'TransformUnavailable', 'compose', 'invert', 'quaternion_product',
-           'transform_point']
+__all__ = [
+    'IDENTITY',
+    'TransformBuffer',
+    'TransformUnavailable',
+    'compose',
+    'invert',
+    'quaternion_product',
+    'transform_point',
+]
 
 #: the transform that changes nothing
 IDENTITY = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
@@ -43,10 +51,14 @@ def quaternion_product(a, b) -> np.ndarray:
     """The Hamilton product ``a b`` of quaternions x y z w: the rotation b, then a."""
     ax, ay, az, aw = a
     bx, by, bz, bw = b
-    return np.array([aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw,
-                     aw * bw - ax * bx - ay * by - az * bz])
+    return np.array(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ]
+    )
 
 
 def transform_point(transform, point) -> np.ndarray:
@@ -88,7 +100,7 @@ class _Edge:
         if self.stamps and stamp_ns <= self.stamps[-1]:
             k = bisect.bisect_left(self.stamps, stamp_ns)
             if k < len(self.stamps) and self.stamps[k] == stamp_ns:
-                self.values[k] = value                      # the same stamp again: the newer wins
+                self.values[k] = value  # the same stamp again: the newer wins
                 return
             self.stamps.insert(k, stamp_ns)
             self.values.insert(k, value)
@@ -96,7 +108,7 @@ class _Edge:
             self.stamps.append(stamp_ns)
             self.values.append(value)
         cut = bisect.bisect_left(self.stamps, self.stamps[-1] - cache_ns)
-        if cut > 256:                                       # trimmed in batches, not at every add
+        if cut > 256:  # trimmed in batches, not at every add
             del self.stamps[:cut], self.values[:cut]
 
     def at(self, stamp_ns: int, child: str):
@@ -105,8 +117,10 @@ class _Edge:
         stamps = self.stamps
         if not stamps or stamp_ns < stamps[0] or stamp_ns > stamps[-1]:
             held = 'nothing' if not stamps else f'{stamps[0] / NS_PER_S:.9f} .. {stamps[-1] / NS_PER_S:.9f} s'
-            raise TransformUnavailable(f'transform {self.parent} <- {child} at {stamp_ns / NS_PER_S:.9f} s: '
-                                       f'the buffer holds {held} (no extrapolation)')
+            raise TransformUnavailable(
+                f'transform {self.parent} <- {child} at {stamp_ns / NS_PER_S:.9f} s: '
+                f'the buffer holds {held} (no extrapolation)'
+            )
         k = bisect.bisect_left(stamps, stamp_ns)
         if stamps[k] == stamp_ns:
             return self.values[k]
@@ -129,13 +143,15 @@ class TransformBuffer:
         self._lock = threading.Lock()
         self.received = 0
 
-    def set_transform(self, parent: str, child: str, stamp_ns: int, translation, rotation,
-                      static: bool = False) -> None:
+    def set_transform(
+        self, parent: str, child: str, stamp_ns: int, translation, rotation, static: bool = False
+    ) -> None:
         """Add one transform (the pose of ``child`` in ``parent`` at ``stamp_ns``). A child that
         changes parent starts afresh, as tf2 does."""
         if not parent or not child or parent == child:
-            raise TransformUnavailable(f'transform {parent!r} <- {child!r}: two different non-empty frames '
-                                       'expected')
+            raise TransformUnavailable(
+                f'transform {parent!r} <- {child!r}: two different non-empty frames ' 'expected'
+            )
         with self._lock:
             edge = self._edges.get(child)
             if edge is None or edge.parent != parent or edge.static != static:
@@ -177,9 +193,11 @@ class TransformBuffer:
         up_source, up_target = self._path_to_root(source), self._path_to_root(target)
         common = next((f for f in up_source if f in set(up_target)), None)
         if common is None:
-            raise TransformUnavailable(f'frames {target!r} and {source!r} are in different trees (roots '
-                                       f'{up_target[-1]!r} and {up_source[-1]!r})')
-        return up_source[:up_source.index(common) + 1], up_target[:up_target.index(common) + 1]
+            raise TransformUnavailable(
+                f'frames {target!r} and {source!r} are in different trees (roots '
+                f'{up_target[-1]!r} and {up_source[-1]!r})'
+            )
+        return up_source[: up_source.index(common) + 1], up_target[: up_target.index(common) + 1]
 
     def lookup(self, target: str, source: str, stamp_ns: int = 0):
         """(transform ``target_from_source``, the stamp used [ns]): a pose in ``source`` composed with
@@ -189,14 +207,18 @@ class TransformBuffer:
             return IDENTITY, int(stamp_ns)
         with self._lock:
             up_source, up_target = self._chain(target, source)
-            edges = [(f, self._edges[f]) for f in up_source[:-1]] + [(f, self._edges[f]) for f in up_target[:-1]]
+            edges = [(f, self._edges[f]) for f in up_source[:-1]] + [
+                (f, self._edges[f]) for f in up_target[:-1]
+            ]
             if stamp_ns == 0:
                 newest = [e.newest_ns for _, e in edges if not e.static]
                 if any(n is None for n in newest):
-                    raise TransformUnavailable(f'transform {target} <- {source}: an edge has no transform yet')
+                    raise TransformUnavailable(
+                        f'transform {target} <- {source}: an edge has no transform yet'
+                    )
                 stamp_ns = min(newest) if newest else 0
             ancestor_from_source = IDENTITY
-            for frame in reversed(up_source[:-1]):       # from the ancestor down to the source
+            for frame in reversed(up_source[:-1]):  # from the ancestor down to the source
                 ancestor_from_source = compose(ancestor_from_source, self._edges[frame].at(stamp_ns, frame))
             ancestor_from_target = IDENTITY
             for frame in reversed(up_target[:-1]):

@@ -121,7 +121,8 @@ def load_example(path) -> dict:
         raise ValueError(f'{path}: expected a mapping with type and message (or request/response)')
     out = dict(doc)
     if '/action/' in doc['type']:
-        out['messages'] = {role: message_from_dict(message_type(doc['type'], role.capitalize()), doc.get(role))
+        out['messages'] = {role: message_from_dict(message_type(doc['type'], role.capitalize()),
+                                                   doc.get(role))
                            for role in ('goal', 'feedback', 'result')}
     elif '/srv/' in doc['type']:
         out['messages'] = {

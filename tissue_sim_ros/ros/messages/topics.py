@@ -49,7 +49,8 @@ The surface is transient local so that a late subscriber gets the mesh it needs 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 __all__ = ['qos', 'WRENCH_QOS', 'NODES_QOS', 'SURFACE_QOS', 'MARKER_QOS', 'DIAGNOSTICS_QOS',
-           'SERVICE_EVENT_QOS', 'PLAN_QOS', 'TF_QOS', 'TF_STATIC_QOS', 'READY_QOS', 'pose_qos', 'NODE_TOPIC_TYPES']
+           'SERVICE_EVENT_QOS', 'PLAN_QOS', 'TF_QOS', 'TF_STATIC_QOS', 'READY_QOS', 'pose_qos',
+           'NODE_TOPIC_TYPES']
 
 
 def qos(depth: int, transient_local: bool = False,
