@@ -127,6 +127,7 @@ class PredictPathServer:
         waiter = self._requests.get(('waiter', id(goal_handle)))
         if waiter is not None and not waiter.done():
             waiter.set_result(True)
+            self.executor.wake()        # else the goal's coroutine resumes at the executor's next timeout
 
     async def _execute(self, goal_handle):
         from rclpy.task import Future
@@ -143,7 +144,7 @@ class PredictPathServer:
             while not request.done and not goal_handle.is_cancel_requested:
                 waiter = Future()
                 self._requests[('waiter', id(goal_handle))] = waiter
-                timer = threading.Timer(period, lambda w=waiter: w.done() or w.set_result(False))
+                timer = threading.Timer(period, lambda: self._wake(goal_handle))
                 timer.daemon = True
                 timer.start()
                 if not request.done and not goal_handle.is_cancel_requested:

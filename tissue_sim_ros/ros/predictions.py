@@ -1,7 +1,9 @@
 """Predictions for a planner: ``plan/candidate`` in, ``plan/prediction`` out.
 
-A planner publishes a candidate path of the needle base (``nav_msgs/Path`` in ``frame_id``, each
-pose's stamp its time, the first pose where the needle is now). The node answers on
+A planner publishes a candidate path of the needle base (``nav_msgs/Path`` in ``frame_id`` or a
+frame TF relates to it, each pose's stamp its time, the first pose where the needle is now); the
+action ``~/predict_path`` asks the same with feedback (:mod:`~.prediction_action`: a goal's request
+streams its rows through a :class:`Progress` file and can be cancelled). The node answers on
 ``plan/prediction`` with a ``trajectory_msgs/JointTrajectory``: ``header.stamp`` copied from the
 request's (how a planner pairs answers with questions), ``header.frame_id`` the wrench's frame,
 ``joint_names`` the columns (engine.prediction.prediction_columns: force, torque, tip depth, each
