@@ -253,7 +253,8 @@ class TissueSimNode(Node):
         """/tf or /tf_static: recorded, into the TF buffer (the node's own skipped); a pose with TF input."""
         receipt_ns = self._now_ns()
         transforms = transforms_of(deserialize_message(data, TFMessage))
-        if all(child in self.tf_frames.own_frames or (static and child == self.config.frame_id)
+        registered = static and self.registration.transform is not None
+        if all(child in self.tf_frames.own_frames or (registered and child == self.config.frame_id)
                for _, child, *_ in transforms):
             return                                     # the node's own broadcast, recorded as sent
         if self._recorder is not None:
