@@ -100,7 +100,8 @@ class TissueSimNode(Node):
     def __init__(self, *, scene=None, node_name: str = NODE_NAME, slow_down=None, resolve_auto=None,
                  **node_kwargs):
         super().__init__(node_name, **node_kwargs)
-        self._recorder, self._closed, self.engine, self.predictions = None, False, None, None
+        self._recorder, self._closed, self.engine = None, False, None
+        self.predictions = self.action_server = None
         try:
             self._set_up(scene, slow_down, resolve_auto)
         except BaseException:
@@ -165,7 +166,7 @@ class TissueSimNode(Node):
         self.declare_parameter('targets.names', self.scene.targets.names or Parameter.Type.STRING_ARRAY,
                                ParameterDescriptor(description="the scene's targets, in the order of "
                                                    'tissue/targets (from the scene file)', read_only=True))
-        self.prediction_pub = self.candidate_sub = self.action_server = None
+        self.prediction_pub = self.candidate_sub = None
         if cfg.prediction_workers >= 0:
             start_predictions(self, cfg)
         self.pose_qos = pose_qos(cfg.input_reliability)
@@ -436,13 +437,9 @@ class TissueSimNode(Node):
                                     pose_input=self.input, ticks=self.ticks, recorder=self._recorder,
                                     needle_names=self.scene.needle_names,
                                     other_inputs=zip(self.scene.needle_names[1:], self.other_inputs),
-                                    ready=self.readiness.state, source=self._input_source()) + \
+                                    ready=self.readiness.state, source=self.config.input_description) + \
             [targets_status(self.get_name(), self.scene.targets.names, self._target_figures)] + \
             ([] if self.predictions is None else [self.predictions.status(self.get_name())])
-
-    def _input_source(self) -> str:
-        cfg = self.config
-        return 'needle/pose' if cfg.input_source == 'topic' else f'tf: {cfg.tf_frame} in {cfg.frame_id}'
 
     def publish_diagnostics(self) -> None:
         self._nodes_subscribers = self.nodes_pub.get_subscription_count()

@@ -182,6 +182,11 @@ class NodeConfig:
         return 1 if n_elements < AUTO_THREADS_ELEMENTS else len(os.sched_getaffinity(0))
 
     @property
+    def input_description(self) -> str:
+        """Where the first needle's poses come from, in words (diagnostics)."""
+        return 'needle/pose' if self.input_source == 'topic' else f'tf: {self.tf_frame} in {self.frame_id}'
+
+    @property
     def wrench_frame(self) -> str:
         """'needle' or 'world': the frame argument of Scene.reaction_wrench."""
         return 'needle' if self.wrench_frame_id == self.needle_frame_id else 'world'

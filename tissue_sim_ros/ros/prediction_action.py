@@ -151,7 +151,7 @@ class PredictPathServer:
                     await waiter
                 timer.cancel()
                 sent = self._feedback(goal_handle, request, sent)
-            return self._finish(goal_handle, request, sent)
+            return self._finish(goal_handle, request)
         finally:
             self._requests.pop(id(goal_handle), None)
             self._requests.pop(('waiter', id(goal_handle)), None)
@@ -169,16 +169,11 @@ class PredictPathServer:
         feedback = self.type.Feedback(
             progress=float(done / progress.rows), first_pose=sent, poses_total=progress.rows
         )
-        times = self._times(request, sent, done)
-        _fill_columns(feedback, times, rows)
+        _fill_columns(feedback, request.times[sent:done], rows)
         goal_handle.publish_feedback(feedback)
         return done
 
-    @staticmethod
-    def _times(request, start, stop):
-        return request.times[start:stop]
-
-    def _finish(self, goal_handle, request, sent: int):
+    def _finish(self, goal_handle, request):
         result = self.type.Result(header=header(self.frame_id, request.stamp), settings=request.settings)
         if goal_handle.is_cancel_requested or request.reason == CANCELLED:
             self.predictions.cancel(request)
