@@ -1,11 +1,10 @@
-"""The TF maths without rclpy (ros/loop/transforms.py, ros/tf_in.py, ros/registration.py), against
-transforms composed by hand with scipy's Rotation, scipy's Slerp, and round trips."""
+"""The TF buffer's maths without rclpy (ros/loop/transforms.py: tf2's rules), against transforms
+composed by hand with scipy's Rotation, scipy's Slerp, and round trips."""
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from tissue_sim_ros.errors import PoseError
 from tissue_sim_ros.ros.loop.transforms import (
     TransformBuffer,
     TransformUnavailable,
@@ -13,8 +12,6 @@ from tissue_sim_ros.ros.loop.transforms import (
     invert,
     transform_point,
 )
-from tissue_sim_ros.ros.registration import Registration, needle_start_rule
-from tissue_sim_ros.ros.tf_in import TfInput
 
 NS = 1_000_000_000
 RNG = np.random.default_rng(11)
@@ -91,54 +88,3 @@ def test_latest_common_time_and_out_of_order_stamps():
     (t, _), stamp = buffer.lookup('base', 'tool0', 0)  # the chain's latest common time: 2 s
     assert stamp == 2 * NS
     np.testing.assert_allclose(t, [2.0, 1.0, 0.0])
-
-
-def test_tf_input_follows_the_tool_frame_and_brings_other_frames_into_the_tissue():
-    """The needle base 150 mm along tool0, the tissue registered 0.4 m away and rotated: the pose
-    from TF equals the one composed by hand; a pose in base_link comes into the tissue frame."""
-    registration = (
-        np.array([0.4, 0.1, -0.05]),
-        Rotation.from_euler('zyx', [30, 10, -5], degrees=True).as_quat(),
-    )
-    offset = (np.array([0.0, 0.0, 0.15]), np.array([0.0, 0.0, 0.0, 1.0]))
-    tf = TfInput('tissue', tf_frame='tool0', offset=offset, own_frames={'needle'})
-    assert isinstance(
-        tf.receive([('base_link', 'tool0', NS, (0.1, 0, 0.5), (1, 0, 0, 0))]), TransformUnavailable
-    )
-    assert tf.receive([('base_link', 'tissue', 0, *registration)], static=True) is not None
-    tool = (np.array([0.42, 0.05, 0.3]), Rotation.from_euler('x', 170, degrees=True).as_quat())
-    position, orientation, frame, stamp = tf.receive(
-        [('base_link', 'tool0', 2 * NS, *tool), ('tissue', 'needle', 2 * NS, (9, 9, 9), (0, 0, 0, 1))]
-    )
-    expected = np.linalg.inv(matrix(registration)) @ matrix(tool) @ matrix(offset)
-    assert frame == 'tissue' and stamp == 2 * NS
-    np.testing.assert_allclose(position, expected[:3, 3], atol=1e-12)
-    np.testing.assert_allclose(Rotation.from_quat(orientation).as_matrix(), expected[:3, :3], atol=1e-12)
-    assert 'needle' not in tf.buffer.frames()  # the node's own frame is skipped
-    assert tf.receive([('base_link', 'tool0', 2 * NS, *tool)]) is None  # not newer: nothing
-    p, q, frame, _ = tf.to_tissue(tool[0], tool[1], 'base_link', 2 * NS)
-    back = np.linalg.inv(matrix(registration)) @ matrix(tool)
-    np.testing.assert_allclose(p, back[:3, 3], atol=1e-12)
-    # a stamp a little after the newest transform (within input.tf_timeout_s) uses it; later: refused
-    tf.to_tissue(tool[0], tool[1], 'tool0', 2 * NS + 50_000_000)
-    with pytest.raises(TransformUnavailable, match='tf_timeout_s'):
-        tf.to_tissue(tool[0], tool[1], 'tool0', 3 * NS)
-
-
-def test_registration_takes_a_pose_and_refuses_bad_ones_by_field():
-    registration = Registration('world', '', np.zeros(3), np.array([0, 0, 0, 1.0]))
-    assert registration.transform is None
-    with pytest.raises(PoseError, match='pose.header.frame_id'):
-        registration.set_tissue_pose('', (0, 0, 0), (0, 0, 0, 1))
-    with pytest.raises(PoseError, match='pose.pose.orientation'):
-        registration.set_tissue_pose('base_link', (0, 0, 0), (0, 0, 0, 2))
-    with pytest.raises(PoseError, match='pose.pose.position'):
-        registration.set_tissue_pose('base_link', (np.nan, 0, 0), (0, 0, 0, 1))
-    text = registration.set_tissue_pose('base_link', (0.4, 0, 0), (0, 0, 0.7071068, 0.7071068))
-    parent, position, orientation = registration.transform
-    assert parent == 'base_link' and position.tolist() == [0.4, 0, 0] and 'base_link' in text
-    assert abs(np.linalg.norm(orientation) - 1.0) < 1e-15
-    with pytest.raises(PoseError, match='no needle pose received yet'):
-        needle_start_rule(None, 'world')
-    p, q = needle_start_rule((1, np.array([0.0, 0, 0.2]), np.array([1.0, 0, 0, 0])), 'world')
-    assert p.tolist() == [0, 0, 0.2] and q.tolist() == [1, 0, 0, 0]
