@@ -50,39 +50,37 @@ def _launch_file():
     return ast.parse((ROOT / 'launch' / 'tissue_sim.launch.py').read_text())
 
 
+def _assigned(tree, name):
+    return next(n.value for n in tree.body if isinstance(n, ast.Assign) and n.targets[0].id == name)
+
+
 def test_the_launch_file_declares_its_arguments_and_passes_them_to_one_node():
     tree = _launch_file()
-    arguments = next(
-        node.value for node in tree.body if isinstance(node, ast.Assign) and node.targets[0].id == 'ARGUMENTS'
-    )
-    names = [ast.literal_eval(k) for k in arguments.keys]
-    assert names == [
-        'scene',
-        'params_file',
-        'namespace',
-        'use_sim_time',
-        'recording_directory',
-        'input_source',
-        'tf_frame',
-    ]
+    names = [ast.literal_eval(k) for k in _assigned(tree, 'ARGUMENTS').keys]
+    assert names == ['scene', 'params_file', 'namespace', 'use_sim_time', 'recording_directory',
+                     'input_source', 'tf_frame']
+    defaults = {ast.literal_eval(k): v.elts[0] for k, v in zip(_assigned(tree, 'ARGUMENTS').keys,
+                                                               _assigned(tree, 'ARGUMENTS').values)}
     calls = [n for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, 'id', '') == 'Node']
     assert len(calls) == 1
     keywords = {k.arg: k.value for k in calls[0].keywords}
     assert ast.literal_eval(keywords['package']) == 'tissue_sim_ros'
     assert ast.literal_eval(keywords['executable']) == 'tissue_sim_node'
     assert ast.literal_eval(keywords['name']) == 'tissue_sim'
-    parameters = keywords['parameters'].elts
-    overrides = {ast.literal_eval(k): v for k, v in zip(parameters[1].keys, parameters[1].values)}
+    assert ast.unparse(keywords['namespace']) == "LaunchConfiguration('namespace')"
+    # the parameter file first, then the arguments given: each sets a parameter the node has, and
+    # an empty one (every default) sets nothing, so a study's parameter file keeps its values
+    assert ast.unparse(keywords['parameters']) == "[LaunchConfiguration('params_file'), overrides]"
+    parameter_of = ast.literal_eval(_assigned(tree, 'PARAMETER_OF'))
     from tissue_sim_ros.ros.parameters import PARAMETERS
 
     declared = {p.name for p in PARAMETERS} | {'use_sim_time'}
-    assert set(overrides) <= declared  # parameters the node has
-    used = {
-        n.args[0].value
-        for n in ast.walk(tree)
-        if isinstance(n, ast.Call) and getattr(n.func, 'id', '') == 'LaunchConfiguration'
-    }
-    assert used == set(names)  # each argument reaches the node (installed: test_colcon)
+    assert set(parameter_of.values()) <= declared
+    assert set(parameter_of) | {'params_file', 'namespace'} == set(names)
+    assert all(ast.literal_eval(defaults[name]) == '' for name in parameter_of)
+    # the node's defaults for them (the packaged parameter file: what an empty argument leaves)
+    params = yaml.safe_load((ROOT / 'config' / 'tissue_sim.yaml').read_text())['tissue_sim']['ros__parameters']
+    assert params['input']['source'] == 'topic' and params['recording']['directory'] == ''
 
 
 @pytest.fixture(scope='module')
