@@ -117,6 +117,10 @@ def test_the_rviz_configuration_names_only_topics_and_frames_of_the_node(node_na
     assert named_frames <= frames
     kinds = {d['Class'].split('/')[-1] for d in displays}
     assert {'TF', 'Marker', 'PointCloud2', 'Wrench', 'PoseArray'} <= kinds  # mesh, cloud, wrench, targets, TF
+    from tissue_sim_ros.ros.messages.conversions import POINT_CLOUD_FIELDS
+
+    channels = {d['Channel Name'] for d in displays if 'Channel Name' in d}
+    assert channels and channels <= set(POINT_CLOUD_FIELDS)  # the cloud's colour is a field it has
 
 
 def test_the_foxglove_layout_names_only_topics_and_frames_of_the_node(node_names):
