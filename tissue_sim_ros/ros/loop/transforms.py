@@ -20,6 +20,7 @@ Thread-safe: the executor's thread adds transforms while the engine's thread loo
 from __future__ import annotations
 
 import bisect
+import math
 import threading
 
 import numpy as np
@@ -47,18 +48,30 @@ class TransformUnavailable(InputError):
     stamp outside what it holds for an edge."""
 
 
-def quaternion_product(a, b) -> np.ndarray:
-    """The Hamilton product ``a b`` of quaternions x y z w: the rotation b, then a."""
+def _product(a, b) -> tuple[float, float, float, float]:
     ax, ay, az, aw = a
     bx, by, bz, bw = b
-    return np.array(
-        [
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz,
-        ]
+    return (
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+        aw * bw - ax * bx - ay * by - az * bz,
     )
+
+
+def _rotate(q, v) -> tuple[float, float, float]:
+    """``v`` rotated by the unit quaternion ``q``: v + w t + q_xyz x t with t = 2 q_xyz x v (the
+    same rotation as :func:`~tissue_sim_ros.engine.needle.pose.rotation_matrix`, in floats: a TF
+    message is a few of these, at the robot's rate, on the executor's thread)."""
+    x, y, z, w = q
+    vx, vy, vz = v
+    tx, ty, tz = 2.0 * (y * vz - z * vy), 2.0 * (z * vx - x * vz), 2.0 * (x * vy - y * vx)
+    return vx + w * tx + (y * tz - z * ty), vy + w * ty + (z * tx - x * tz), vz + w * tz + (x * ty - y * tx)
+
+
+def quaternion_product(a, b) -> np.ndarray:
+    """The Hamilton product ``a b`` of quaternions x y z w: the rotation b, then a."""
+    return np.array(_product(a, b))
 
 
 def transform_point(transform, point) -> np.ndarray:
@@ -67,19 +80,29 @@ def transform_point(transform, point) -> np.ndarray:
     return rotation_matrix(rotation) @ np.asarray(point, dtype=np.float64) + translation
 
 
+def _floats(values) -> list[float]:
+    return values.tolist() if isinstance(values, np.ndarray) else [float(v) for v in values]
+
+
 def compose(a_from_b, b_from_c):
     """``a_from_c``: the transform of frame c into frame a through b."""
-    t_ab, q_ab = a_from_b
-    t_bc, q_bc = b_from_c
-    q = quaternion_product(q_ab, q_bc)
-    return rotation_matrix(q_ab) @ np.asarray(t_bc, dtype=np.float64) + t_ab, q / np.linalg.norm(q)
+    t_ab, q_ab = (_floats(v) for v in a_from_b)
+    t_bc, q_bc = (_floats(v) for v in b_from_c)
+    q = _product(q_ab, q_bc)
+    norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    r = _rotate(q_ab, t_bc)
+    return (
+        np.array([r[0] + t_ab[0], r[1] + t_ab[1], r[2] + t_ab[2]]),
+        np.array([q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm]),
+    )
 
 
 def invert(a_from_b):
     """``b_from_a``."""
-    t, q = a_from_b
-    conjugate = np.array([-q[0], -q[1], -q[2], q[3]])
-    return -(rotation_matrix(conjugate) @ np.asarray(t, dtype=np.float64)), conjugate
+    t, q = (_floats(v) for v in a_from_b)
+    conjugate = (-q[0], -q[1], -q[2], q[3])
+    r = _rotate(conjugate, t)
+    return np.array([-r[0], -r[1], -r[2]]), np.array(conjugate)
 
 
 class _Edge:
