@@ -68,7 +68,11 @@ def test_recording_holds_every_message_in_and_out(harness, tmp_path):
              '/needle/pose': 'geometry_msgs/msg/PoseStamped',
              '/tissue_sim/reset/_service_event': 'std_srvs/srv/Trigger_Event',
              '/tissue_sim/pause/_service_event': 'std_srvs/srv/SetBool_Event',
-             '/tissue_sim/engine_trace': 'std_msgs/msg/Float64MultiArray'}
+             '/tissue_sim/engine_trace': 'std_msgs/msg/Float64MultiArray',
+             '/tissue_sim/set_tissue_pose/_service_event': 'tissue_sim_msgs/srv/SetTissuePose_Event',
+             '/tissue_sim/register_needle/_service_event': 'std_srvs/srv/Trigger_Event',
+             '/tf': 'tf2_msgs/msg/TFMessage', '/tf_static': 'tf2_msgs/msg/TFMessage',
+             '/tissue_sim/ready': 'std_msgs/msg/Bool'}      # TF and readiness: test/ros/test_tf_out.py
     with AnyReader([path]) as reader:
         assert {c.topic: c.msgtype for c in reader.connections} == types
         raw_events = [raw for _, _, raw in reader.messages(
@@ -92,7 +96,8 @@ def test_recording_holds_every_message_in_and_out(harness, tmp_path):
                     for _ in reader.messages(connections=[c]))
         assert traces == ticks     # one engine trace per tick (replay)
         for c in reader.connections:
-            if c.topic.endswith('/_service_event') or c.topic.endswith('/engine_trace'):
+            if c.topic.endswith('/_service_event') or c.topic.endswith('/engine_trace') or \
+                    c.topic in ('/tf', '/tf_static', '/tissue_sim/ready'):
                 continue
             msgs = [reader.deserialize(raw, c.msgtype) for _, _, raw in
                     reader.messages(connections=[c])]

@@ -177,22 +177,26 @@ def _replay_trace(run, scene, stamps, traces, every_cloud):
 
 def _motion(traces, poses):
     """(clock ns, positions, orientations) the needle went to: the trace's advances, or the
-    recorded poses when there is no trace; and the tick stamps at which the node was reset."""
+    recorded poses when there is no trace; the tick stamps at which the node was reset; and the
+    needle's placements (registrations) by tick stamp: {stamp: (position, orientation)}."""
+    from tissue_sim_ros.ros.loop.trace import ADVANCE, PLACE, RESET
     if traces:
         rows = [(c, r) for t in traces for c, r in zip(t.clock_ns(), t.rows)
-                if r[0] == 0 and not math.isnan(r[3])]
-        resets = [t.stamp_ns for t in traces if np.any(t.rows[:, 0] == 1)]
+                if r[0] == ADVANCE and not math.isnan(r[3])]
+        resets = [t.stamp_ns for t in traces if np.any(t.rows[:, 0] == RESET)]
+        places = {t.stamp_ns: (r[3:6].copy(),
+                               r[6:10].copy()) for t in traces for r in t.rows if r[0] == PLACE}
         return (np.array([c for c, _ in rows], dtype=np.int64), np.array([r[3:6] for _, r in rows]),
-                np.array([r[6:10] for _, r in rows]), resets)
+                np.array([r[6:10] for _, r in rows]), resets, places)
     good = [p for p in poses if np.all(np.isfinite(p[1])) and np.all(np.isfinite(p[2]))]
     return (np.array([p[0] for p in good], dtype=np.int64), np.array([p[1] for p in good]),
-            np.array([p[2] for p in good]), [])
+            np.array([p[2] for p in good]), [], {})
 
 
 def _replay_motion(run, scene, stamps, traces, poses, every_cloud):
     from tissue_sim_ros.engine.driver import SimulationDriver
     from tissue_sim_ros.engine.needle.pose import slerp
-    clock, positions, orientations, resets = _motion(traces, poses)
+    clock, positions, orientations, resets, places = _motion(traces, poses)
     if len(clock) == 0:
         raise ReplayError(f'{run.path}: no needle motion in the log (no engine trace, no pose on '
                           f'{run.pose_topic or "needle/pose"})')
@@ -205,6 +209,8 @@ def _replay_motion(run, scene, stamps, traces, poses, every_cloud):
     for k, stamp in enumerate(stamps):
         if int(stamp) in resets:
             driver.reset()
+        if int(stamp) in places:
+            driver.place_needle(*places[int(stamp)])
         t = float(stamp - base)
         i = int(np.clip(np.searchsorted(clock - base, t, side='right') - 1, 0, len(clock) - 1))
         j = min(i + 1, len(clock) - 1)

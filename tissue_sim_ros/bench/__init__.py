@@ -11,7 +11,8 @@ docs/performance.md gives how to run each and its latest figures.
 - :mod:`.node_bench`, :mod:`.node_bench_figures`, :mod:`.node_bench_paired`: the node's timing
   from outside, its figures, and paired runs against another revision (``tissue-sim node-bench``);
 - :mod:`.background_load`, :mod:`.prediction_burst`: busy processes and a listener beside the
-  node; a burst of planner requests during a run.
+  node; a burst of planner requests during a run;
+- :mod:`.robot_graph`: TF input against the pose topic, the action against the topic pair.
 """
 __all__ = ['background_load', 'calibration', 'cold_start', 'inertia', 'node_bench', 'node_bench_figures',
-           'node_bench_paired', 'prediction_burst', 'ripple', 'speed', 'study']
+           'node_bench_paired', 'prediction_burst', 'ripple', 'robot_graph', 'speed', 'study']

@@ -42,6 +42,11 @@ def _calibration(args):
     calibration.main(out=args.out, jobs=args.jobs)
 
 
+def _robot_graph(args):
+    from tissue_sim_ros.bench import robot_graph
+    robot_graph.main(rounds=args.rounds, seconds=args.seconds, rate_hz=args.rate_hz, goals=args.goals)
+
+
 def _speed_options(parser):
     parser.add_argument('--sizes', nargs='+', choices=['1e3', '1e4', '1e5', '5e5'], default=None,
                         help='mesh sizes to run (default: all)')
@@ -56,7 +61,7 @@ def _speed_options(parser):
 def add_bench_commands(commands):
     """Add ``bench`` and its benchmarks to the subparsers ``commands``."""
     bench = commands.add_parser('bench', help='benchmarks: speed per mesh size (default), cold-start, inertia, '
-                                'ripple, study, calibration')
+                                'ripple, study, calibration, robot-graph')
     _speed_options(bench)
     bench.set_defaults(run=_speed)
     which = bench.add_subparsers(dest='benchmark', required=False, metavar='BENCHMARK')
@@ -93,3 +98,12 @@ def add_bench_commands(commands):
     calibration.add_argument('--out', type=output_dir, default='out/bench_calibration', help='output directory')
     calibration.add_argument('--jobs', type=number(1, inclusive=True, whole=True), default=None)
     calibration.set_defaults(run=_calibration)
+    graph = which.add_parser('robot-graph',
+                             help='TF input against the pose topic; the action against the topic '
+                             'pair (paired)')
+    graph.add_argument('--rounds', type=number(1, inclusive=True, whole=True), default=3, help='paired runs')
+    graph.add_argument('--seconds', type=POSITIVE, default=1.2, help='length of each insertion [s]')
+    graph.add_argument('--rate-hz', type=POSITIVE, default=1000.0, help="the robot's rate (default 1000)")
+    graph.add_argument('--goals', type=number(1, inclusive=True, whole=True), default=6,
+                       help='predictions asked each way')
+    graph.set_defaults(run=_robot_graph)

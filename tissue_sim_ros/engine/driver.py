@@ -225,6 +225,14 @@ class SimulationDriver:
         self.inertia.reset()
         self._update_inertia(0.0)
 
+    def place_needle(self, position, orientation) -> None:
+        """The first needle starts at this pose from now on (``Scene.place_needle``; PoseError when
+        it touches the tissue or the pose lies inside it); its wrench is then the state's."""
+        self.scene.place_needle(position, orientation)
+        self._take_finite_wrenches()
+        self.inertia.reset()
+        self._update_inertia(0.0)
+
     def _update_inertia(self, elapsed: float) -> None:
         needle = self.scene.needle
         axis = needle.axis

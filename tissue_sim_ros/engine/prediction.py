@@ -177,11 +177,15 @@ def read_snapshot(path):
     return pickle.loads(parts[0], buffers=[bytearray(p) for p in parts[1:]])
 
 
-def predict(scene, path: CandidatePath, *, wrench_frame: str = 'world', copy: bool = True) -> Prediction:
+def predict(scene, path: CandidatePath, *, wrench_frame: str = 'world', copy: bool = True,
+            on_row=None) -> Prediction:
     """Follow ``path`` from the scene's current state and return the :class:`Prediction`.
 
     ``copy`` (default): the scene is copied first and left as it was; False runs on ``scene``
-    itself (a worker's own copy). Time asked of the scene but not yet stepped is kept up to one
+    itself (a worker's own copy). ``on_row(k, row)``: called with each row as soon as it is
+    computed (a caller streaming partial results); an exception it raises stops the prediction
+    and reaches the caller (how a caller cancels). Time asked of the scene but not yet stepped is kept up
+    to one
     step (the fraction the live scene carries into its next call, so the prediction steps on the
     live schedule) and dropped beyond it (the lag of an engine that ran late: the path starts
     from the state as it is). Raises SimulationDiverged
@@ -207,6 +211,8 @@ def predict(scene, path: CandidatePath, *, wrench_frame: str = 'world', copy: bo
             values[k, w:t] = np.linalg.norm(scene.target_positions() - rest, axis=1)
         values[k, t:] = np.hstack([drv.forces[1:], drv.torques[1:]]).ravel()
         phases.append(str(scene.phase))
+        if on_row is not None:
+            on_row(k, values[k])
 
     sample(0, driver)
     substeps = 0
@@ -219,12 +225,13 @@ def predict(scene, path: CandidatePath, *, wrench_frame: str = 'world', copy: bo
 
 def predict_snapshot(snapshot, path: CandidatePath, wrench_frame: str = 'world', *,
                      threads: int = 1, threshold: float | None = None,
-                     mass_scaling: float | None = None) -> Prediction:
+                     mass_scaling: float | None = None, on_row=None) -> Prediction:
     """:func:`predict` on a scene from a snapshot: :func:`scene_snapshot`'s bytes, or the file
     :func:`write_snapshot` wrote (a path): a worker process's entry. The element pass runs on
     ``threads`` numba threads;
     ``threshold`` and ``mass_scaling`` (None: as the snapshot has them) are a degradation-ladder
-    rung's settings (engine.ladder), for a prediction cheaper than the live scene."""
+    rung's settings (engine.ladder), for a prediction cheaper than the live scene; ``on_row``: as
+    :func:`predict`'s."""
     import numba
     scene = scene_from_snapshot(snapshot) if isinstance(snapshot, bytes) else read_snapshot(snapshot)
     numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
@@ -233,4 +240,4 @@ def predict_snapshot(snapshot, path: CandidatePath, wrench_frame: str = 'world',
         scene.model.set_nonlinearity_threshold(threshold)
     if mass_scaling is not None and mass_scaling != scene.simulation.mass_scaling:
         scene.simulation.rescale_masses(mass_scaling)
-    return predict(scene, path, wrench_frame=wrench_frame, copy=False)
+    return predict(scene, path, wrench_frame=wrench_frame, copy=False, on_row=on_row)

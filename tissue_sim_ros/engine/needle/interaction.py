@@ -141,6 +141,20 @@ class NeedleTissue(InsideTissue, MembraneContact):
         self.reset()
         self._check_outside(*self._initial_pose, f'{name}.initial_pose')
 
+    def set_start(self, position, orientation, field_name='start'):
+        """Make (position, orientation) the pose the needle starts from and resets to, and put it
+        there (a registration: the needle starts where the robot holds it). PoseError unless the
+        needle is out of the tissue now (phase ``approach``, touching nothing) and the new pose lies
+        outside the (deformed) tissue: a needle cannot be put into or taken out of tissue."""
+        position, orientation = validate_pose(position, orientation, field_name)
+        if self.phase != 'approach' or self.n_points or self.patch is not None:
+            raise PoseError(field_name, {'position': position.tolist(), 'orientation': orientation.tolist()},
+                            f'the needle is in contact with the tissue (phase {self.phase}); a needle is '
+                            'placed only while it is out of the tissue: ~/reset first')
+        self._check_outside(position, orientation, field_name)
+        self._initial_pose = (position, orientation)
+        self.reset()
+
     # -- set-up --------------------------------------------------------------------------------
     def _surface_owner(self):
         """Surface triangles and the element each belongs to (for the membrane of the region hit)."""

@@ -251,6 +251,12 @@ class Scene:
             needle.reset()
         self._target_time = 0.0
 
+    def place_needle(self, position, orientation, needle=0):
+        """Start needle ``needle`` (its index) at this pose from now on, resets included
+        (``NeedleTissue.set_start``: refused while it touches the tissue or inside it)."""
+        name = f'{self.needle_names[needle]}.start' if len(self.needles) > 1 else 'needle.start'
+        self.needles[needle].set_start(position, orientation, name)
+
     # -- state ----------------------------------------------------------------------------------
     def reaction_wrench(self, frame='world', needle=0):
         """(force, torque) the tissue exerts on needle ``needle`` (its index) [N, N m]."""

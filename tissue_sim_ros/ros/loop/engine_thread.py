@@ -37,7 +37,7 @@ import numpy as np
 
 from tissue_sim_ros.system.thread_names import name_os_thread
 from tissue_sim_ros.ros.loop.pacing import EnginePacing, LadderControl
-from tissue_sim_ros.ros.loop.trace import DROP, LEVEL, RESET, advance_row, event_row
+from tissue_sim_ros.ros.loop.trace import DROP, LEVEL, RESET, advance_row, event_row, place_row
 from tissue_sim_ros.ros.loop.pose_receiver import PoseReceiver
 from tissue_sim_ros.units import NS_PER_S
 
@@ -65,6 +65,8 @@ class Snapshot:
         self.held = False
         self.tip = np.zeros(3)               # the needle tip [m] and axis, for the targets' figures
         self.axis = np.zeros(3)
+        self.positions = np.zeros((n_needles, 3))      # each needle's base pose (TF out)
+        self.orientations = np.zeros((n_needles, 4))
 
 
 class _TripleBuffer:
@@ -157,6 +159,8 @@ class EngineLoop:
         self.busy_cpu_s = 0.0                     # the engine thread's CPU time in advances
         self.ladder_changes = 0
         self.failure: BaseException | None = None
+        #: place the needle at the first pose received (registration.needle_at_first_pose), once
+        self.place_at_first_pose = False
         self._publish_state()
         self._thread = threading.Thread(target=self._run, name='tissue_sim-engine', daemon=True)
 
@@ -244,6 +248,25 @@ class EngineLoop:
             raise box['error']
         return box['result']
 
+    def place(self, pose=None) -> tuple:
+        """Start the first needle at ``pose`` (position, orientation in the tissue frame; None: the
+        input's newest checked pose, PoseInput.seen) from now on, on the engine thread, traced; the
+        pose used. PoseError when there is none, or the engine refuses it (in or touching the tissue)."""
+        def job():
+            from tissue_sim_ros.ros.registration import needle_start_rule
+            position, orientation = pose if pose is not None else needle_start_rule(self.input.seen,
+                                                                                    'the tissue frame')
+            self._place(position, orientation)
+            return position, orientation
+        return self.call(job)
+
+    def _place(self, position, orientation) -> None:
+        self.driver.place_needle(position, orientation)
+        self.input.reset(self.driver.scene.needle_pose)
+        self.advances += 1
+        self._record(place_row(self.advances, position, orientation))
+        self._publish_state()
+
     def reset(self) -> None:
         """Tissue at rest, needle at its initial pose (on the engine thread, traced)."""
         def job():
@@ -313,6 +336,8 @@ class EngineLoop:
             self._receipts.append((receipt, self.advances + 1))
         for receiver, other in zip(self.other_receivers, self.other_inputs):
             receiver.decode_into(other, self._decode, self._log_once)
+        if self.place_at_first_pose and self.input.oldest() is not None:
+            self._place_at_first_pose()
         if self.paused or self.driver.held or self._tick_seq == 0:
             # before the first tick the node is still starting (its set-up holds the GIL for
             # tenths of a second): time not simulated then is not owed, and no lag is warned of
@@ -329,6 +354,19 @@ class EngineLoop:
             with self._cond:
                 self._served_seq = seq
                 self._cond.notify_all()
+
+    def _place_at_first_pose(self) -> None:
+        """The needle starts at the first pose received (its input took it from anywhere)."""
+        from tissue_sim_ros.errors import PoseError
+        self.place_at_first_pose = False
+        _, position, orientation = self.input.oldest()
+        try:
+            self._place(position, orientation)
+            self._log('info', f'the needle starts at the first pose received: {position.round(6).tolist()} m '
+                              '(registration.needle_at_first_pose)')
+        except PoseError as exc:
+            self.input.reset(self.driver.scene.needle_pose)
+            self._log('error', f'registration.needle_at_first_pose: the first pose was refused: {exc}')
 
     def _advance(self, advance_s: float) -> None:
         driver, pacing = self.driver, self.pacing
@@ -418,6 +456,9 @@ class EngineLoop:
         snap.held = bool(driver.held)
         snap.tip[:] = scene.needle.tip
         snap.axis[:] = scene.needle.axis
+        for k, needle in enumerate(scene.needles):
+            snap.positions[k] = needle.position
+            snap.orientations[k] = needle.orientation
         self._snapshots.publish()
 
     @property

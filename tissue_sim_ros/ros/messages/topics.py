@@ -27,7 +27,18 @@ Topics (relative names; remap with ``--ros-args -r``), all reliable:
                                                       order, its stamp the request's
                                                       (:mod:`~tissue_sim_ros.ros.predictions`)
 ``/diagnostics``     diagnostic_msgs/DiagnosticArray  out, ``diagnostics_rate_hz``
+``/tf``              tf2_msgs/msg/TFMessage           out, every tick: the needle base frame(s) and
+                                                      the targets' frames in ``frame_id``; in: the
+                                                      robot's frames (:mod:`~tissue_sim_ros.ros.tf_in`)
+``/tf_static``       tf2_msgs/msg/TFMessage           out, transient local: ``frame_id`` in
+                                                      ``registration.parent_frame_id``, the needle
+                                                      tip frame(s); in: the robot's static frames
+``~/ready``          std_msgs/msg/Bool                out, transient local: false while starting,
+                                                      true once the node ticks
 ==================== ================================ ===================================
+
+The action ``~/predict_path`` (tissue_sim_msgs/action/PredictPath) answers a path as
+``plan/candidate`` does, with feedback and a typed result (:mod:`~tissue_sim_ros.ros.prediction_action`).
 
 A scene with several needles (scene key ``needles``) has ``needle/<name>/pose`` and
 ``needle/<name>/wrench`` per needle instead of ``needle/pose`` and ``needle/wrench``
@@ -38,7 +49,8 @@ The surface is transient local so that a late subscriber gets the mesh it needs 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 __all__ = ['qos', 'WRENCH_QOS', 'NODES_QOS', 'SURFACE_QOS', 'MARKER_QOS', 'DIAGNOSTICS_QOS',
-           'SERVICE_EVENT_QOS', 'PLAN_QOS', 'pose_qos', 'NODE_TOPIC_TYPES']
+           'SERVICE_EVENT_QOS', 'PLAN_QOS', 'TF_QOS', 'TF_STATIC_QOS', 'READY_QOS', 'pose_qos',
+           'NODE_TOPIC_TYPES']
 
 
 def qos(depth: int, transient_local: bool = False,
@@ -56,6 +68,11 @@ DIAGNOSTICS_QOS = qos(10)
 SERVICE_EVENT_QOS = qos(10)
 #: plan/candidate and plan/prediction: a burst of requests and their answers all kept
 PLAN_QOS = qos(100)
+#: /tf and /tf_static as tf2_ros's broadcasters and listeners use them
+TF_QOS = qos(100)
+TF_STATIC_QOS = qos(1, transient_local=True)
+#: ~/ready: latched, so a supervisor that comes late reads the state
+READY_QOS = qos(1, transient_local=True)
 
 
 def pose_qos(reliability: str) -> QoSProfile:
@@ -76,4 +93,7 @@ NODE_TOPIC_TYPES = {
     'needle/pose': 'geometry_msgs/msg/PoseStamped',
     'plan/candidate': 'nav_msgs/msg/Path',
     'plan/prediction': 'trajectory_msgs/msg/JointTrajectory',
+    '/tf': 'tf2_msgs/msg/TFMessage',
+    '/tf_static': 'tf2_msgs/msg/TFMessage',
+    '~/ready': 'std_msgs/msg/Bool',
 }
