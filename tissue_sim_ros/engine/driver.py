@@ -73,7 +73,8 @@ class SimulationDriver:
             raise ValueError(f"wrench_frame = {wrench_frame!r}: expected 'world' or 'needle'")
         if on_divergence not in ON_DIVERGENCE:
             raise ValueError(f'on_divergence = {on_divergence!r}: expected one of {ON_DIVERGENCE}')
-        warm_up()                  # the needle's kernels compiled before the first advance
+        # the needles' kernels compiled before the first advance
+        warm_up(flexible=any(n.rod is not None for n in scene.needles))
         self.scene = scene
         self.wrench_frame = wrench_frame
         self.on_divergence = on_divergence

@@ -47,6 +47,9 @@ from tissue_sim_ros.engine.needle.kernels import (applied_work, cell_boxes, firs
                                                   shaft_solve, wrench_about)
 from tissue_sim_ros.engine.needle.inside import InsideTissue
 from tissue_sim_ros.engine.needle.membrane import MembraneContact
+from tissue_sim_ros.engine.needle.rod import straight_nodes
+from tissue_sim_ros.engine.needle.rod_coupling import RodState, add_tip_loads
+from tissue_sim_ros.engine.needle.rod_step import rod_shaft_step
 from tissue_sim_ros.engine.needle.parameters import (Friction, Membrane, NeedleGeometry, RegionInteraction,
                                                      TipShape)
 from tissue_sim_ros.engine.needle.tip import SharpTipContact, tip_length, tip_samples
@@ -92,6 +95,10 @@ class NeedleTissue(InsideTissue, MembraneContact):
         self.point_depths = np.zeros(capacity)
         self.point_offsets = np.zeros((capacity, 3))   # lateral, needle frame (shaft_solve)
         self.point_shares = np.zeros(capacity)
+        #: the elastic shaft (engine.needle.rod_coupling), or None: rigid and straight
+        self.rod = None if geometry.shaft is None else RodState(geometry.diameter_m, geometry.length_m,
+                                                                geometry.shaft, capacity, self.mesh.n_nodes)
+        self._rod_rows = 0                     # the shaft points' rows of the applied lists this step
         self.applied_forces = np.zeros((self.mesh.n_nodes, 3))
         n_disc = len(self.disc_offsets)
         self.tip_nodes = np.zeros((n_disc, 4), dtype=np.int64)     # cutting: material points at the tip
@@ -160,6 +167,8 @@ class NeedleTissue(InsideTissue, MembraneContact):
         self.axis = self.rotation[:, 2].copy()
         self._previous_position = self.position.copy()
         self._previous_axis = self.axis.copy()
+        if self.rod is not None:
+            self.rod.straighten(self.position, self.rotation)
         self.phase = 'approach'
         self.patch = None
         if self.tip_contact is not None:
@@ -210,8 +219,31 @@ class NeedleTissue(InsideTissue, MembraneContact):
         return start
 
     def _update_tip(self):
+        if self.rod is not None and self.n_points:
+            return                              # the rod's tip, until its next step
         np.multiply(self.axis, self.geometry.length_m, out=self._tip)
         self._tip += self.position
+        if self.rod is not None:
+            self.rod.straighten(self.position, self.rotation)
+
+    @property
+    def tip_rotation(self):
+        """(3, 3) the tip's frame (world; the base frame's rotation for a rigid needle, the rod's
+        last segment's frame for a flexible one): the tip's kernels work in it."""
+        return self.rotation if self.rod is None else self.rod.tip_rotation
+
+    @property
+    def tip_axis(self):
+        """(3,) the tip's axis (world): the needle axis, or the rod's last segment's."""
+        return self.axis if self.rod is None else self.rod.tip_axis
+
+    def _cutting_frame(self):
+        """(base, axis, rotation, base velocity, axis rate) of the straight needle whose tip is
+        the tip: the cutting law's frame (shaft_solve on the tip's samples)."""
+        if self.rod is None:
+            return self.position, self.axis, self.rotation, self._base_velocity, self._axis_rate
+        rod = self.rod
+        return rod.virtual_base, rod.tip_axis, rod.tip_rotation, rod.tip_velocity, rod.no_rate
 
     @property
     def tip(self):
@@ -291,7 +323,28 @@ class NeedleTissue(InsideTissue, MembraneContact):
         self.n_applied = 0
         needle_kinematics(self.position, self.axis, self._previous_position, self._previous_axis,
                            self.geometry.length_m, dt, self._tip, self._travel, self._base_velocity, self._axis_rate)
+        if self.rod is not None:
+            self._rod_shaft(inverse_mass, dt)
         self.after_kinematics(inverse_mass, dt)
+
+    def _rod_shaft(self, inverse_mass, dt):
+        """A flexible shaft's part of the general step, after the base's kinematics: straight in
+        its guide while no point holds it, else the rod and the shaft's points solved together
+        (rod_step.rod_shaft_step: the guide, the points, friction, the tip's frame), its points of
+        action the first rows of the applied lists. The tip's kernels that follow work in the
+        tip's frame."""
+        rod, sim, n = self.rod, self.simulation, self.n_points
+        self._rod_rows = n
+        if not n:
+            rod.straighten(self.position, self.rotation, self._base_velocity)
+            return
+        self.friction_force = rod_shaft_step(
+            self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.point_nodes,
+            self.point_weights, n, self.position, self.axis, self._previous_position, self.rotation,
+            self.geometry.length_m, dt, self._tip, self._travel, self._friction_laws[self.region], self._free_beyond,
+            self._closing_m, self.point_offsets, self.point_forces, self.point_depths, self.point_shares,
+            self.applied_forces, self._applied_points, self._applied_point_forces, self._add_applied(n),
+            *rod.arguments()[:-1])
 
     def after_kinematics(self, inverse_mass, dt):
         """The general step after the needle's kinematics (``after_step`` but the inside step's
@@ -320,7 +373,7 @@ class NeedleTissue(InsideTissue, MembraneContact):
         """The step after the membrane contact: the shaft and cutting, the work of the needle's
         forces, the phase, the wrench."""
         sim = self.simulation
-        if self.n_points:
+        if self.n_points and self.rod is None:        # (a flexible shaft's points: _rod_shaft)
             n = self.n_points
             self.friction_force = shaft_solve(
                 self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.point_nodes,
@@ -331,6 +384,7 @@ class NeedleTissue(InsideTissue, MembraneContact):
             start = self._add_applied(n)
             put_axis_points(self.position, self.axis, self.point_depths, n, self._applied_points, start)
             put_rows(self.point_forces, n, self._applied_point_forces, start)
+        if self.n_points:
             touching = self._touching()
             if not touching:
                 self._follow_tip_samples()
@@ -340,15 +394,20 @@ class NeedleTissue(InsideTissue, MembraneContact):
                 self._cutting_law[0] = self.regions[self.region].cutting_force_n / self.n_tip
                 self.cutting_force = shaft_solve(
                     self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.tip_nodes,
-                    self.tip_weights, self.n_tip, self.position, self.axis, self.rotation, self._base_velocity,
-                    self._axis_rate, dt, 0.0, self._cutting_law, 0, math.inf, 0.0, self._no_offsets, self.tip_forces,
-                    self.tip_depths, self._unit_shares, self.applied_forces)
+                    self.tip_weights, self.n_tip, *self._cutting_frame(), dt, 0.0, self._cutting_law, 0, math.inf,
+                    0.0, self._no_offsets, self.tip_forces, self.tip_depths, self._unit_shares, self.applied_forces)
                 start = self._add_applied(self.n_tip)
-                put_rigid_points(self._tip, self.rotation, self.tip_offsets, self.n_tip, self._applied_points, start)
+                put_rigid_points(self._tip, self.tip_rotation, self.tip_offsets, self.n_tip, self._applied_points,
+                                 start)
                 put_rows(self.tip_forces, self.n_tip, self._applied_point_forces, start)
             self._release_passed_points()
             if not self._touching() and self.n_points:
                 self._track_apex(inverse_mass)
+        if self.rod is not None and self._rod_rows:     # the tip's loads on the rod, for its next step
+            rod = self.rod
+            add_tip_loads(rod.nodes, rod.loads, self._applied_points, self._applied_point_forces, self._rod_rows,
+                          self.n_applied, rod.scratch)
+            self._rod_rows = 0
         self._forces_applied = self.n_applied > 0
         if self._forces_applied:         # work of the needle's forces, for the energy watchdog
             sim.input_work += applied_work(self.applied_forces, sim.velocity) * dt
@@ -366,7 +425,7 @@ class NeedleTissue(InsideTissue, MembraneContact):
         patch = self._bonds_in_solve = self.patch
         if patch is None:
             return ()
-        put_rigid_points(self._tip, self.rotation, patch.offsets, len(patch.offsets), patch.targets, 0)
+        put_rigid_points(self._tip, self.tip_rotation, patch.offsets, len(patch.offsets), patch.targets, 0)
         if self._patch_rows_of is not patch:          # made once a patch, its targets set each step
             self._patch_rows = BondRows.along_axes(np.broadcast_to(patch.nodes, patch.weights.shape),
                                                    patch.weights, patch.targets)
@@ -401,6 +460,22 @@ class NeedleTissue(InsideTissue, MembraneContact):
         if self.surface_point is None:
             return 0.0
         return max(0.0, float(np.dot(self.tip - self.surface_point, self.axis)))
+
+    def shape(self):
+        """(k, 3) points along the needle's centreline from the base to the tip [m], world frame: a
+        flexible shaft's rod nodes (straight along the base frame while no shaft point holds it),
+        or a rigid needle's base and tip."""
+        if self.rod is None:
+            return np.array([self.position, self._tip])
+        if not self.n_points:
+            return straight_nodes(self.position, self.axis, self.geometry.length_m, self.rod.segments)
+        return self.rod.nodes.copy()
+
+    def tip_deflection(self):
+        """The tip's distance [m] from the base frame's axis (0 for a rigid needle)."""
+        if self.rod is None or not self.n_points:
+            return 0.0
+        return self.rod.deflection(self.position, self.axis)
 
     def reaction_wrench(self, frame='world'):
         """(force, torque) [N, N m] the tissue exerts on the needle, about the base origin, in the
