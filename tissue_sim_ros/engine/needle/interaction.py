@@ -47,9 +47,8 @@ from tissue_sim_ros.engine.needle.kernels import (applied_work, cell_boxes, firs
                                                   shaft_solve, wrench_about)
 from tissue_sim_ros.engine.needle.inside import InsideTissue
 from tissue_sim_ros.engine.needle.membrane import MembraneContact
-from tissue_sim_ros.engine.needle.rod import straight_nodes
 from tissue_sim_ros.engine.needle.rod_coupling import RodState, add_tip_loads
-from tissue_sim_ros.engine.needle.rod_step import rod_shaft_step
+from tissue_sim_ros.engine.needle.shaft import NeedleShaft
 from tissue_sim_ros.engine.needle.parameters import (Friction, Membrane, NeedleGeometry, RegionInteraction,
                                                      TipShape)
 from tissue_sim_ros.engine.needle.tip import SharpTipContact, tip_length, tip_samples
@@ -64,7 +63,7 @@ __all__ = ['PHASES', 'NeedleTissue', 'PoseError', 'Friction', 'Membrane', 'Regio
 PHASES = ('approach', 'contact', 'inserted', 'retracting')
 
 
-class NeedleTissue(InsideTissue, MembraneContact):
+class NeedleTissue(NeedleShaft, InsideTissue, MembraneContact):
     """The needle-tissue interaction state of one scene (see the module docstring).
 
     simulation: the tissue's Simulation. element_region: (m,) region index of each element.
@@ -227,25 +226,6 @@ class NeedleTissue(InsideTissue, MembraneContact):
             self.rod.straighten(self.position, self.rotation)
 
     @property
-    def tip_rotation(self):
-        """(3, 3) the tip's frame (world; the base frame's rotation for a rigid needle, the rod's
-        last segment's frame for a flexible one): the tip's kernels work in it."""
-        return self.rotation if self.rod is None else self.rod.tip_rotation
-
-    @property
-    def tip_axis(self):
-        """(3,) the tip's axis (world): the needle axis, or the rod's last segment's."""
-        return self.axis if self.rod is None else self.rod.tip_axis
-
-    def _cutting_frame(self):
-        """(base, axis, rotation, base velocity, axis rate) of the straight needle whose tip is
-        the tip: the cutting law's frame (shaft_solve on the tip's samples)."""
-        if self.rod is None:
-            return self.position, self.axis, self.rotation, self._base_velocity, self._axis_rate
-        rod = self.rod
-        return rod.virtual_base, rod.tip_axis, rod.tip_rotation, rod.tip_velocity, rod.no_rate
-
-    @property
     def tip(self):
         """Tip position (3,) [m], world frame (read only: the needle updates it in place)."""
         return self._tip
@@ -326,25 +306,6 @@ class NeedleTissue(InsideTissue, MembraneContact):
         if self.rod is not None:
             self._rod_shaft(inverse_mass, dt)
         self.after_kinematics(inverse_mass, dt)
-
-    def _rod_shaft(self, inverse_mass, dt):
-        """A flexible shaft's part of the general step, after the base's kinematics: straight in
-        its guide while no point holds it, else the rod and the shaft's points solved together
-        (rod_step.rod_shaft_step: the guide, the points, friction, the tip's frame), its points of
-        action the first rows of the applied lists. The tip's kernels that follow work in the
-        tip's frame."""
-        rod, sim, n = self.rod, self.simulation, self.n_points
-        self._rod_rows = n
-        if not n:
-            rod.straighten(self.position, self.rotation, self._base_velocity)
-            return
-        self.friction_force = rod_shaft_step(
-            self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.point_nodes,
-            self.point_weights, n, self.position, self.axis, self._previous_position, self.rotation,
-            self.geometry.length_m, dt, self._tip, self._travel, self._friction_laws[self.region], self._free_beyond,
-            self._closing_m, self.point_offsets, self.point_forces, self.point_depths, self.point_shares,
-            self.applied_forces, self._applied_points, self._applied_point_forces, self._add_applied(n),
-            *rod.arguments()[:-1])
 
     def after_kinematics(self, inverse_mass, dt):
         """The general step after the needle's kinematics (``after_step`` but the inside step's
@@ -460,22 +421,6 @@ class NeedleTissue(InsideTissue, MembraneContact):
         if self.surface_point is None:
             return 0.0
         return max(0.0, float(np.dot(self.tip - self.surface_point, self.axis)))
-
-    def shape(self):
-        """(k, 3) points along the needle's centreline from the base to the tip [m], world frame: a
-        flexible shaft's rod nodes (straight along the base frame while no shaft point holds it),
-        or a rigid needle's base and tip."""
-        if self.rod is None:
-            return np.array([self.position, self._tip])
-        if not self.n_points:
-            return straight_nodes(self.position, self.axis, self.geometry.length_m, self.rod.segments)
-        return self.rod.nodes.copy()
-
-    def tip_deflection(self):
-        """The tip's distance [m] from the base frame's axis (0 for a rigid needle)."""
-        if self.rod is None or not self.n_points:
-            return 0.0
-        return self.rod.deflection(self.position, self.axis)
 
     def reaction_wrench(self, frame='world'):
         """(force, torque) [N, N m] the tissue exerts on the needle, about the base origin, in the

@@ -44,7 +44,8 @@ import numpy as np
 from numba import njit
 
 __all__ = ['BANDS', 'RodSection', 'rod_energy', 'assemble', 'add_block', 'band_solve', 'newton_step', 'keep_lengths',
-           'static_solve', 'transport_frames', 'locate_on_rod', 'point_on_rod', 'straight_nodes']
+           'static_solve', 'transport_frames', 'frame_quaternions', 'locate_on_rod', 'point_on_rod',
+           'straight_nodes']
 
 #: bands above the diagonal of the rod's Hessian (3 coordinates of 3 consecutive nodes)
 BANDS = 8
@@ -402,6 +403,35 @@ def transport_frames(nodes, base_rotation, frames):
             frames[j, r, 1] = d2[r]
             frames[j, r, 2] = t[r]
             previous[r] = t[r]
+
+
+@njit(cache=True)
+def frame_quaternions(frames, out):
+    """out[k] = the unit quaternion (x, y, z, w), w >= 0, of the rotation ``frames[k]`` (columns
+    d1, d2, t). Shepperd's method: from the largest of the four squared components, so that no
+    branch divides by less than half a unit."""
+    for k in range(frames.shape[0]):
+        m = frames[k]
+        trace = m[0, 0] + m[1, 1] + m[2, 2]
+        s0, s1, s2, s3 = 1.0 + 2.0 * m[0, 0] - trace, 1.0 + 2.0 * m[1, 1] - trace, 1.0 + 2.0 * m[2, 2] - trace, 1.0 + trace
+        if s3 >= s0 and s3 >= s1 and s3 >= s2:
+            w = 0.5 * math.sqrt(s3)
+            f = 0.25 / w
+            x, y, z = (m[2, 1] - m[1, 2]) * f, (m[0, 2] - m[2, 0]) * f, (m[1, 0] - m[0, 1]) * f
+        elif s0 >= s1 and s0 >= s2:
+            x = 0.5 * math.sqrt(s0)
+            f = 0.25 / x
+            y, z, w = (m[0, 1] + m[1, 0]) * f, (m[0, 2] + m[2, 0]) * f, (m[2, 1] - m[1, 2]) * f
+        elif s1 >= s2:
+            y = 0.5 * math.sqrt(s1)
+            f = 0.25 / y
+            x, z, w = (m[0, 1] + m[1, 0]) * f, (m[1, 2] + m[2, 1]) * f, (m[0, 2] - m[2, 0]) * f
+        else:
+            z = 0.5 * math.sqrt(s2)
+            f = 0.25 / z
+            x, y, w = (m[0, 2] + m[2, 0]) * f, (m[1, 2] + m[2, 1]) * f, (m[1, 0] - m[0, 1]) * f
+        sign = -1.0 if w < 0.0 else 1.0
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = sign * x, sign * y, sign * z, sign * w
 
 
 @njit(cache=True)

@@ -175,10 +175,13 @@ def _held(along, free_beyond, closing_m):
 
 @njit(cache=True, inline='always')
 def _target(nodes, frames, segment, fraction, offsets, s, held, out):
-    """The point's place: the centreline at its arc length plus its held offset (segment frame)."""
+    """The point's place: the centreline at its arc length plus ``held`` of its offset (world),
+    across the segment's tangent."""
+    along = offsets[s, 0] * frames[segment, 0, 2] + offsets[s, 1] * frames[segment, 1, 2] \
+        + offsets[s, 2] * frames[segment, 2, 2]
     for r in range(3):
         out[r] = ((1.0 - fraction) * nodes[segment, r] + fraction * nodes[segment + 1, r]
-                  + held * (frames[segment, r, 0] * offsets[s, 0] + frames[segment, r, 1] * offsets[s, 1]))
+                  + held * (offsets[s, r] - along * frames[segment, r, 2]))
 
 
 @njit(cache=True)
@@ -310,21 +313,27 @@ def _locate_points(rest, displacement, point_nodes, point_weights, n_points, nod
 @njit(cache=True)
 def _follow_offsets(rest, displacement, point_nodes, point_weights, n_points, nodes, frames, point_segments,
                     point_fractions, point_depths, free_beyond, radius, point_offsets, x):
-    """The points on the tip's faces take their offsets from the centreline, up to ``radius``."""
+    """The points on the tip's faces take their offsets from the centreline (world, across the
+    tangent), up to ``radius``. In the world frame, not the needle's: a needle that turns about
+    its axis leaves the tissue its bevel pushed aside where it is (held in the needle's frame, that
+    tissue was swept round with it, and pushed the tip aside by 20 um in the phantom's flip)."""
     for s in range(n_points):
         if point_depths[s] <= free_beyond:
             continue
         j, a = point_segments[s], point_fractions[s]
         _point_position(rest, displacement, point_nodes, point_weights, s, x)
+        along = 0.0
         for r in range(3):
             x[r] -= (1.0 - a) * nodes[j, r] + a * nodes[j + 1, r]
-        for c in range(2):
-            point_offsets[s, c] = frames[j, 0, c] * x[0] + frames[j, 1, c] * x[1] + frames[j, 2, c] * x[2]
-        point_offsets[s, 2] = 0.0
-        out = math.sqrt(point_offsets[s, 0] ** 2 + point_offsets[s, 1] ** 2)
+            along += x[r] * frames[j, r, 2]
+        out = 0.0
+        for r in range(3):
+            point_offsets[s, r] = x[r] - along * frames[j, r, 2]
+            out += point_offsets[s, r] ** 2
+        out = math.sqrt(out)
         if out > radius:
-            point_offsets[s, 0] *= radius / out
-            point_offsets[s, 1] *= radius / out
+            for r in range(3):
+                point_offsets[s, r] *= radius / out
 
 
 @njit(cache=True)

@@ -264,6 +264,16 @@ class Scene:
     def tip_depth(self):
         return self.needle.tip_depth()
 
+    @property
+    def tip(self):
+        """The first needle's tip [m] (world): where its apex is, the rod's for a flexible one."""
+        return self.needle.tip.copy()
+
+    @property
+    def tip_deflection(self):
+        """The first needle's tip distance from its base frame's axis [m] (0 for a rigid one)."""
+        return self.needle.tip_deflection()
+
     def target_positions(self):
         """(k, 3) where the scene's targets are now [m] (engine.scene.targets)."""
         return self.targets.positions(self.simulation.displacement)
