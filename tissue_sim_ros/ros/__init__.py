@@ -14,7 +14,8 @@ Modules here:
   declaring them with rclpy;
 - :mod:`.diagnostics`, :mod:`.recording`, :mod:`.targets`, :mod:`.predictions`: what the node
   reports, records, tracks and predicts;
+- :mod:`.needle_shape`: the needle's shape (``needle/shape``) and the tip's frame for TF;
 - :mod:`.node`, :mod:`.node_main`: the node itself and its process.
 """
-__all__ = ['clients', 'diagnostics', 'loop', 'messages', 'node', 'node_main', 'parameter_declaration',
-           'parameters', 'predictions', 'recording', 'targets']
+__all__ = ['clients', 'diagnostics', 'loop', 'messages', 'needle_shape', 'node', 'node_main',
+           'parameter_declaration', 'parameters', 'predictions', 'recording', 'targets']

@@ -68,6 +68,7 @@ from tissue_sim_ros.ros.messages import conversions as cv
 from tissue_sim_ros.ros.loop.engine_thread import EngineLoop
 from tissue_sim_ros.ros.messages.cdr_bytes import CloudBytes, SurfaceMarkerBytes, TraceBytes, WrenchBytes
 from tissue_sim_ros.ros.diagnostics import NodeStats, diagnostics_statuses
+from tissue_sim_ros.ros.needle_shape import NeedleShapes
 from tissue_sim_ros.ros.predictions import PredictionService
 from tissue_sim_ros.ros.targets import targets_msg, targets_status
 from tissue_sim_ros.ros.recording import (every_kth_tick, node_log_topics, open_node_log,
@@ -165,6 +166,9 @@ class TissueSimNode(Node):
                            if cfg.marker_rate_hz > 0 else None)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
         self.targets_pub = self.create_publisher(PoseArray, 'tissue/targets', NODES_QOS)
+        self.shapes = NeedleShapes(self.scene.needle_names, [n.shape_size for n in self.scene.needles],
+                                   cfg.frame_id, lambda kind, topic: self.create_publisher(kind, topic, WRENCH_QOS),
+                                   serialize_message)
         self._target_positions = np.zeros((len(self.scene.targets), 3))
         self._target_figures = self.scene.targets.relative_to_needle(self.scene.targets.rest, self.scene.needle.tip,
                                                                      self.scene.needle.axis)
@@ -357,6 +361,7 @@ class TissueSimNode(Node):
             self._publish(publisher, self._wrench_bytes[k].serialized(snap.forces[k], snap.torques[k], now_ns))
         publish_ns = self._now_ns()
         if not snap.held:
+            self.shapes.publish(snap, now_ns, self._publish)
             # the cloud is built only for a subscriber or the log: unsubscribed, it would be a
             # third of the tick's work (the publish alone about 100 us of thread time, 70 kB a tick)
             record = self._recorder is not None and bool(self._record_nodes_every) and \

@@ -9,6 +9,11 @@ Topics (relative names; remap with ``--ros-args -r``), all reliable:
                                                       exerts on the needle [N, N m], about
                                                       the needle base origin, expressed in
                                                       ``wrench.frame_id``
+``needle/shape``     nav_msgs/msg/Path                out, every tick: the needle's centreline
+                                                      from the base to the tip in ``frame_id``
+                                                      (a flexible needle's rod nodes; the last
+                                                      pose is the tip's frame;
+                                                      :mod:`~tissue_sim_ros.ros.needle_shape`)
 ``tissue/nodes``     sensor_msgs/msg/PointCloud2      out, every tick while it has a
                                                       subscriber: every vertex, fields
                                                       x y z (deformed) ux uy uz (displacement)
@@ -29,8 +34,9 @@ Topics (relative names; remap with ``--ros-args -r``), all reliable:
 ``/diagnostics``     diagnostic_msgs/DiagnosticArray  out, ``diagnostics_rate_hz``
 ==================== ================================ ===================================
 
-A scene with several needles (scene key ``needles``) has ``needle/<name>/pose`` and
-``needle/<name>/wrench`` per needle instead of ``needle/pose`` and ``needle/wrench``
+A scene with several needles (scene key ``needles``) has ``needle/<name>/pose``,
+``needle/<name>/wrench`` and ``needle/<name>/shape`` per needle instead of ``needle/pose``,
+``needle/wrench`` and ``needle/shape``
 (``tissue_sim_ros.ros.node.needle_topics``).
 
 The surface is transient local so that a late subscriber gets the mesh it needs to read the cloud.
@@ -68,6 +74,7 @@ def pose_qos(reliability: str) -> QoSProfile:
 #: The node's published topics (relative names) and their ROS types, as the log declares them.
 NODE_TOPIC_TYPES = {
     'needle/wrench': 'geometry_msgs/msg/WrenchStamped',
+    'needle/shape': 'nav_msgs/msg/Path',
     'tissue/nodes': 'sensor_msgs/msg/PointCloud2',
     'tissue/surface': 'shape_msgs/msg/Mesh',
     'tissue/marker': 'visualization_msgs/msg/Marker',
