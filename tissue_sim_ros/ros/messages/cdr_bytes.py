@@ -129,17 +129,14 @@ class NeedleShapeBytes:
         marker = _STAMP.pack(0x5A5A5A5A, 0)
         self._stamp_at = [4] + self._stamp_offsets(stamps, marker, n)
         self._data = bytearray(data)
-        # every pose has the same layout (one frame_id): the poses and their stamps are strided
-        # views of the bytes, written at once
-        self._poses = self._strided(self._pose_at, '<f8', 7)
-        self._stamps = self._strided(self._stamp_at[1:], '<u4', 2)
-
-    def _strided(self, offsets: list, dtype: str, width: int):
-        stride = offsets[1] - offsets[0] if len(offsets) > 1 else 0
-        if any(b - a != stride for a, b in zip(offsets, offsets[1:])):
-            raise ValueError('unexpected Path serialization: the poses are not evenly spaced')
-        return np.ndarray((len(offsets), width), dtype=dtype, buffer=self._data, offset=offsets[0] if offsets else 0,
-                          strides=(stride, np.dtype(dtype).itemsize))
+        # the poses and their stamps written at once through byte indices: CDR aligns each pose's
+        # doubles to 8 from the payload's start, so with some frame_id lengths the poses are not
+        # evenly spaced (every other one is 4 bytes further on)
+        self._bytes = np.frombuffer(self._data, dtype=np.uint8)
+        self._pose_bytes = np.add.outer(np.array(self._pose_at), np.arange(56))
+        self._stamp_bytes = np.add.outer(np.array(self._stamp_at[1:], dtype=np.int64), np.arange(8))
+        self._values = np.empty((n, 7), dtype='<f8')
+        self._stamps = np.empty((n, 2), dtype='<u4')
 
     @staticmethod
     def _stamp_offsets(data: bytes, marker: bytes, n: int) -> list:
@@ -162,7 +159,9 @@ class NeedleShapeBytes:
         sec, nanosec = _stamp(stamp_ns)
         _STAMP.pack_into(self._data, 4, sec, nanosec)
         self._stamps[:] = (sec, nanosec)
-        self._poses[:] = values
+        self._values[:] = values
+        self._bytes[self._stamp_bytes] = self._stamps.view(np.uint8)
+        self._bytes[self._pose_bytes] = self._values.view(np.uint8)
         return bytes(self._data)
 
 
