@@ -171,6 +171,7 @@ def test_against_a_scene_runs_this_checkout_on_both_scenes_in_turn(tmp_path, mon
     assert calls == [('pair1_before', 'before'), ('pair1_after', 'after'), ('pair2_after', 'after'),
                      ('pair2_before', 'before')]
     assert summary['ratios'] == pytest.approx([1.2, 1.2]) and summary['against'].startswith('scene ')
+    assert 'goal' not in (tmp_path / 'out' / 'paired.md').read_text()       # a cost, not a revision's cut
     with pytest.raises(paired.BenchError, match='no such file'):
         paired.run(None, tmp_path / 'other', against_scene=str(tmp_path / 'none.yaml'), stream=lambda *_: None)
     with pytest.raises(paired.BenchError, match='one of'):

@@ -245,7 +245,10 @@ def run(against: str | None, out: str, pairs: int = 3, duration_s: float = 20.0,
         writer.writeheader()
         writer.writerows({**r, 'pair': r['pair'] + 1} for r in rows)
     (out / 'paired.json').write_text(json.dumps(summary, indent=2))
-    verdict = 'meets' if summary['ratio_of_means'] <= CPU_GOAL_RATIO else 'misses'
+    # the goal is a revision's (the node's CPU cut); a scene's option has a cost, not a goal
+    goal = '' if against.startswith('scene ') else (
+        f" ({'meets' if summary['ratio_of_means'] <= CPU_GOAL_RATIO else 'misses'} the goal of at most "
+        f'{CPU_GOAL_RATIO:g})')
     lines = [
         f'# node-bench, this checkout against {against} ({commit[:10]}), paired',
         '',
@@ -254,7 +257,7 @@ def run(against: str | None, out: str, pairs: int = 3, duration_s: float = 20.0,
         '',
         f'- node CPU, mean: before {summary["cpu_before_mean_pct"]:.1f} %, after '
         f'{summary["cpu_after_mean_pct"]:.1f} % of one core; ratio of the means '
-        f'**{summary["ratio_of_means"]:.2f}** ({verdict} the goal of at most {CPU_GOAL_RATIO:g})',
+        f'**{summary["ratio_of_means"]:.2f}**{goal}',
         f'- ratio within each pair: median {summary["ratio_median"]:.2f}, range '
         f'{summary["ratio_min"]:.2f}-{summary["ratio_max"]:.2f} '
         f'({", ".join(f"{x:.2f}" for x in summary["ratios"])})',
