@@ -9,7 +9,7 @@
 - ``tissue``: a 20 G nitinol and an 18 G steel needle inserted ``--depth-mm`` into the default
   tissue (config/liver_sample.yaml, its block made 100 mm deep), bevel toward +x, bevel turned
   180 degrees, and a conical tip: the tip's deflection from the base's axis, the radius of the
-  circle through the last 60 % of its path and the spread of the radii of its three thirds; the
+  circle tangent to the axis at the entry through the last 60 % of its path and the spread of the radii of its three thirds; the
   bevel's own bend is half the difference of the two bevels' (the mesh's bias cancels); the
   conical tip's deflection is the mesh's noise;
 - ``phantom``: a short insertion in a small block whose cutting force (0.5 N) lets the bevel push
