@@ -3,7 +3,8 @@
 Runs :func:`~tissue_sim_ros.analysis.insertion.run_insertion`, prints what happened (punctures,
 targets, the peak force, the speed, the mass scaling's estimated inertia error) and writes into
 ``--out DIR``: ``insert.csv`` (a row per tick: time, tip travel, where the tip is and its
-deflection from the base axis, wrench, axial force, phase, targets), ``insert.png`` (force against travel), ``insert.md`` and ``insert.json`` (the
+deflection from the base axis, wrench, axial force, phase, targets), ``insert.png`` (force
+against travel), ``insert.md`` and ``insert.json`` (the
 figures). On the packaged scene, which models the bovine liver of Okamura et al. (2004), it also
 compares the run with that measurement (``insert_vs_bovine_liver.png``).
 """

@@ -7,11 +7,11 @@
   large-deflection elastica (scipy's ``solve_bvp`` on theta'' = -(F / EI) cos theta) at tip
   rotations of about 30, 45 and 60 degrees;
 - ``tissue``: a 20 G nitinol and an 18 G steel needle inserted ``--depth-mm`` into the default
-  tissue (config/liver_sample.yaml, its block made 100 mm deep), bevel toward +x, bevel turned
-  180 degrees, and a conical tip: the tip's deflection from the base's axis, the radius of the
-  circle tangent to the axis at the entry through the last 60 % of its path and the spread of the radii of its three thirds; the
-  bevel's own bend is half the difference of the two bevels' (the mesh's bias cancels); the
-  conical tip's deflection is the mesh's noise;
+  tissue (config/liver_sample.yaml, its block made 100 mm deep), bevel toward +x, bevel turned 180
+  degrees, and a conical tip: the tip's deflection from the base's axis, the radius of the circle
+  tangent to the axis at the entry through the last 60 % of its path and the spread of the radii
+  through its three thirds; the bevel's own bend is half the difference of the two bevels' (the
+  mesh's bias cancels); the conical tip's deflection is the mesh's noise;
 - ``phantom``: a short insertion in a small block whose cutting force (0.5 N) lets the bevel push
   harder: the radius of the bevel's own bend for rods of three bending stiffnesses and two
   tissues (the stiffer with a proportionally higher cutting force, as a stiffer gel is also
@@ -238,7 +238,8 @@ def main(*, parts=PARTS, depth_mm=80.0, speed_mm_s=5.0, jobs=None, out=None) -> 
     if 'flip' in parts:
         f = figures['flip'] = flip_figures(speed)
         print(f"flip: turned 180 deg at {f['flip_at_mm']:.0f} mm: curvature {f['curvature_first_half_per_m']:+.3g} 1/m "
-              f"before, {f['curvature_second_half_per_m']:+.3g} 1/m after; the path went {f['largest_toward_bevel_mm']:+.3f} "
+              f"before, {f['curvature_second_half_per_m']:+.3g} 1/m after; the path went "
+              f"{f['largest_toward_bevel_mm']:+.3f} "
               f"mm toward the first bevel (at {f['at_mm']:.1f} mm) and ended at {f['end_mm']:+.3f} mm")
     if 'cost' in parts:
         f = figures['cost'] = cost_figures()

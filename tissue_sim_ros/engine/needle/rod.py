@@ -413,7 +413,8 @@ def frame_quaternions(frames, out):
     for k in range(frames.shape[0]):
         m = frames[k]
         trace = m[0, 0] + m[1, 1] + m[2, 2]
-        s0, s1, s2, s3 = 1.0 + 2.0 * m[0, 0] - trace, 1.0 + 2.0 * m[1, 1] - trace, 1.0 + 2.0 * m[2, 2] - trace, 1.0 + trace
+        s0, s1 = 1.0 + 2.0 * m[0, 0] - trace, 1.0 + 2.0 * m[1, 1] - trace
+        s2, s3 = 1.0 + 2.0 * m[2, 2] - trace, 1.0 + trace
         if s3 >= s0 and s3 >= s1 and s3 >= s2:
             w = 0.5 * math.sqrt(s3)
             f = 0.25 / w
