@@ -25,7 +25,6 @@ from support.ros_harness import (DOWN, NS, make_scene, node_log, publish_at_stam
 from support.two_needles import NEEDLES, _pose  # noqa: E402
 from tissue_sim_ros.ros.loop.pose_input import BAD_INPUT_KINDS  # noqa: E402
 from tissue_sim_ros.ros.messages import conversions as cv  # noqa: E402
-from tissue_sim_ros.ros.node import needle_topics  # noqa: E402
 
 
 def replayed_wrenches(traces, threads, frame='needle'):
@@ -356,11 +355,6 @@ def test_the_cloud_is_built_only_for_a_subscriber_or_the_log(harness, tmp_path):
     before, first = len(h.get('nodes')), h.node.ticks
     h.wait_until(lambda: h.node.ticks, lambda n: n >= first + 50, what='a window of 50 ticks')
     assert len(h.get('nodes')) - before >= h.node.ticks - first - 2
-
-
-def test_one_needle_keeps_todays_topics_and_several_get_their_own():
-    assert needle_topics(['needle']) == [('needle/pose', 'needle/wrench')]
-    assert needle_topics(['a', 'b']) == [('needle/a/pose', 'needle/a/wrench'), ('needle/b/pose', 'needle/b/wrench')]
 
 
 def test_each_needle_is_driven_by_its_topic_and_reports_on_its_own(two_needle_node):

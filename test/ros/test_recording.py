@@ -58,14 +58,15 @@ def test_recording_holds_every_message_in_and_out(harness, tmp_path):
     expected = {'/needle/wrench': len(received['wrench']), '/tissue/nodes': len(received['nodes']),
                 '/tissue/surface': len(received['surface']),
                 '/tissue/marker': len(received['marker']),
-                '/diagnostics': len(received['diag']), '/needle/pose': len(h.published)}
+                '/diagnostics': len(received['diag']), '/needle/pose': len(h.published),
+                '/needle/shape': len(received['wrench'])}     # a shape with each tick's wrench
     key_of = {'/needle/wrench': 'wrench', '/tissue/nodes': 'nodes', '/tissue/marker': 'marker',
-              '/diagnostics': 'diag'}
+              '/diagnostics': 'diag', '/needle/shape': 'wrench'}
     types = {'/needle/wrench': 'geometry_msgs/msg/WrenchStamped',
              '/tissue/nodes': 'sensor_msgs/msg/PointCloud2', '/tissue/surface': 'shape_msgs/msg/Mesh',
              '/tissue/marker': 'visualization_msgs/msg/Marker',
              '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
-             '/needle/pose': 'geometry_msgs/msg/PoseStamped',
+             '/needle/pose': 'geometry_msgs/msg/PoseStamped', '/needle/shape': 'nav_msgs/msg/Path',
              '/tissue_sim/reset/_service_event': 'std_srvs/srv/Trigger_Event',
              '/tissue_sim/pause/_service_event': 'std_srvs/srv/SetBool_Event',
              '/tissue_sim/engine_trace': 'std_msgs/msg/Float64MultiArray',

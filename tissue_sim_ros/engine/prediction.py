@@ -38,10 +38,11 @@ __all__ = ['WRENCH_COLUMNS', 'DEFAULT_MAX_DURATION_S', 'CandidatePath', 'Predict
            'prediction_columns', 'check_path', 'scene_snapshot', 'scene_from_snapshot', 'predict',
            'predict_snapshot', 'write_snapshot', 'read_snapshot']
 
-#: The columns every prediction has, in the wrench's frame: force [N], torque [N m] about the
-#: needle base, the tip's depth below the entry point [m].
+#: The columns every prediction has: force [N] and torque [N m] about the needle base, in the
+#: wrench's frame; the tip's depth below the entry point [m]; where the tip is [m] (world frame)
+#: and its distance from the base frame's axis [m] (a flexible needle's bend; 0 for a rigid one).
 WRENCH_COLUMNS = ('force_x_n', 'force_y_n', 'force_z_n', 'torque_x_nm', 'torque_y_nm',
-                  'torque_z_nm', 'tip_depth_m')
+                  'torque_z_nm', 'tip_depth_m', 'tip_x_m', 'tip_y_m', 'tip_z_m', 'tip_deflection_m')
 #: Longest path accepted by default [s of simulated time].
 DEFAULT_MAX_DURATION_S = 60.0
 
@@ -207,6 +208,7 @@ def predict(scene, path: CandidatePath, *, wrench_frame: str = 'world', copy: bo
     def sample(k, drv):
         values[k, 0:3], values[k, 3:6] = drv.force, drv.torque
         values[k, 6] = scene.tip_depth
+        values[k, 7:10], values[k, 10] = scene.needle.tip, scene.tip_deflection
         if names:
             values[k, w:t] = np.linalg.norm(scene.target_positions() - rest, axis=1)
         values[k, t:] = np.hstack([drv.forces[1:], drv.torques[1:]]).ravel()

@@ -176,6 +176,10 @@ def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
         'stability': 'held after divergence' if driver.held else 'stable',
         'phase': str(scene.phase),
         'tip_depth_m': float(scene.tip_depth),
+        'tip_x_m': float(scene.needle.tip[0]),
+        'tip_y_m': float(scene.needle.tip[1]),
+        'tip_z_m': float(scene.needle.tip[2]),
+        'tip_deflection_m': float(scene.tip_deflection),
         'topology_version': int(scene.topology_version),
         'punctures': len(scene.puncture_events),
     }

@@ -58,6 +58,7 @@ from tissue_sim_ros.ros.prediction_action import start_predictions
 from tissue_sim_ros.ros.readiness import Readiness
 from tissue_sim_ros.ros.registration import Registration
 from tissue_sim_ros.ros.services import NodeServices
+from tissue_sim_ros.ros.messages.needle_shape import NeedleShapes
 from tissue_sim_ros.ros.targets import targets_msg, targets_status
 from tissue_sim_ros.ros.tf_in import TfInput, transforms_of
 from tissue_sim_ros.ros.tf_out import TfFrames, needle_frames
@@ -71,18 +72,11 @@ from tissue_sim_ros.ros.loop.pose_input import PoseInput
 from tissue_sim_ros.ros.messages.pose_cdr import decode_pose
 from tissue_sim_ros.ros.loop.tick_thread import TickThread
 from tissue_sim_ros.ros.messages.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODES_QOS, READY_QOS,
-                                                SURFACE_QOS, TF_QOS, TF_STATIC_QOS, WRENCH_QOS, pose_qos)
+                                                SURFACE_QOS, TF_QOS, TF_STATIC_QOS, WRENCH_QOS, needle_topics,
+                                                pose_qos)
 from tissue_sim_ros.units import NS_PER_S
 
 __all__ = ['NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'TissueSimNode', 'main']
-
-
-def needle_topics(names) -> list[tuple[str, str]]:
-    """(pose topic, wrench topic) per needle: needle/pose and needle/wrench for a scene with one
-    needle, needle/<name>/pose and needle/<name>/wrench for each of several."""
-    if len(names) == 1:
-        return [('needle/pose', 'needle/wrench')]
-    return [(f'needle/{name}/pose', f'needle/{name}/wrench') for name in names]
 
 
 def help_text() -> str:
@@ -160,6 +154,9 @@ class TissueSimNode(Node):
                            if cfg.marker_rate_hz > 0 else None)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
         self.targets_pub = self.create_publisher(PoseArray, 'tissue/targets', NODES_QOS)
+        self.shapes = NeedleShapes(self.scene.needle_names, [n.shape_size for n in self.scene.needles],
+                                   cfg.frame_id, lambda kind, topic: self.create_publisher(kind, topic, WRENCH_QOS),
+                                   serialize_message)
         self._target_positions = np.zeros((len(self.scene.targets), 3))
         self._target_figures = self.scene.targets.relative_to_needle(self.scene.targets.rest, self.scene.needle.tip,
                                                                      self.scene.needle.axis)
@@ -221,7 +218,8 @@ class TissueSimNode(Node):
         """TF out (the frames the messages name) and in (the robot's tree), the tissue's registration."""
         scene = self.scene
         self.tf_frames = TfFrames(cfg.frame_id, needle_frames(cfg.needle_frame_id, scene.needle_names),
-                                  [n.geometry.length_m for n in scene.needles], scene.targets.names)
+                                  [n.geometry.length_m for n in scene.needles], scene.targets.names,
+                                  [n.rod is not None for n in scene.needles])
         self.tf_input = TfInput(cfg.frame_id, tf_frame=cfg.tf_frame if cfg.input_source == 'tf' else None,
                                 offset=cfg.tf_offset, timeout_s=cfg.tf_timeout_s,
                                 own_frames=self.tf_frames.own_frames)
@@ -381,6 +379,7 @@ class TissueSimNode(Node):
             self._publish(publisher, self._wrench_bytes[k].serialized(snap.forces[k], snap.torques[k], now_ns))
         publish_ns = self._now_ns()
         if not snap.held:
+            self.shapes.publish(snap, now_ns, self._publish)
             # the cloud is built only for a subscriber or the log: unsubscribed, it would be a
             # third of the tick's work (the publish alone about 100 us of thread time, 70 kB a tick)
             record = self._recorder is not None and bool(self._record_nodes_every) and \
@@ -405,8 +404,9 @@ class TissueSimNode(Node):
                 self._publish(self.targets_pub, targets_msg(self._target_positions, self.config.frame_id, now_ns),
                               publish_ns)
         if self.tf_pub is not None and not snap.held:
-            self._publish(self.tf_pub, self.tf_frames.dynamic_msg(now_ns, snap.positions, snap.orientations,
-                                                                  self._target_positions), publish_ns)
+            self._publish(self.tf_pub, self.tf_frames.dynamic_msg(
+                now_ns, snap.positions, snap.orientations, self._target_positions,
+                zip(snap.shape_positions, snap.shape_quaternions)), publish_ns)
         if self.ticks == 0:
             self.readiness.ticking()
         for receipt in self.engine.take_receipts(snap.index):

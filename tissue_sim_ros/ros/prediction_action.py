@@ -43,8 +43,8 @@ __all__ = [
 ACTION_NAME = '~/predict_path'
 ACTION_TYPE = 'tissue_sim_msgs/action/PredictPath'
 DEFAULT_FEEDBACK_PERIOD_S = 0.1
-_FIELDS = ('force_x_n', 'force_y_n', 'force_z_n', 'torque_x_nm', 'torque_y_nm', 'torque_z_nm', 'tip_depth_m')
-assert _FIELDS == WRENCH_COLUMNS
+#: the result's and the feedback's columns: the prediction's, each a float64[] of the action
+_FIELDS = WRENCH_COLUMNS
 
 
 def _doubles(values) -> array.array:

@@ -30,13 +30,15 @@ def every_kth_tick(publish_rate_hz: float, rate_hz: float) -> int:
 
 def node_log_topics(node, qos_to_dict) -> list:
     """(resolved topic, ROS type, QoS dict) of every channel of the node's log: its publishers
-    (tissue/targets only for a scene with targets: nothing is published on it otherwise), its
-    pose subscriptions (one per needle), /tf and /tf_static (what it broadcasts and what it
-    receives from others), ``~/ready`` and its services' event topics."""
+    (tissue/targets only for a scene with targets: nothing is published on it otherwise; a shape
+    and a wrench per needle), its pose subscriptions (one per needle), /tf and /tf_static (what it
+    broadcasts and what it receives from others), ``~/ready`` and its services' event topics."""
     needles = {}
     for (pose, wrench), pose_sub, wrench_pub in zip(node.needle_topics, node.pose_subs, node.wrench_pubs):
         needles[wrench] = (wrench_pub, WRENCH_QOS, NODE_TOPIC_TYPES['needle/wrench'])
         needles[pose] = (pose_sub, node.pose_qos, NODE_TOPIC_TYPES['needle/pose'])
+    for shape, shape_pub in zip(node.shapes.topics, node.shapes.publishers):
+        needles[shape] = (shape_pub, WRENCH_QOS, NODE_TOPIC_TYPES['needle/shape'])
     entities = {'tissue/nodes': (node.nodes_pub, NODES_QOS),
                 'tissue/surface': (node.surface_pub, SURFACE_QOS),
                 'tissue/marker': (node.marker_pub, MARKER_QOS),

@@ -2,12 +2,14 @@
 
 - /tf_static (transient local, one message holding every static transform, as tf2's static
   broadcaster sends): the tissue frame (``frame_id``) in ``registration.parent_frame_id`` when a
-  registration is set, and each needle's tip frame ``<needle frame>_tip`` on its base frame (the
-  needle's length along +z);
+  registration is set, and each rigid needle's tip frame ``<needle frame>_tip`` on its base frame
+  (the needle's length along +z);
 - /tf, every tick, stamped with the tick: each needle's base frame (``needle_frame_id``;
   ``needle_frame_id_<name>`` in a scene with several needles, as their wrenches name it) in the
   tissue frame, where the simulated needle is, and each target's frame ``target_<name>`` in the
-  tissue frame, where the tissue carried it (identity orientation: a target is a point).
+  tissue frame, where the tissue carried it (identity orientation: a target is a point), and a
+  flexible needle's tip frame in the tissue frame: the last pose of its shape, which the rod's
+  bending moves relative to the base (:func:`~tissue_sim_ros.ros.messages.needle_shape.tip_transform`).
 
 So the wrench (in the needle frame), the cloud, the marker, the targets and the mesh (in the tissue
 frame) all name frames that exist on TF, and RViz or Foxglove place them in the robot's world.
@@ -20,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from tissue_sim_ros.ros.messages.conversions import header
+from tissue_sim_ros.ros.messages.needle_shape import tip_transform
 
 __all__ = ['TF_TYPE', 'TfFrames', 'needle_frames', 'target_frame']
 
@@ -50,11 +53,13 @@ def _transform(parent: str, child: str, stamp, position, orientation=(0.0, 0.0, 
 
 class TfFrames:
     """The node's frames: ``tissue_frame`` (frame_id), ``needles``: :func:`needle_frames`,
-    ``lengths``: each needle's length [m], ``targets``: the target names."""
+    ``lengths``: each needle's length [m], ``targets``: the target names, ``flexible``: per
+    needle, whether its shaft bends (its tip then goes on /tf, not /tf_static)."""
 
-    def __init__(self, tissue_frame: str, needles, lengths, targets=()):
+    def __init__(self, tissue_frame: str, needles, lengths, targets=(), flexible=()):
         self.tissue_frame = tissue_frame
         self.needles, self.lengths = list(needles), [float(x) for x in lengths]
+        self.flexible = [bool(f) for f in flexible] or [False] * len(self.needles)
         self.targets = [target_frame(name) for name in targets]
 
     @property
@@ -65,25 +70,30 @@ class TfFrames:
 
     def static_msg(self, stamp_ns: int, registration=None):
         """/tf_static: ``registration`` (parent frame, position, orientation) of the tissue frame
-        or None, and each needle's tip on its base."""
+        or None, and each rigid needle's tip on its base."""
         from tf2_msgs.msg import TFMessage
 
         transforms = []
         if registration is not None:
             parent, position, orientation = registration
             transforms.append(_transform(parent, self.tissue_frame, stamp_ns, position, orientation))
-        for (base, tip), length in zip(self.needles, self.lengths):
-            transforms.append(_transform(base, tip, stamp_ns, (0.0, 0.0, length)))
+        for (base, tip), length, flexible in zip(self.needles, self.lengths, self.flexible):
+            if not flexible:
+                transforms.append(_transform(base, tip, stamp_ns, (0.0, 0.0, length)))
         return TFMessage(transforms=transforms)
 
-    def dynamic_msg(self, stamp_ns: int, needle_positions, needle_orientations, target_positions):
-        """/tf of one tick: each needle's base pose and each target's position in the tissue frame
-        (refuses non-finite values: never NaN on a topic)."""
+    def dynamic_msg(self, stamp_ns: int, needle_positions, needle_orientations, target_positions,
+                    shapes=()):
+        """/tf of one tick: each needle's base pose and each target's position in the tissue frame,
+        and each flexible needle's tip from ``shapes`` (per needle, its shape's positions and
+        quaternions in the tissue frame) (refuses non-finite values: never NaN on a topic)."""
         from tf2_msgs.msg import TFMessage
 
+        tips = [(tip, tip_transform(*shape)) for (_, tip), shape, flexible
+                in zip(self.needles, shapes, self.flexible) if flexible]
         values = [
             np.asarray(a, dtype=np.float64) for a in (needle_positions, needle_orientations, target_positions)
-        ]
+        ] + [np.concatenate(pose) for _, pose in tips]
         if not all(np.isfinite(v).all() for v in values):
             raise ValueError('TF: a needle pose or a target position is not finite; refusing to publish')
         transforms = [
@@ -93,4 +103,5 @@ class TfFrames:
         transforms += [
             _transform(self.tissue_frame, frame, stamp_ns, p) for frame, p in zip(self.targets, values[2])
         ]
+        transforms += [_transform(self.tissue_frame, tip, stamp_ns, p, q) for tip, (p, q) in tips]
         return TFMessage(transforms=transforms)

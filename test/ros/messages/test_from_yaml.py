@@ -19,7 +19,7 @@ EXAMPLES = sorted((ROOT / 'msg_examples').glob('*.yaml'))
 
 
 def test_there_are_examples():
-    assert len(EXAMPLES) == 17
+    assert len(EXAMPLES) == 18
 
 
 @pytest.mark.parametrize('path', EXAMPLES, ids=lambda p: p.name)

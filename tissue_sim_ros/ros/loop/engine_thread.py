@@ -51,7 +51,7 @@ MAX_POSES_PER_CYCLE = 64
 class Snapshot:
     """The engine state a tick publishes (one of three buffers; see :class:`EngineLoop`)."""
 
-    def __init__(self, n_nodes: int, n_needles: int = 1):
+    def __init__(self, n_nodes: int, n_needles: int = 1, shape_sizes=(2,)):
         self.index = 0                       # advances done when it was taken
         self.forces = np.zeros((n_needles, 3))   # each needle's wrench; force, torque: the first's
         self.torques = np.zeros((n_needles, 3))
@@ -67,14 +67,17 @@ class Snapshot:
         self.axis = np.zeros(3)
         self.positions = np.zeros((n_needles, 3))      # each needle's base pose (TF out)
         self.orientations = np.zeros((n_needles, 4))
+        # each needle's centreline and its frames (NeedleTissue.write_shape), for needle/shape
+        self.shape_positions = [np.zeros((k, 3)) for k in shape_sizes]
+        self.shape_quaternions = [np.tile([0.0, 0.0, 0.0, 1.0], (k, 1)) for k in shape_sizes]
 
 
 class _TripleBuffer:
     """The engine writes ``back``, :meth:`publish` makes it the newest; :meth:`latest` gives the
     publisher the newest, which the engine does not touch until the publisher asks again."""
 
-    def __init__(self, n_nodes: int, n_needles: int = 1):
-        self.slots = [Snapshot(n_nodes, n_needles) for _ in range(3)]
+    def __init__(self, n_nodes: int, n_needles: int = 1, shape_sizes=(2,)):
+        self.slots = [Snapshot(n_nodes, n_needles, shape_sizes) for _ in range(3)]
         self._back, self._ready, self._front = 0, 1, 2
         self._fresh = False
         self._lock = threading.Lock()
@@ -144,7 +147,8 @@ class EngineLoop:
         self._now_ns, self._decode, self._log_once, self._log = now_ns, decode, log_once, log
         self.receiver = PoseReceiver(limit=MAX_POSES_PER_CYCLE)
         self.other_receivers = [PoseReceiver(limit=MAX_POSES_PER_CYCLE) for _ in self.other_inputs]
-        self._snapshots = _TripleBuffer(driver.scene.rest_positions.shape[0], 1 + len(self.other_inputs))
+        self._snapshots = _TripleBuffer(driver.scene.rest_positions.shape[0], 1 + len(self.other_inputs),
+                                        [needle.shape_size for needle in driver.scene.needles])
         self._trace: list = []
         self._receipts: deque = deque()          # (receipt ns, advance index) of accepted poses
         self._requests: deque = deque()
@@ -459,6 +463,8 @@ class EngineLoop:
         for k, needle in enumerate(scene.needles):
             snap.positions[k] = needle.position
             snap.orientations[k] = needle.orientation
+        for needle, positions, quaternions in zip(scene.needles, snap.shape_positions, snap.shape_quaternions):
+            needle.write_shape(positions, quaternions)
         self._snapshots.publish()
 
     @property
