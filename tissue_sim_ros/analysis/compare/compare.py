@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ['ALIGNMENTS', 'TrialComparison', 'SimulatedCurve', 'simulated_curve', 'compare_trial',
-           'plan_simulations', 'compare_trials']
+           'measured_layers', 'plan_simulations', 'compare_trials', 'within_spread']
 
 ALIGNMENTS = ('contact', 'xcorr', 'depth')
 MAX_SHIFT_S = 0.5
@@ -52,21 +52,26 @@ EVENT_WINDOW_SAMPLES = 3
 @dataclass
 class SimulatedCurve:
     """A simulation on a trial's clock: time since contact [s], travel since contact [m],
-    axial force [N]; ``diverged``: the watchdog's reason, or ''."""
+    axial force [N]; ``diverged``: the watchdog's reason, or ''; ``puncture_events``: the scene's
+    own punctures as (travel since contact [m], layer) pairs (the layer: the region's place among
+    those with a membrane)."""
 
     time_since_contact_s: np.ndarray
     travel_since_contact_m: np.ndarray
     axial_force_n: np.ndarray
     diverged: str = ''
+    puncture_events: tuple = ()
 
 
 def simulated_curve(result, schedule, motion, scene_gap_m: float) -> SimulatedCurve:
     """The simulation ``result`` of ``schedule`` (made from ``motion``) on the trial's clock."""
     contact_time = float(motion.time_s[motion.contact_index])
     keep = schedule.trial_time_s >= 0.0                       # not the pre-roll
+    events = tuple((float(t) - scene_gap_m, int(layer)) for t, layer in
+                   zip(result.puncture_travel_m, result.puncture_layer))
     return SimulatedCurve(schedule.trial_time_s[keep] - contact_time,
                           schedule.travel_m[keep] - scene_gap_m, np.asarray(result.axial_force_n)[keep],
-                          result.diverged)
+                          result.diverged, events)
 
 
 @dataclass
@@ -90,17 +95,22 @@ class TrialComparison:
     diverged: str = ''
 
 
-def compare_trial(trial, motion, curve: SimulatedCurve, align: str = 'contact') -> TrialComparison:
-    """The errors of ``curve`` against ``trial`` (see the module docstring)."""
+def compare_trial(trial, motion, curve: SimulatedCurve, align: str = 'contact', *, measured_punctures=None,
+                  layers=None) -> TrialComparison:
+    """The errors of ``curve`` against ``trial`` (see the module docstring). ``measured_punctures``:
+    the trial's punctures as its repeats share them (:func:`measured_layers`; None: detected in this
+    trial alone); ``layers``: the repeats' layers (their depths' spread), which say whether a
+    simulated puncture lies within the spread."""
     from tissue_sim_ros.analysis.compare.alignment import best_time_shift, resample
     from tissue_sim_ros.analysis.compare.force_events import detect_punctures, segment_phases
     from tissue_sim_ros.analysis.compare.force_metrics import curve_errors, event_errors, per_phase_errors
+    from tissue_sim_ros.analysis.compare.shared_punctures import pair_punctures
     if align not in ALIGNMENTS:
         raise ValueError(f'align = {align!r}: expected one of {", ".join(ALIGNMENTS)}')
     force = np.asarray(trial.axial_force_n, dtype=float)
     since = motion.time_s - motion.time_s[motion.contact_index]
     travel = motion.travel_m - motion.gap_m
-    data_punctures = detect_punctures(travel, force)
+    data_punctures = detect_punctures(travel, force) if measured_punctures is None else list(measured_punctures)
     phases = segment_phases(motion.time_s, motion.travel_m, force, contact=motion.contact_index,
                             first_puncture=data_punctures[0].index if data_punctures else None)
     shift = 0.0
@@ -117,12 +127,17 @@ def compare_trial(trial, motion, curve: SimulatedCurve, align: str = 'contact') 
             simulated = resample(curve.time_since_contact_s - shift, curve.axial_force_n, since)
     compared = np.isfinite(simulated)
     kept = np.flatnonzero(compared)                  # punctures indexed on the trial's samples
-    sim_punctures = [replace(p, index=int(kept[p.index]))
+    sim_punctures = [replace(p, index=int(kept[p.index]), layer=_layer_of(p, curve))
                      for p in detect_punctures(travel[kept], simulated[kept])] if kept.size > 2 else []
+    pairs = pair_punctures(data_punctures, sim_punctures)
     events = event_errors(data_punctures, sim_punctures, measured_force_n=force[compared],
                           measured_phases=phases[compared], simulated_force_n=simulated[compared],
-                          simulated_phases=phases[compared]) if compared.any() else {}
-    pointwise = np.where(away_from_events(travel, data_punctures + sim_punctures), simulated, np.nan)
+                          simulated_phases=phases[compared], pairs=pairs) if compared.any() else {}
+    within = [(m, p) for m, p in pairs if within_spread(m, p, layers)]
+    if compared.any():
+        events['punctures_within_spread'] = len(within)
+    pointwise = np.where(away_from_events(travel, data_punctures + sim_punctures, between=within), simulated,
+                         np.nan)
     normaliser = float(np.ptp(force)) or None
     errors = curve_errors(force, pointwise, normaliser=normaliser) \
         if np.isfinite(pointwise).any() else {'nrmse': float('nan'), 'rmse_n': float('nan'), 'count': 0}
@@ -135,18 +150,69 @@ def compare_trial(trial, motion, curve: SimulatedCurve, align: str = 'contact') 
                            curve.diverged)
 
 
-def away_from_events(travel, punctures) -> np.ndarray:
+def away_from_events(travel, punctures, between=()) -> np.ndarray:
     """Samples farther than EVENT_WINDOW_M of travel (and EVENT_WINDOW_SAMPLES samples) from
-    every puncture of either curve: the pointwise errors leave those out. A puncture drops the
-    force by most of its value within a sample; a timing difference of one sample there would
-    otherwise dominate the whole curve's RMSE. Events are measured as events: their depth and
-    force errors."""
+    every puncture of either curve, and not between the two punctures of a pair in ``between``
+    ((measured, simulated) pairs whose simulated one lies within the repeats' spread): the
+    pointwise errors leave those out. A puncture drops the force by most of its value within a
+    sample; a timing difference of one sample there would otherwise dominate the whole curve's
+    RMSE, and a simulated puncture where the repeats themselves puncture is no miss of the
+    samples between. Events are measured as events: their depth and force errors."""
+    travel = np.asarray(travel, dtype=float)
     keep = np.ones(len(travel), dtype=bool)
     for p in punctures:
         near = np.abs(travel - p.travel_m) <= EVENT_WINDOW_M
         near[max(0, p.index - EVENT_WINDOW_SAMPLES):p.index + EVENT_WINDOW_SAMPLES + 1] = True
         keep &= ~near
+    for measured, simulated in between:
+        first, last = sorted((measured.index, simulated.index))
+        keep[first:last + 1] = False
     return keep
+
+
+#: a simulated puncture is within the repeats' spread when it is this many standard deviations of
+#: their depths from its layer's mean, or within their range (and EVENT_WINDOW_M beyond)
+SPREAD_DEVIATIONS = 2.0
+#: a simulated curve's puncture is the scene's event within this much travel of it
+EVENT_MATCH_M = 0.001
+
+
+def within_spread(measured, simulated, layers) -> bool:
+    """Whether ``simulated`` (paired with the repeat's puncture ``measured``) lies within the
+    depths of that layer's repeats (``layers``: :class:`~.shared_punctures.Layer` by layer index;
+    see SPREAD_DEVIATIONS)."""
+    if not layers or not 0 <= measured.layer < len(layers):
+        return False
+    layer = layers[measured.layer]
+    low, high = layer.depth_range_m
+    reach = max(SPREAD_DEVIATIONS * layer.depth_sd_m, 0.5 * (high - low)) + EVENT_WINDOW_M
+    return abs(simulated.travel_m - layer.depth_m) <= reach
+
+
+def _layer_of(puncture, curve: SimulatedCurve) -> int:
+    """The layer of the scene's puncture event within EVENT_MATCH_M of a puncture found in the
+    simulated force (-1: none)."""
+    near = [(abs(travel - puncture.travel_m), layer) for travel, layer in curve.puncture_events
+            if abs(travel - puncture.travel_m) <= EVENT_MATCH_M]
+    return min(near)[1] if near else -1
+
+
+def measured_layers(trials, motions) -> tuple[list, list]:
+    """Per trial: its punctures as the repeats of its speed share them, and that speed's layers
+    (:mod:`~tissue_sim_ros.analysis.compare.shared_punctures`; travel since contact)."""
+    from tissue_sim_ros.analysis.compare.shared_punctures import shared_punctures
+    groups: dict = {}
+    for index, trial in enumerate(trials):
+        key = index if trial.speed_m_s is None else round(trial.speed_m_s, 9)
+        groups.setdefault(key, []).append(index)
+    punctures, layers = [None] * len(trials), [None] * len(trials)
+    for members in groups.values():
+        shared = shared_punctures([motions[i].travel_m - motions[i].gap_m for i in members],
+                                  [trials[i].axial_force_n for i in members])
+        for position, i in enumerate(members):
+            punctures[i] = shared.punctures_of(position)
+            layers[i] = shared.layers
+    return punctures, layers
 
 
 def _at_its_contact(curve: SimulatedCurve, measured_force) -> SimulatedCurve:
@@ -160,9 +226,10 @@ def _at_its_contact(curve: SimulatedCurve, measured_force) -> SimulatedCurve:
                            curve.travel_since_contact_m, noise_n=noise)
     if index is None:
         return curve
+    shift = float(curve.travel_since_contact_m[index])
     return SimulatedCurve(curve.time_since_contact_s - curve.time_since_contact_s[index],
-                          curve.travel_since_contact_m - curve.travel_since_contact_m[index],
-                          curve.axial_force_n, curve.diverged)
+                          curve.travel_since_contact_m - shift, curve.axial_force_n, curve.diverged,
+                          tuple((travel - shift, layer) for travel, layer in curve.puncture_events))
 
 
 def _on_travel(curve: SimulatedCurve, travel, phases) -> np.ndarray:
@@ -244,7 +311,9 @@ def compare_trials(trials, scene, *, align: str = 'contact', gap_m: float | None
     results = run_plan(plan, store=store, workers=workers, scheduler=scheduler, quiet=quiet)
     curves = [simulated_curve(results[j], plan.schedules[j], plan.motions[plan.representative[j]],
                               scene.start_gap_m) for j in range(len(plan.jobs))]
-    comparisons = [compare_trial(trial, plan.motions[i], curves[plan.job_of_trial[i]], align)
+    punctures, layers = measured_layers(trials, plan.motions)
+    comparisons = [compare_trial(trial, plan.motions[i], curves[plan.job_of_trial[i]], align,
+                                 measured_punctures=punctures[i], layers=layers[i])
                    for i, trial in enumerate(trials)]
     return {'comparisons': comparisons, 'plan': plan, 'results': results, 'curves': curves,
             'speeds': speed_groups(trials, plan.motions, comparisons),
