@@ -8,7 +8,8 @@ speed and repeat in the file name) with the data description that reads them.
 
 :func:`write_layered_study` makes the repeats differ as real ones do: each trial is its own draw
 of the scene's spread between repeats (``regions[].membrane.rupture_force_spread_n``,
-``regions[].depth_spread_m``; trial k of the study runs ``variation.seed`` k, from 1), so each
+``regions[].depth_spread_m``; trial k of the study, from 1, runs ``variation.seed`` 1000 seed + k:
+draws of their own, not those of a simulated study's seeds 1..N), so each
 layer punctures at its own force and depth in every repeat; the values drawn are written beside
 the data (``truth.json``) with the nominal scene keys.
 """
@@ -19,11 +20,55 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['write_layered_study', 'write_synthetic_study']
+__all__ = ['PHANTOM_MESHES', 'phantom_scene', 'write_layered_study', 'write_synthetic_study']
 
 SPEC = ("files: ['trial_*.csv']\ntime: {column: time, unit: s}\nforce: {column: fz, unit: N}\n"
         "position: {column: pz, unit: mm}\n"
         "file_name: {pattern: 'trial_(?P<speed>[0-9.]+)_(?P<repeat>[0-9]+)', speed_unit: mm/s}\n")
+
+
+#: the layered phantoms' meshes: 'test' (box, 1080 tetrahedra, about a second a run) and 'bench'
+#: (graded, 3 mm near the needle, 4356 tetrahedra)
+PHANTOM_MESHES = {
+    'test': {'generator': 'box', 'size_m': [0.06, 0.06, 0.04], 'origin_m': [-0.03, -0.03, -0.04],
+             'divisions': [6, 6, 5]},
+    'bench': {'generator': 'graded_box', 'size_m': [0.06, 0.06, 0.04], 'origin_m': [-0.03, -0.03, -0.04],
+              'divisions': [6, 6, 6], 'fine_size_m': 0.003, 'focus_radius_m': 0.003, 'growth': 1.4,
+              'grade_z': False},
+}
+
+
+def phantom_scene(layers: int = 2, mesh: str = 'test') -> dict:
+    """The hidden truth of the layered phantoms (tests, the layered calibration benchmark): a two-
+    or three-layer block, 4 and 3 (and 3.5) N rupture forces with 0.2 N of spread between repeats,
+    the deeper boundaries 11 (and 17.5) mm down with 0.5 mm of spread (between the depths of the
+    meshes' element centroids, so that a boundary's spread moves where the needle meets the layer,
+    not which elements are in it), a relaxing tissue (a Prony
+    term: the pause relaxes), a constant retraction pull per layer (a plateau with a step where
+    the needle leaves the deep layer), an 18 gauge bevel starting 1 mm above the surface."""
+    if layers not in (2, 3):
+        raise ValueError(f'layers = {layers!r}: the phantoms have 2 or 3 layers')
+    friction = {'insertion_static_n_per_m': 200.0, 'stick_band_m_per_s': 0.0005}
+    regions = [
+        {'name': 'outer', 'select': 'all', 'young_modulus_pa': 30000.0,
+         'membrane': {'criterion': 'force', 'rupture_force_n': 4.0, 'rupture_force_spread_n': 0.2},
+         'cutting_force_n': 0.2, 'friction': dict(friction, insertion_coulomb_n_per_m=100.0, retraction_constant_n=1.2)},
+        {'name': 'deep', 'select': {'below_z_m': -0.011}, 'depth_spread_m': 0.0005, 'young_modulus_pa': 60000.0,
+         'membrane': {'criterion': 'force', 'rupture_force_n': 3.0, 'rupture_force_spread_n': 0.2},
+         'cutting_force_n': 0.3, 'friction': dict(friction, insertion_coulomb_n_per_m=150.0, retraction_constant_n=1.8)},
+    ]
+    if layers == 3:
+        regions.append({'name': 'core', 'select': {'below_z_m': -0.0175}, 'depth_spread_m': 0.0005,
+                        'young_modulus_pa': 45000.0,
+                        'membrane': {'criterion': 'force', 'rupture_force_n': 3.5, 'rupture_force_spread_n': 0.2},
+                        'cutting_force_n': 0.4,
+                        'friction': dict(friction, insertion_coulomb_n_per_m=120.0, retraction_constant_n=2.2)})
+    return {'mesh': dict(PHANTOM_MESHES[mesh]), 'regions': regions,
+            'model': {'geometric': True, 'viscosity_mu_pa_s': 5.0, 'nonlinearity_threshold': 0.02,
+                      'relaxation': [{'relative_modulus': 0.7, 'time_constant_s': 2.0}]},
+            'solver': {'time_step_safety': 0.65, 'damping_per_s': 50.0, 'mass_scaling': 400.0},
+            'needle': {'diameter_m': 0.00127, 'tip': {'shape': 'bevel', 'bevel_angle_deg': 20.0},
+                       'start_gap_m': 0.001}}
 
 
 def _write_trial(path, run, rng, noise_n) -> None:
@@ -71,7 +116,7 @@ def write_layered_study(directory, scene_sets, speeds_mm_s, *, scene_file=None, 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     trials = [(speed, repeat) for speed in speeds_mm_s for repeat in range(1, repeats + 1)]
-    tasks = [(None if scene_file is None else str(scene_file), list(scene_sets) + [f'variation.seed={k}'],
+    tasks = [(None if scene_file is None else str(scene_file), list(scene_sets) + [f'variation.seed={1000 * seed + k}'],
               speed * 1e-3, travel_m, hold_s) for k, (speed, _) in enumerate(trials, 1)]
     runs = run_jobs(_one_layered_trial, tasks, workers=workers, label='synthetic trials', quiet=True)
     truth = {'scene_file': None if scene_file is None else str(scene_file), 'sets': list(scene_sets),

@@ -105,15 +105,20 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
     """Fit ``keys`` (FittedKey) of ``scene`` to ``trials``; everything the report needs."""
     from tqdm import tqdm
 
-    from tissue_sim_ros.analysis.calibration.objective import Objective
+    from tissue_sim_ros.analysis.calibration.objective import Budget, Objective, logged_runs
     from tissue_sim_ros.analysis.calibration.fine import fine_finish, refit_loading
-    from tissue_sim_ros.analysis.calibration.search import search, uncertainty
+    from tissue_sim_ros.analysis.calibration.search import search, uncertainty, why_not_moved
     from tissue_sim_ros.analysis.compare.trial_simulation import ResultStore
     log = log or (lambda text: print(text, file=sys.stderr))
     wall0 = time.perf_counter()
+    if max_evaluations is not None and max_evaluations < len(keys) + 2:
+        raise ValueError(f'--max-evaluations {max_evaluations}: expected at least {len(keys) + 2} for {len(keys)} '
+                         'key(s) (the start, a step, and the Jacobian of the standard errors at the result)')
+    budget = Budget(max_evaluations, reserve=len(keys))
     out = Path(out) if out is not None else None
     store = ResultStore(out / 'simulations') if out is not None else None
     log_path = out / 'evaluations.jsonl' if out is not None else None
+    earlier_runs = logged_runs(log_path)
     search_scene = coarse_scene or scene
     u0 = _start(keys, scene.spec, log)
     from tissue_sim_ros.analysis.jobs import WorkerPool
@@ -128,8 +133,10 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
         return dict(inertia, cap=cap, bound=inertia_bound)
 
     def objective_for(a_scene, inertia):
-        return Objective(trials, a_scene, keys, keep_time_step_s=a_scene.dt, max_mass_scaling=inertia['cap'],
+        made = Objective(trials, a_scene, keys, keep_time_step_s=a_scene.dt, max_mass_scaling=inertia['cap'],
                          **options)
+        made.budget = budget
+        return made
 
     bar = tqdm(desc='calibration', unit='eval', file=sys.stderr, disable=quiet, dynamic_ncols=True)
 
@@ -146,12 +153,21 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
         objective = objective_for(search_scene, inertia)
         used_objectives = [progress(objective)]
         start = objective.evaluate(u0)
+        floor = noise_floor(objective, start)
+
+        def enough(evaluation):
+            return bool(np.isfinite(floor) and evaluation.nrmse_mean <= floor)
+        stages: list = []
         # with a coarse scene the joint refinement is the fine finish's, on the scene as asked
         u = search(objective, u0, staged=staged, global_search=global_search, generations=generations,
                    stage_evaluations=stage_evaluations, joint_evaluations=joint_evaluations,
-                   max_evaluations=max_evaluations, joint=coarse_scene is None or not staged, log=log)
+                   joint=coarse_scene is None or not staged, log=log, record=stages,
+                   enough=enough if coarse_scene is None else None)
         at_optimum, J, finish = objective, None, []
-        if coarse_scene is not None:
+        stopped_at_start = any(entry.get('stopped') == 'already optimal' for entry in stages)
+        if stopped_at_start:
+            J = next(entry.pop('jacobian') for entry in stages if entry.get('stopped') == 'already optimal')
+        if coarse_scene is not None and not stopped_at_start:
             log('fine stage: on the scene as asked')
             objective = objective_for(scene, inertia)
             used_objectives.append(progress(objective))
@@ -162,9 +178,12 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
                 u, J, finish = fine_finish(objective, u, steps=fine_steps, noise_floor=noise_floor(objective, start),
                                            log=log)
         best = objective.evaluate(u)
+        for used in used_objectives:
+            used.for_search = False              # the reserve: the Jacobian of the standard errors
         spread = uncertainty(at_optimum, u, J)
         spread['jacobian'] = ('the scene as asked, before the fine finish\'s steps' if J is not None else
                               'the scene as asked, at the optimum')
+        spread['moved'] = why_not_moved(at_optimum, u0, u, spread['jacobian_matrix'], spread['correlation'])
     evaluations = [e for o in used_objectives for e in o.evaluations]
     failed = [e for e in evaluations if e.failures]
     partial = sum(e.phases is not None for e in evaluations)
@@ -172,10 +191,16 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
     used = max((r.mass_scaling for r in best.results if np.isfinite(r.mass_scaling)), default=inertia['mass_scaling'])
     inertia['mass_scaling_at_optimum'] = used
     inertia['error_at_optimum'] = inertia['error_at_start'] * used / inertia['mass_scaling']
+    wall = time.perf_counter() - wall0
+    earlier = sum(run['elapsed_s'] for run in earlier_runs.values())
     return {'keys': keys, 'u0': u0, 'u': u, 'start': start, 'best': best, 'uncertainty': spread,
-            'inertia': inertia, 'objective': objective, 'evaluations': len(evaluations),
+            'inertia': inertia, 'objective': objective, 'evaluations': budget.used,
+            'replayed_evaluations': budget.replayed, 'max_evaluations': max_evaluations,
             'partial_evaluations': partial, 'failed': failed, 'simulations': simulations,
-            'search_wall_s': time.perf_counter() - wall0, 'finish': finish}
+            'search_wall_s': wall, 'wall_s_all_runs': earlier + wall, 'runs': len(earlier_runs) + 1,
+            'evaluations_logged': sum(run['evaluations'] for run in logged_runs(log_path).values()),
+            'finish': finish, 'stages': stages, 'noise_floor_nrmse': floor, 'stopped_at_start': stopped_at_start,
+            'evaluations_in_memory': len(evaluations)}
 
 
 def parse_phase_weights(texts) -> dict:
@@ -277,14 +302,18 @@ def main(*, data_spec, fits, validate_spec=None, leave_one_speed_out=False, scen
     report = _fit_and_report(trials, held_out, Path(out), data_spec=data_spec, validate_spec=validate_spec,
                              cross_validation=cross_validation or None, **options)
     for key, entry in report['parameters'].items():
-        print(f"  {key} = {entry['value']:.6g} +- {entry['stderr']:.2g} (start {entry['start']:.6g})", file=stream)
+        why = '' if entry.get('moved') or not entry.get('why_not_moved') else f"; did not move: {entry['why_not_moved']}"
+        print(f"  {key} = {entry['value']:.6g} +- {entry['stderr']:.2g} (start {entry['start']:.6g}{why})", file=stream)
     for warning in report['warnings']:
         print(f'  warning: {warning}', file=stream)
     print(f"fit NRMSE {report['fit']['nrmse_mean']:.4f} (start {report['fit']['nrmse_mean_start']:.4f})"
           + (f"; held out {report['validation']['nrmse_mean']:.4f}" if report.get('validation') else '')
           + (f"; leave-one-speed-out {report['cross_validation']['nrmse_mean']:.4f}"
              if report.get('cross_validation') else '')
-          + f"; {report['evaluations']} evaluations, {report['simulations']} simulations, "
-          f"{report['wall_s']:.1f} s", file=stream)
+          + f"; {report['evaluations']}{'' if max_evaluations is None else f' of {max_evaluations}'} evaluations"
+          f"{'' if not report.get('replayed_evaluations') else ' (' + str(report['replayed_evaluations']) + ' replayed)'}, "
+          f"{report['simulations']} simulations, {report['wall_s']:.1f} s"
+          + (f" ({report['wall_s_all_runs']:.1f} s over {report['runs']} runs)" if report.get('runs', 1) > 1 else ''),
+          file=stream)
     print(f"wrote {', '.join(report['outputs'].values())}", file=stream)
     return report

@@ -93,6 +93,8 @@ class TrialComparison:
     measured_punctures: list = field(default_factory=list)
     simulated_punctures: list = field(default_factory=list)
     diverged: str = ''
+    #: the scene's own puncture events (travel since contact [m], layer), the simulation's clock
+    simulated_events: tuple = ()
 
 
 def compare_trial(trial, motion, curve: SimulatedCurve, align: str = 'contact', *, measured_punctures=None,
@@ -127,8 +129,9 @@ def compare_trial(trial, motion, curve: SimulatedCurve, align: str = 'contact', 
             simulated = resample(curve.time_since_contact_s - shift, curve.axial_force_n, since)
     compared = np.isfinite(simulated)
     kept = np.flatnonzero(compared)                  # punctures indexed on the trial's samples
-    sim_punctures = [replace(p, index=int(kept[p.index]), layer=_layer_of(p, curve))
-                     for p in detect_punctures(travel[kept], simulated[kept])] if kept.size > 2 else []
+    sim_punctures = _labelled([replace(p, index=int(kept[p.index]))
+                               for p in detect_punctures(travel[kept], simulated[kept])], curve) \
+        if kept.size > 2 else []
     pairs = pair_punctures(data_punctures, sim_punctures)
     events = event_errors(data_punctures, sim_punctures, measured_force_n=force[compared],
                           measured_phases=phases[compared], simulated_force_n=simulated[compared],
@@ -147,7 +150,7 @@ def compare_trial(trial, motion, curve: SimulatedCurve, align: str = 'contact', 
         if np.isfinite(pointwise).any() else {}
     return TrialComparison(trial.file, trial.speed_m_s, trial.repeat, since, travel, force, simulated,
                            phases, errors, per_phase, events, shift, data_punctures, sim_punctures,
-                           curve.diverged)
+                           curve.diverged, curve.puncture_events)
 
 
 def away_from_events(travel, punctures, between=()) -> np.ndarray:
@@ -189,12 +192,18 @@ def within_spread(measured, simulated, layers) -> bool:
     return abs(simulated.travel_m - layer.depth_m) <= reach
 
 
-def _layer_of(puncture, curve: SimulatedCurve) -> int:
-    """The layer of the scene's puncture event within EVENT_MATCH_M of a puncture found in the
-    simulated force (-1: none)."""
-    near = [(abs(travel - puncture.travel_m), layer) for travel, layer in curve.puncture_events
-            if abs(travel - puncture.travel_m) <= EVENT_MATCH_M]
-    return min(near)[1] if near else -1
+def _labelled(punctures, curve: SimulatedCurve) -> list:
+    """The punctures found in the simulated force, each with the layer of a scene's puncture event
+    within EVENT_MATCH_M of it: the outermost such layer not given to an earlier puncture (two
+    layers that rupture together show as one drop: it is the outer one's); -1 where none."""
+    taken, out = set(), []
+    for p in punctures:
+        near = sorted(layer for travel, layer in curve.puncture_events
+                      if abs(travel - p.travel_m) <= EVENT_MATCH_M and layer not in taken)
+        layer = near[0] if near else -1
+        taken.add(layer)
+        out.append(replace(p, layer=layer))
+    return out
 
 
 def measured_layers(trials, motions) -> tuple[list, list]:
@@ -303,9 +312,11 @@ def run_plan(plan: Plan, *, store=None, workers=None, scheduler=None, quiet=Fals
 
 def compare_trials(trials, scene, *, align: str = 'contact', gap_m: float | None = None,
                    per_trial: bool = False, tick_s: float = 0.01, store=None, workers=None,
-                   scheduler=None, quiet: bool = False) -> dict:
+                   scheduler=None, quiet: bool = False, simulated_repeats: int = 0) -> dict:
     """Everything the report needs: the comparisons, the plan, the results, the repeats' floors
-    by speed, and what it cost."""
+    by speed, each speed's punctures measured and simulated (with ``simulated_repeats`` runs of a
+    scene that states its spread: :mod:`.puncture_spread`), and what it cost."""
+    from tissue_sim_ros.analysis.compare.puncture_spread import run_simulated_repeats, spread_by_speed
     wall0 = time.perf_counter()
     plan = plan_simulations(trials, scene, gap_m=gap_m, per_trial=per_trial, tick_s=tick_s)
     results = run_plan(plan, store=store, workers=workers, scheduler=scheduler, quiet=quiet)
@@ -315,9 +326,15 @@ def compare_trials(trials, scene, *, align: str = 'contact', gap_m: float | None
     comparisons = [compare_trial(trial, plan.motions[i], curves[plan.job_of_trial[i]], align,
                                  measured_punctures=punctures[i], layers=layers[i])
                    for i, trial in enumerate(trials)]
-    return {'comparisons': comparisons, 'plan': plan, 'results': results, 'curves': curves,
-            'speeds': speed_groups(trials, plan.motions, comparisons),
-            'wall_s': time.perf_counter() - wall0}
+    study = {'comparisons': comparisons, 'plan': plan, 'results': results, 'curves': curves, 'layers': layers,
+             'speeds': speed_groups(trials, plan.motions, comparisons), 'scene_gap_m': scene.start_gap_m}
+    repeats = run_simulated_repeats(plan, scene, simulated_repeats, store=store, workers=workers,
+                                    scheduler=scheduler, quiet=quiet)
+    study['repeat_results'] = repeats
+    for position, rows in spread_by_speed(study, repeats, scene.start_gap_m).items():
+        study['speeds'][position]['punctures'] = rows
+    study['wall_s'] = time.perf_counter() - wall0
+    return study
 
 
 def speed_groups(trials, motions, comparisons) -> list[dict]:
@@ -357,7 +374,7 @@ def data_spec_from_options(files, options: dict):
 
 def main(*, data_spec=None, files=(), options=None, scene_file=None, sets=(), align='contact',
          gap_mm=None, max_depth_mm=None, per_trial=False, tick_ms=10.0, workers=None, scheduler=None, out='out/compare',
-         stream=None) -> dict:
+         simulated_repeats=0, stream=None) -> dict:
     """The ``tissue-sim compare`` command: load the trials, compare, write the report."""
     import sys
 
@@ -378,7 +395,8 @@ def main(*, data_spec=None, files=(), options=None, scene_file=None, sets=(), al
     out = Path(out)
     study = compare_trials(trials, scene, align=align, gap_m=None if gap_mm is None else gap_mm * 1e-3,
                            per_trial=per_trial, tick_s=tick_ms * 1e-3,
-                           store=ResultStore(out / 'simulations'), workers=workers, scheduler=scheduler)
+                           store=ResultStore(out / 'simulations'), workers=workers, scheduler=scheduler,
+                           simulated_repeats=simulated_repeats)
     report = write_report(out, study, scene_label=str(scene_file or 'the default scene'),
                           overrides=sets, align=align)
     s = report['summary']
@@ -392,6 +410,14 @@ def main(*, data_spec=None, files=(), options=None, scene_file=None, sets=(), al
         speed = 'unknown' if group['speed_m_s'] is None else f"{group['speed_m_s'] * 1e3:g} mm/s"
         print(f"  {speed:>12}: {group['trials']} trial(s), model NRMSE {fmt(group['nrmse_mean'])}, "
               f"noise floor {fmt(group['noise_floor_nrmse'])}", file=stream)
+        for row in group.get('punctures') or []:
+            m, sim = row['measured'], row['simulated']
+            print(f"    layer {row['layer']}: measured {1e3 * m['depth_m']:.2f} +- {1e3 * m['depth_sd_m']:.2f} mm, "
+                  f"{m['force_n']:.3f} +- {m['force_sd_n']:.3f} N ({m['found']} of {m['repeats']}); simulated "
+                  + ('none' if not sim['depth_m']['count'] else
+                     f"{1e3 * sim['depth_m']['mean']:.2f} +- {1e3 * (sim['depth_m']['sd'] or 0):.2f} mm, "
+                     f"{sim['force_n']['mean']:.3f} +- {sim['force_n']['sd'] or 0:.3f} N ({sim['runs']} run(s))")
+                  + ('' if row['within_spread'] else ', outside the repeats\' spread'), file=stream)
     print(f"wrote {', '.join(report['outputs'].values())}", file=stream)
     return report
 
