@@ -10,8 +10,8 @@ The rules (:func:`shared_punctures`; depths are travel since contact, one origin
 2. Groups: the punctures of every repeat, sorted by depth; a group ends where the next one is
    more than ``GROUP_GAP_M`` deeper than the last one in it, or belongs to a repeat the group
    already holds (a repeat passes a layer once).
-3. Layers: the groups that hold punctures of at least half the repeats (rounded up); with one
-   repeat, each of its punctures. Groups of fewer repeats are dropped (one repeat's stray drop).
+3. Layers: the groups that hold punctures of more than half the repeats; with one repeat, each of
+   its punctures. Groups of fewer repeats are dropped (one repeat's stray drop).
 4. A repeat without a puncture in a layer: the largest of its drops (a pre-drop, or a drop under
    the fraction a puncture needs, down to the noise threshold) within the layer's depths widened
    by ``max(SEARCH_SPREADS x the depth's standard deviation, SEARCH_MARGIN_M)`` is its puncture
@@ -24,7 +24,6 @@ the groups then merge by rule 2 and the report says how many repeats each layer 
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -111,7 +110,7 @@ def shared_punctures(travels, forces, *, inserting=None, min_drop_fraction: floa
               for t, f, m in zip(travels, forces, masks)]
     weak = [detect_drops(t, f, inserting=m, min_drop_fraction=0.0) for t, f, m in zip(travels, forces, masks)]
     repeats = len(travels)
-    needed = 1 if repeats == 1 else math.ceil(repeats / 2)
+    needed = repeats // 2 + 1
     layers, by_repeat = [], [[] for _ in range(repeats)]
     for group in _groups(events):
         if len(group) < needed:

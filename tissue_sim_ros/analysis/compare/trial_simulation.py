@@ -9,6 +9,14 @@ the scenes it built (by their keys' hash) and resets them between jobs instead o
 again. A run that diverges, or whose keys the scene refuses, is a result too (``diverged``: the
 reason), never an exception that would stop a whole study.
 
+Each job runs on ``threads`` numba threads (default 1), set for the thread that runs it and
+restored after. The simulations are the parallelism: a process pool's workers start with one
+numba thread, but a Dask worker, or this process running a batch of one, has numba's whole pool
+(every core), and simulations side by side on it fight over the cores, each parallel region's
+threads spinning while the others wait (a Dask ``compare`` on 2 cores with 2 workers of one
+thread each: 10x the process pool's time per simulation, not a compile: the workers load the
+kernels from the per-user cache). Figures: docs/performance.md.
+
 :class:`ResultStore` keeps every result in ``DIR/simulations/<key>.npz`` as it arrives, so an
 interrupted study resumes where it stopped (the key hashes the job: scene keys and schedule).
 
@@ -114,7 +122,18 @@ def _scene(job: SimulationJob):
 
 
 def simulate(job: SimulationJob) -> SimulationResult:
-    """Run ``job`` (see the module docstring)."""
+    """Run ``job`` (see the module docstring) on ``job.threads`` numba threads, set for the
+    calling thread and restored after."""
+    import numba
+    previous = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(int(job.threads), numba.config.NUMBA_NUM_THREADS)))
+    try:
+        return _simulate(job)
+    finally:
+        numba.set_num_threads(previous)
+
+
+def _simulate(job: SimulationJob) -> SimulationResult:
     import time
 
     from tissue_sim_ros.engine.driver import SimulationDriver
