@@ -27,21 +27,22 @@ SPEC = ("files: ['trial_*.csv']\ntime: {column: time, unit: s}\nforce: {column: 
         "file_name: {pattern: 'trial_(?P<speed>[0-9.]+)_(?P<repeat>[0-9]+)', speed_unit: mm/s}\n")
 
 
-#: the layered phantoms' meshes: 'test' (box, 1080 tetrahedra, about a second a run) and 'bench'
-#: (graded, 3 mm near the needle, 4356 tetrahedra)
+#: the layered phantoms' meshes: 'test' (a 40 x 40 x 30 mm box of 8 x 8 x 3 mm cells, 1500
+#: tetrahedra, about a second a run) and 'bench' (a 40 x 40 x 40 mm box of 6.7 x 6.7 x 2 mm cells,
+#: 4320 tetrahedra); both put the elements' centroids off the planes every 3 (2) mm the layers' boundaries
+#: lie on
 PHANTOM_MESHES = {
-    'test': {'generator': 'box', 'size_m': [0.06, 0.06, 0.04], 'origin_m': [-0.03, -0.03, -0.04],
-             'divisions': [6, 6, 5]},
-    'bench': {'generator': 'graded_box', 'size_m': [0.06, 0.06, 0.04], 'origin_m': [-0.03, -0.03, -0.04],
-              'divisions': [6, 6, 6], 'fine_size_m': 0.003, 'focus_radius_m': 0.003, 'growth': 1.4,
-              'grade_z': False},
+    'test': {'generator': 'box', 'size_m': [0.04, 0.04, 0.03], 'origin_m': [-0.02, -0.02, -0.03],
+             'divisions': [5, 5, 10]},
+    'bench': {'generator': 'box', 'size_m': [0.04, 0.04, 0.04], 'origin_m': [-0.02, -0.02, -0.04],
+              'divisions': [6, 6, 20]},
 }
 
 
 def phantom_scene(layers: int = 2, mesh: str = 'test') -> dict:
     """The hidden truth of the layered phantoms (tests, the layered calibration benchmark): a two-
     or three-layer block, 4 and 3 (and 3.5) N rupture forces with 0.2 N of spread between repeats,
-    the deeper boundaries 11 (and 17.5) mm down with 0.5 mm of spread (between the depths of the
+    the deeper boundaries 12 (and 18) mm down with 0.5 mm of spread (between the depths of the
     meshes' element centroids, so that a boundary's spread moves where the needle meets the layer,
     not which elements are in it), a relaxing tissue (a Prony
     term: the pause relaxes), a constant retraction pull per layer (a plateau with a step where
@@ -53,12 +54,12 @@ def phantom_scene(layers: int = 2, mesh: str = 'test') -> dict:
         {'name': 'outer', 'select': 'all', 'young_modulus_pa': 30000.0,
          'membrane': {'criterion': 'force', 'rupture_force_n': 4.0, 'rupture_force_spread_n': 0.2},
          'cutting_force_n': 0.2, 'friction': dict(friction, insertion_coulomb_n_per_m=100.0, retraction_constant_n=1.2)},
-        {'name': 'deep', 'select': {'below_z_m': -0.011}, 'depth_spread_m': 0.0005, 'young_modulus_pa': 60000.0,
+        {'name': 'deep', 'select': {'below_z_m': -0.012}, 'depth_spread_m': 0.0005, 'young_modulus_pa': 60000.0,
          'membrane': {'criterion': 'force', 'rupture_force_n': 3.0, 'rupture_force_spread_n': 0.2},
          'cutting_force_n': 0.3, 'friction': dict(friction, insertion_coulomb_n_per_m=150.0, retraction_constant_n=1.8)},
     ]
     if layers == 3:
-        regions.append({'name': 'core', 'select': {'below_z_m': -0.0175}, 'depth_spread_m': 0.0005,
+        regions.append({'name': 'core', 'select': {'below_z_m': -0.018}, 'depth_spread_m': 0.0005,
                         'young_modulus_pa': 45000.0,
                         'membrane': {'criterion': 'force', 'rupture_force_n': 3.5, 'rupture_force_spread_n': 0.2},
                         'cutting_force_n': 0.4,

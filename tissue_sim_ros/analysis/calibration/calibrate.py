@@ -80,16 +80,45 @@ def noise_floor(objective, evaluation) -> float:
     return float(np.nanmean(floors)) if np.isfinite(floors).any() else float('nan')
 
 
-def _start(keys, spec, log) -> np.ndarray:
+def _whole_scene(spec, where: str, centroids=None) -> None:
+    """Check scene keys as a scene would (every key, every list, the combinations, and with the
+    mesh's element ``centroids`` that every element has a region), without building the scene; a
+    SceneError starting with ``where``."""
+    from tissue_sim_ros.engine.mesh.selectors import RegionSelectors
+    from tissue_sim_ros.engine.scene.build import check_combinations
+    from tissue_sim_ros.engine.scene.checks import apply_schema
+    from tissue_sim_ros.engine.scene.schema import SCHEMA
+    from tissue_sim_ros.errors import SceneError
+    try:
+        checked = apply_schema('', spec, SCHEMA)
+        check_combinations(checked)
+    except SceneError as exc:
+        raise SceneError(f'{where}: {exc}') from None
+    if centroids is not None and checked['mesh']['generator'] != 'file':
+        orphans = int(np.sum(RegionSelectors(checked['regions']).element_regions(centroids) < 0))
+        if orphans:
+            raise SceneError(f'{where}: {orphans} elements would belong to no region (the first region must '
+                             'select all, or the regions together cover the mesh)')
+
+
+def _start(keys, spec, log, centroids=None) -> np.ndarray:
     """The unit coordinates of the scene's values; a key that cannot take its bounds is refused
-    here, before the first evaluation."""
+    here, before the first evaluation: each bound set alone, and every key at its lower and at
+    its upper bound at once, must make a scene the schema and its combinations accept (a
+    relaxation term's part of the modulus, whose sum must stay below 1; relaxation with an
+    implicit integrator)."""
     from tissue_sim_ros.analysis.calibration.parameters import read_key
-    from tissue_sim_ros.engine.scene.keys import set_key
+    from tissue_sim_ros.engine.scene.keys import set_key, set_keys
     u = []
+    for side in ('low', 'high'):
+        corner = {k.key: getattr(k, side) for k in keys}
+        where = f"--fit with every key at its {'lower' if side == 'low' else 'upper'} bound"
+        _whole_scene(set_keys(spec, corner) if len(keys) > 1 else spec, where, centroids)
     for k in keys:
         value = read_key(spec, k.key)
         for bound in (k.low, k.high):
-            set_key(spec, k.key, bound, where=f'--fit {k.key}={k.low:g}:{k.high:g}')
+            where = f'--fit {k.key}={k.low:g}:{k.high:g}'
+            _whole_scene(set_key(spec, k.key, bound, where=where), f'{where} (at {bound:g})', centroids)
         if not k.low <= value <= k.high:
             log(f'warning: {k.key} = {value:g} in the scene is outside --fit {k.low:g}:{k.high:g}; '
                 'starting at the nearest bound')
@@ -120,7 +149,7 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
     log_path = out / 'evaluations.jsonl' if out is not None else None
     earlier_runs = logged_runs(log_path)
     search_scene = coarse_scene or scene
-    u0 = _start(keys, scene.spec, log)
+    u0 = _start(keys, scene.spec, log, scene.mesh.rest_positions[scene.mesh.tetrahedra].mean(axis=1))
     from tissue_sim_ros.analysis.jobs import WorkerPool
     pool = WorkerPool(workers if scheduler is None else 1)
     options = dict(align=align, gap_m=gap_m, tick_s=tick_s, phase_weights=phase_weights, store=store,

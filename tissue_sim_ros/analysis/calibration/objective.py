@@ -141,7 +141,10 @@ def puncture_shift_residuals(comparison, indices, error, scale):
     between each measured puncture and the simulated one of its layer (``pair_punctures``) set to
     0, and per measured puncture its shift as one residual: the measured drop over the force
     range ``scale`` times the Huber root of the simulated puncture's shift counted in scored
-    samples (0 for a puncture the simulation has no match for). See the module docstring."""
+    samples; a puncture the simulation has no drop of costs as one shifted past every scored
+    sample up to the next measured puncture (or the end): a run that stops puncturing a layer, or
+    punctures it without a drop, is not let off the samples the missing drop leaves on the wrong
+    side. See the module docstring."""
     travel = comparison.travel_since_contact_m
     spacing = np.diff(travel[indices])
     spacing = float(np.median(spacing[spacing > 0])) if np.any(spacing > 0) else 0.0
@@ -151,9 +154,13 @@ def puncture_shift_residuals(comparison, indices, error, scale):
     from tissue_sim_ros.analysis.compare.shared_punctures import pair_punctures
     error = np.array(error, dtype=float)
     paired = {id(m): sim for m, sim in pair_punctures(comparison.measured_punctures, comparison.simulated_punctures)}
-    for k, data in enumerate(comparison.measured_punctures):
+    measured = comparison.measured_punctures
+    for k, data in enumerate(measured):
         sim = paired.get(id(data))
         if sim is None:
+            until = measured[k + 1].index if k + 1 < len(measured) else np.inf
+            missed = int(np.count_nonzero((indices > data.index) & (indices < until)))
+            shifts[k] = (data.drop_n / scale) * huber_root(max(missed, 1))
             continue
         first, last = sorted((data.index, sim.index))
         error[(indices > first) & (indices <= last)] = 0.0   # both peaks are the last samples before a drop

@@ -11,15 +11,13 @@
    needle goes down along -z). The spread between repeats becomes each layer's
    ``rupture_force_spread_n`` and ``depth_spread_m``.
 3. ``refine_runs`` times: the scene simulated on the median repeat's motion (compare's plan),
-   its features read from the simulated curve as from the data, and each value moved by what its
-   feature misses (a fixed-point step, each key on its own feature: every modulus scaled by the
-   ratio of the outer layer's loading levels over the same depths (the data's slopes keep the
-   layers' ratios), the friction by the slopes after the last puncture, the last cutting force and
-   the retraction plateaus by their levels' errors, the relaxing part by the pause's; once every
-   layer punctures within ``SAME_LAYER_M`` of the data's, each boundary moved by its
-   puncture's depth error, each rupture force by its peak's and each cutting force by its
-   valley's). Layers meet: a deeper layer's numbers mean something only where the layers above
-   it puncture where the data's do.
+   its features read from the simulated curve as from the data, and the values that a feature
+   reads robustly moved by what it misses (a fixed-point step): every modulus by the ratio of the
+   outer layer's loading levels over the same depths (the data's slopes keep the layers' ratios),
+   the last layer's friction by the slopes after the last puncture, the relaxing part by the
+   pause's. The other values stay as the data gave them: a layer's depth, rupture force and
+   cutting force are read off its own curve, and a simulation whose layers puncture elsewhere
+   says little about them (moved by their features' errors they did not settle on the phantoms).
    A last run scores the result; the best scene run is the proposal.
 4. Outputs in ``--out DIR``: ``proposed.yaml`` (a complete scene every command takes; ``calibrate
    --scene DIR/proposed.yaml`` as it is), ``proposal.json`` and ``proposal.md`` (the layers, each
@@ -44,9 +42,7 @@ __all__ = ['fit_suggestions', 'layered_spec', 'main', 'propose']
 #: part's within [1 / RELAX_CLAMP, RELAX_CLAMP] and below MAX_RELAXING (it softens every loading
 #: too: a long pause's relaxation moves the punctures)
 CLAMP, RELAX_CLAMP, MAX_RELAXING = 3.0, 2.0, 0.9
-#: a boundary moves at most this much in one refinement run [m]
-MAX_BOUNDARY_MOVE_M = 0.005
-#: the layers puncture where the data's do when every one is within this much of its depth [m]
+#: the last layer punctures where the data's does when within this much of its depth [m]
 SAME_LAYER_M = 0.0015
 
 
@@ -74,7 +70,7 @@ def layered_spec(base_spec: dict, values: dict, layers, top_z_m: float) -> dict:
                                'rupture_force_spread_n': float(layer.force_sd_n)},
                   'cutting_force_n': float(values[f'cutting_n[{k}]']),
                   'friction': {'insertion_static_n_per_m': first['friction']['insertion_static_n_per_m'],
-                               'insertion_coulomb_n_per_m': float(values['friction_n_per_m']),
+                               'insertion_coulomb_n_per_m': float(values[f'friction_n_per_m[{k}]']),
                                'stick_band_m_per_s': first['friction']['stick_band_m_per_s'],
                                'retraction_constant_n': float(values[f'retraction_n[{k}]'])}}
         if k == 0:
@@ -124,30 +120,16 @@ def _modulus_factors(measured, measured_curves, simulated, simulated_curves, n_l
 
 
 def _corrected(values: dict, measured, simulated, n_layers: int, factors) -> dict:
-    """``values`` moved by what the simulation's features miss of the data's (module docstring, 3);
-    ``factors``: the moduli's (:func:`_modulus_factors`: layer 0's scales every layer, whose
-    ratios the data's loading slopes set: a deeper layer's loading is read only where the layers
-    above it puncture where the data's do)."""
+    """``values`` moved by what the simulation's features miss of the data's (module docstring, 3):
+    every modulus by the outer layer's loading-level ratio (``factors[0]``,
+    :func:`_modulus_factors`), the last layer's friction by the slopes after the last puncture
+    once it punctures within ``SAME_LAYER_M`` of the data's, the relaxing part by the pause's."""
     out = dict(values)
     for k in range(n_layers):
         out[f'modulus_pa[{k}]'] *= factors[0]
-    same_layers = all(_finite(s) for s in simulated.depth_m) and all(
-        abs(m - s) <= SAME_LAYER_M for m, s in zip(measured.depth_m, simulated.depth_m))
-    for k in range(n_layers):
-        if same_layers and k >= 1:
-            move = float(np.clip(measured.depth_m[k] - simulated.depth_m[k], -MAX_BOUNDARY_MOVE_M, MAX_BOUNDARY_MOVE_M))
-            out[f'boundary_m[{k}]'] = max(1e-4, out[f'boundary_m[{k}]'] + move)
-        if same_layers and _finite(measured.peak_n[k]) and _finite(simulated.peak_n[k]):
-            out[f'rupture_n[{k}]'] = max(0.05 * measured.peak_n[k],
-                                         out[f'rupture_n[{k}]'] + measured.peak_n[k] - simulated.peak_n[k])
-        error = (measured.post_intercept_n - simulated.post_intercept_n) if k == n_layers - 1 else \
-            (measured.valley_n[k] - simulated.valley_n[k] if same_layers else math.nan)
-        if _finite(error):
-            out[f'cutting_n[{k}]'] = max(0.0, out[f'cutting_n[{k}]'] + error)
-        error = simulated.retraction_n[k] - measured.retraction_n[k]        # the pull, a magnitude
-        if _finite(error):
-            out[f'retraction_n[{k}]'] = max(0.0, out[f'retraction_n[{k}]'] + error)
-    out['friction_n_per_m'] *= _factor(measured.post_slope_n_per_m, simulated.post_slope_n_per_m)
+    last = n_layers - 1
+    if _finite(simulated.depth_m[last]) and abs(measured.depth_m[last] - simulated.depth_m[last]) <= SAME_LAYER_M:
+        out[f'friction_n_per_m[{last}]'] *= _factor(measured.post_slope_n_per_m, simulated.post_slope_n_per_m)
     if 'relaxing' in out:
         out['relaxing'] = min(MAX_RELAXING, out['relaxing'] * _factor(measured.relaxing, simulated.relaxing,
                                                                      RELAX_CLAMP))
@@ -178,10 +160,11 @@ def fit_suggestions(spec: dict, n_layers: int, layers) -> list[dict]:
         retraction = region['friction']['retraction_constant_n']
         add(f'regions[{k}].friction.retraction_constant_n', 0.0, max(2 * retraction, 0.5), False,
             f'retraction with the tip in layer {k}')
-    coulomb = spec['regions'][n_layers - 1]['friction']['insertion_coulomb_n_per_m']
-    if coulomb > 0:
-        add(f'regions[{n_layers - 1}].friction.insertion_coulomb_n_per_m', coulomb / 3, coulomb * 3, True,
-            'after the last puncture')
+    for k, region in enumerate(spec['regions'][:n_layers]):
+        coulomb = region['friction']['insertion_coulomb_n_per_m']
+        if coulomb > 0:
+            add(f'regions[{k}].friction.insertion_coulomb_n_per_m', coulomb / 3, coulomb * 3, True,
+                f'after puncture {k}')
     if spec['model']['relaxation']:
         term = spec['model']['relaxation'][0]
         add('model.relaxation[0].relative_modulus', 0.05, 0.95, False, 'the pause')

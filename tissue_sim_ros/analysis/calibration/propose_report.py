@@ -27,6 +27,7 @@ SCHEMA = 'tissue_sim_ros/propose/1'
 
 #: the starting values' names -> the scene key each sets (layer k's with [k])
 KEYS = {'modulus_pa': 'regions[{k}].young_modulus_pa', 'rupture_n': 'regions[{k}].membrane.rupture_force_n',
+        'friction_n_per_m': 'regions[{k}].friction.insertion_coulomb_n_per_m',
         'cutting_n': 'regions[{k}].cutting_force_n', 'retraction_n': 'regions[{k}].friction.retraction_constant_n',
         'boundary_m': 'regions[{k}].select.below_z_m (depth below the top)'}
 
@@ -35,8 +36,7 @@ def _key_of(name: str) -> str:
     if '[' in name:
         base, k = name[:-1].split('[')
         return KEYS[base].format(k=k)
-    return {'friction_n_per_m': 'regions[*].friction.insertion_coulomb_n_per_m',
-            'relaxing': 'model.relaxation[0].relative_modulus',
+    return {'relaxing': 'model.relaxation[0].relative_modulus',
             'relax_time_s': 'model.relaxation[0].time_constant_s'}[name]
 
 

@@ -28,7 +28,12 @@ The rules (module constants, SI units):
   ``max(min_drop_fraction x peak, min_drop_n)`` is an event. Lower tops between a peak and the
   lowest point of its fall (a double top) belong to its event. ``min_drop_n`` defaults to
   ``8 noise + 10 mN``: the range of a thousand Gaussian samples rarely reaches 8 sigma, and 10 mN
-  keeps a noiseless simulation's numerical ripples out.
+  keeps a noiseless simulation's numerical ripples out. The noise here is the smaller of the
+  pre-contact one and the whole record's sample-to-sample noise (the robust standard deviation of
+  the force's second differences over sqrt(6), white noise's own; the curve's trend, its kinks
+  and its few drops barely move a median): a recording that starts a millimetre above the tissue
+  has little before contact to read the noise from, and the loading's shape read as noise set the
+  threshold above a layer's drop.
 - Puncture or pre-drop: a puncture ends the loading that built its peak (the force has to build a
   new one, in a new layer or inside the tissue), so the force stays below the peak for a while; a
   pre-drop (a surface dimple giving way, a slip) is a drop the same loading recovers from at once.
@@ -57,7 +62,7 @@ from scipy.signal import find_peaks
 from tissue_sim_ros.analysis.compare.alignment import increasing_time, sample_array
 
 __all__ = ['PHASES', 'PRE_DROP', 'PUNCTURE', 'Puncture', 'baseline_and_noise', 'depth_bounds', 'detect_contact',
-           'detect_drops', 'detect_punctures', 'segment_phases', 'travel_noise_m']
+           'detect_drops', 'detect_punctures', 'sample_noise_n', 'segment_phases', 'travel_noise_m']
 
 PHASES = ('approach', 'loading', 'inserted', 'hold', 'retraction')
 MAD_TO_SIGMA = 1.4826
@@ -112,6 +117,16 @@ def baseline_and_noise(force_n) -> tuple[float, float]:
         trend = np.polyval(np.polyfit(k, head, 2), k)
         noise = min(noise, MAD_TO_SIGMA * np.median(np.abs(head - trend)))
     return baseline, float(noise)
+
+
+def sample_noise_n(force_n) -> float:
+    """The sample-to-sample noise of a force record [N]: the robust standard deviation of its
+    second differences over sqrt(6) (module docstring)."""
+    force = sample_array('force_n', force_n, finite=True)
+    if len(force) < 3:
+        return 0.0
+    second = np.diff(force, 2)
+    return float(MAD_TO_SIGMA * np.median(np.abs(second - np.median(second))) / np.sqrt(6.0))
 
 
 def travel_noise_m(travel_m) -> float:
@@ -200,7 +215,8 @@ def detect_drops(travel_m, force_n, *, min_drop_fraction: float = 0.15, min_drop
     if not (np.isfinite(window_m) and window_m > 0):
         raise ValueError(f'window_m = {window_m!r}; expected a finite distance > 0 m')
     if min_drop_n is None:
-        min_drop_n = PUNCTURE_NOISE_MULTIPLE * baseline_and_noise(force)[1] + PUNCTURE_FLOOR_N
+        noise = min(baseline_and_noise(force)[1], sample_noise_n(force))
+        min_drop_n = PUNCTURE_NOISE_MULTIPLE * noise + PUNCTURE_FLOOR_N
     elif not (np.isfinite(min_drop_n) and min_drop_n >= 0):
         raise ValueError(f'min_drop_n = {min_drop_n!r}; expected a finite force >= 0 N')
     if inserting is None:
