@@ -13,6 +13,7 @@ A number may be written with another unit of the same quantity beside it, as tex
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
 import re
@@ -89,10 +90,8 @@ def _number_text(name, value):
     key's quantity beside it, converted to the key's SI unit."""
     if not isinstance(value, str) or not value.isascii():
         return value
-    try:
+    with contextlib.suppress(ValueError):
         return float(value)
-    except ValueError:
-        pass
     match = _WITH_UNIT.match(value)
     si = unit_of(name.rsplit('.', 1)[-1].split('[')[0])
     if match and si in _CONVERSIONS:

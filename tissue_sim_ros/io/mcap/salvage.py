@@ -97,10 +97,10 @@ def _chunk_records(content: bytes):
         return None
 
 
-def _read_summary(data) -> tuple[list, dict, dict, Statistics | None, int | None]:
-    """(chunk indexes, schemas, channels, statistics, data end offset) of the summary, when the
-    footer and the summary read back; empty otherwise."""
-    empty = ([], {}, {}, None, None)
+def _read_summary(data) -> tuple[list, dict, dict, Statistics | None]:
+    """(chunk indexes, schemas, channels, statistics) of the summary, when the footer and the
+    summary read back; empty otherwise."""
+    empty = ([], {}, {}, None)
     if len(data) < len(_MAGIC) + _FOOTER_BYTES or bytes(data[-len(_MAGIC):]) != _MAGIC:
         return empty
     found = _record_at(data, len(data) - _FOOTER_BYTES)
@@ -130,7 +130,7 @@ def _read_summary(data) -> tuple[list, dict, dict, Statistics | None, int | None
             channels[record.id] = record
         elif isinstance(record, Statistics):
             statistics = record
-    return sorted(indexes, key=lambda i: i.chunk_start_offset), schemas, channels, statistics, footer.summary_start
+    return sorted(indexes, key=lambda i: i.chunk_start_offset), schemas, channels, statistics
 
 
 def _next_chunk(data, start: int, indexes) -> int:
@@ -188,7 +188,7 @@ def salvage(path) -> Salvage:
 
 
 def _walk(data) -> Salvage:
-    indexes, schemas, channels, statistics, _ = _read_summary(data)
+    indexes, schemas, channels, statistics = _read_summary(data)
     records, damage = [], []
     complete = data_end = False
     pos = len(_MAGIC)
@@ -208,9 +208,7 @@ def _walk(data) -> Salvage:
             elif opcode in readers:
                 record = _parse(readers[opcode], content)
                 kept = None if record is None else [record]
-            elif opcode == Opcode.FOOTER:
-                kept = []
-            else:                   # an index, an attachment: nothing to keep, a record all the same
+            else:                   # the footer, an index, an attachment: nothing to keep
                 kept = []
         if kept is None:
             gap = Damage(pos, _next_chunk(data, pos + 1, indexes))
