@@ -1,5 +1,5 @@
-"""The spread between repeats as scene keys (engine.scene.variation), every scene value a key
---set and --fit reach, and a --fit key that cannot be applied refused before any simulation.
+"""The spread between repeats as scene keys (engine.scene.variation), and the layer boundaries,
+relaxation terms and spread as keys --set and --fit reach.
 
 The truth: the nominal scene bit for bit (seed 0, or no spread), the normal distribution the
 draws come from (their mean and standard deviation against the sampling error of that many), the
@@ -7,21 +7,12 @@ simulator's own puncture at the drawn rupture force."""
 import numpy as np
 import pytest
 
+from support.scenes import TWO_LAYERS
 from tissue_sim_ros.engine.scene.checks import apply_schema
 from tissue_sim_ros.engine.scene.keys import get_key, set_key
 from tissue_sim_ros.engine.scene.schema import SCHEMA
 from tissue_sim_ros.engine.scene.variation import drawn_regions
 from tissue_sim_ros.errors import SceneError
-
-TWO_LAYERS = {
-    'mesh': {'generator': 'box', 'divisions': [4, 4, 3]},
-    'regions': [{'name': 'outer', 'select': 'all', 'membrane': {'criterion': 'force', 'rupture_force_n': 0.8,
-                                                                'rupture_force_spread_n': 0.1}},
-                {'name': 'deep', 'select': {'below_z_m': -0.011}, 'depth_spread_m': 0.0005, 'young_modulus_pa': 9000.0,
-                 'membrane': {'criterion': 'force', 'rupture_force_n': 1.0}}],
-    'solver': {'mass_scaling': 400.0},
-    'needle': {'diameter_m': 0.00127, 'tip': {'shape': 'bevel'}, 'start_gap_m': 0.001},
-}
 
 
 def checked(spec):
@@ -83,44 +74,3 @@ def test_layer_boundaries_relaxation_terms_and_the_spread_are_keys(key, value):
     relaxing = set_key(TWO_LAYERS, 'model.relaxation', [{'relative_modulus': 0.3, 'time_constant_s': 1.0}])
     spec = checked(set_key(relaxing, key, value))
     assert get_key(spec, key) == value
-
-
-@pytest.mark.parametrize('fit, says', [
-    ('model.relaxation[0].relative_modulus=0.2:1.2', 'the relative moduli sum to 1.2'),
-    ('model.relaxation[1].time_constant_s=0.5:5', 'model.relaxation[1]: the list has 1 entry'),
-    ('regions[2].young_modulus_pa=1000:9000', 'regions[2]: the list has 2 entries'),
-    ('regions[0].select.below_z_m=-0.01:0', "regions[0].select = 'all' has no below_z_m"),
-])
-def test_a_fit_key_that_cannot_be_applied_is_refused_before_any_simulation(tmp_path, fit, says, monkeypatch, capsys):
-    """calibrate refuses the key naming it before the first evaluation: no simulation runs."""
-    import yaml
-
-    from tissue_sim_ros.analysis.compare import trial_simulation
-    from tissue_sim_ros.cli import main
-    from tissue_sim_ros.analysis.synthetic_curves import layered_curve
-    scene = tmp_path / 'scene.yaml'
-    scene.write_text(yaml.safe_dump(set_key(TWO_LAYERS, 'model.relaxation',
-                                            [{'relative_modulus': 0.3, 'time_constant_s': 1.0}])))
-    curve = layered_curve(np.random.default_rng(1), hold_s=0.0)
-    rows = np.column_stack([curve.time_s, curve.force_n, curve.travel_m * 1e3])
-    np.savetxt(tmp_path / 'trial.csv', rows, delimiter=',', header='time,fz,pz', comments='')
-    (tmp_path / 'spec.yaml').write_text("files: [trial.csv]\ntime: {column: time}\nforce: {column: fz}\n"
-                                        "position: {column: pz, unit: mm}\n")
-
-    def no_simulation(job):
-        raise AssertionError('a simulation ran')
-    monkeypatch.setattr(trial_simulation, 'simulate', no_simulation)
-    status = main(['calibrate', '--data-spec', str(tmp_path / 'spec.yaml'), '--scene', str(scene), '--fit', fit,
-                   '--out', str(tmp_path / 'out')])
-    error = capsys.readouterr().err.strip().splitlines()[-1]
-    print(error)
-    assert status == 2 and error.startswith('tissue-sim calibrate: error:') and says in error
-
-
-def test_the_data_description_keys_page_is_what_data_keys_prints():
-    from pathlib import Path
-
-    from tissue_sim_ros.io.trials.data_spec_keys import data_keys_markdown
-    page = (Path(__file__).resolve().parents[1] / 'docs' / 'data.md').read_text()
-    table = page.split('<!-- data-keys -->\n')[1].split('<!-- /data-keys -->')[0]
-    assert table == data_keys_markdown(), 'docs/data.md is stale: tissue-sim data-keys --markdown'
