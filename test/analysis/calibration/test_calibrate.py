@@ -45,9 +45,9 @@ def test_known_parameters_come_back_and_predict_a_held_out_speed_at_the_noise_le
     for key, entry in report['parameters'].items():
         from tissue_sim_ros.analysis.calibration.parameters import read_key
         assert read_key(calibrated.spec, key) == pytest.approx(entry['value'], rel=1e-9)
-    saved = json.loads((tmp_path / 'out' / 'report.json').read_text())
+    saved = json.loads((tmp_path / 'out' / 'calibrate.json').read_text())
     assert saved['fit']['nrmse_mean'] == pytest.approx(report['fit']['nrmse_mean'])
-    for name in ('report.md', 'calibration.csv', 'evaluations.jsonl', 'calibration_held_out_3mm_s.png'):
+    for name in ('calibrate.md', 'calibrate.csv', 'evaluations.jsonl', 'calibrate_held_out_3mm_s.png'):
         assert (tmp_path / 'out' / name).stat().st_size > 0
 
 
@@ -76,8 +76,8 @@ def test_leave_one_speed_out_predicts_each_speed_from_the_others_at_the_noise_le
         for key, value in row['parameters'].items():
             assert value == pytest.approx(TRUE[key], rel=0.10)
     assert report['cross_validation']['nrmse_mean'] == pytest.approx(np.mean([r['nrmse_calibrated'] for r in folds]))
-    assert 'Leave one speed out' in (tmp_path / 'out' / 'report.md').read_text()
-    assert (tmp_path / 'out' / 'calibration.csv').read_text().count('left out') == 3
+    assert 'Leave one speed out' in (tmp_path / 'out' / 'calibrate.md').read_text()
+    assert (tmp_path / 'out' / 'calibrate.csv').read_text().count('left out') == 3
 
 
 def test_leave_one_speed_out_refuses_data_it_cannot_split(cheap_study, tmp_path):
@@ -120,7 +120,7 @@ def test_an_interrupted_calibration_resumes_to_the_uninterrupted_result(cheap_st
     process.kill()                                             # a hard stop mid-search
     process.wait()
     done_before = len(log.read_text().splitlines())
-    assert done_before >= 4 and not (tmp_path / 'cut' / 'report.json').exists()
+    assert done_before >= 4 and not (tmp_path / 'cut' / 'calibrate.json').exists()
     resumed = cheap_run(cheap_study, tmp_path / 'cut', workers=1)
     print(f'killed after {done_before} evaluations; resumed: '
           f"{resumed['simulations']} simulations run of {whole['simulations']}")
@@ -137,7 +137,7 @@ def test_coarse_to_fine_finishes_on_the_scene_as_asked_and_says_whose_jacobian_t
         print(key, report['parameters'][key]['value'], TRUE[key])
         assert report['parameters'][key]['value'] == pytest.approx(TRUE[key], rel=0.10)
     assert report['jacobian'] == "the scene as asked, before the fine finish's steps"
-    assert 'before the fine finish' in (tmp_path / 'coarse' / 'report.md').read_text()
+    assert 'before the fine finish' in (tmp_path / 'coarse' / 'calibrate.md').read_text()
 
 
 @pytest.mark.parametrize('fit, says', [

@@ -92,7 +92,7 @@ def test_propose_finds_the_layers_and_their_depths_within_the_jitter(studies, tw
     scene = Scene.from_file(studies['root'] / f'propose_{layers}' / 'proposed.yaml')
     assert [r['select'] == 'all' for r in scene.spec['regions']] == [True] + [False] * (layers - 1)
     assert all(f['key'] in {k['key'] for k in report['fits']} for f in report['fits'])
-    assert (studies['root'] / f'propose_{layers}' / 'proposal.png').stat().st_size > 0
+    assert (studies['root'] / f'propose_{layers}' / 'propose.png').stat().st_size > 0
 
 
 def test_calibrate_from_the_proposal_recovers_the_layers_and_predicts_a_held_out_speed(studies, two_layer_proposal):
@@ -120,4 +120,4 @@ def test_calibrate_from_the_proposal_recovers_the_layers_and_predicts_a_held_out
     assert report['evaluations'] <= 60
     assert len((out / 'evaluations.jsonl').read_text().splitlines()) == report['evaluations_logged'] \
         == report['evaluations']
-    assert (out / 'calibration_held_out_2mm_s.png').stat().st_size > 0
+    assert (out / 'calibrate_held_out_2mm_s.png').stat().st_size > 0

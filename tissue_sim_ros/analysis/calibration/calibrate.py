@@ -323,7 +323,7 @@ def main(*, data_spec, fits, validate_spec=None, leave_one_speed_out=False, scen
                                data_spec=data_spec, validate_spec=f'{data_spec} ({label})', **options)
         row = dict(fold['validation']['speeds'][0], role='left out',
                    parameters={k: p['value'] for k, p in fold['parameters'].items()},
-                   report=fold['outputs']['report.json'])
+                   report=fold['outputs']['calibrate.json'])
         print(f'cross-validation: {label} predicted at NRMSE {row["nrmse_calibrated"]:.4f} (noise floor '
               f'{row["noise_floor_nrmse"] or float("nan"):.4f}, the nearest other speed\'s data '
               f'{row["nearest_speed_nrmse"] or float("nan"):.4f})', file=stream)

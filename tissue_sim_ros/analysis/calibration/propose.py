@@ -20,9 +20,9 @@
    says little about them (moved by their features' errors they did not settle on the phantoms).
    A last run scores the result; the best scene run is the proposal.
 4. Outputs in ``--out DIR``: ``proposed.yaml`` (a complete scene every command takes; ``calibrate
-   --scene DIR/proposed.yaml`` as it is), ``proposal.json`` and ``proposal.md`` (the layers, each
+   --scene DIR/proposed.yaml`` as it is), ``propose.json`` and ``propose.md`` (the layers, each
    value with how it was derived, each refinement run's NRMSE, the ``--fit`` keys and bounds to
-   calibrate with), ``proposal.csv`` (a row per layer), ``proposal.png`` (the data by depth and by
+   calibrate with), ``propose.csv`` (a row per layer), ``propose.png`` (the data by depth and by
    time, the punctures and pre-drops marked, each layer's depth spread, the proposal's
    simulation), ``simulations/`` (resume).
 """

@@ -1,7 +1,7 @@
 """What ``tissue-sim propose`` writes into ``--out DIR``.
 
 - ``proposed.yaml``: the complete proposed scene (every key), the layers and the command in comments;
-- ``proposal.json`` (schema ``tissue_sim_ros/propose/1``): ``speed_m_s``, ``repeats``, ``layers`` (per
+- ``propose.json`` (schema ``tissue_sim_ros/propose/1``): ``speed_m_s``, ``repeats``, ``layers`` (per
   layer: ``depth_m``, ``depth_sd_m``, ``depth_min_m``, ``depth_max_m``, ``force_n``, ``force_sd_n``,
   ``force_min_n``, ``force_max_n``, ``drop_n``, ``found``, ``repeats``, ``assisted``, and the scene keys
   set for it), ``values`` (each starting value: ``value``, ``derived`` from the data's feature,
@@ -9,8 +9,8 @@
   ``nrmse_all_samples`` (the proposal's), ``pre_drops`` (drops told from punctures), ``fits`` (the
   ``--fit`` keys and bounds: ``key``, ``low``, ``high``, ``log``, ``acts_on``, ``text``),
   ``calibrate_command``, ``wall_s``, ``outputs``;
-- ``proposal.md``: the same for a person; ``proposal.csv``: a row per layer;
-- ``proposal.png``: the repeats by depth since contact and by time since contact, their punctures
+- ``propose.md``: the same for a person; ``propose.csv``: a row per layer;
+- ``propose.png``: the repeats by depth since contact and by time since contact, their punctures
   (circles) and pre-drops (triangles), each layer's depths (a band over the repeats' range) and
   mean peak force, the proposal's simulation.
 """
@@ -83,7 +83,7 @@ def write_proposal(out: Path, proposal: dict, *, data_spec, scene_file, sets) ->
     from tissue_sim_ros.analysis.calibration.propose import dumps
     from tissue_sim_ros.engine.scene.scene import scene_yaml
     out.mkdir(parents=True, exist_ok=True)
-    names = ('proposed.yaml', 'proposal.json', 'proposal.md', 'proposal.csv', 'proposal.png')
+    names = ('proposed.yaml', 'propose.json', 'propose.md', 'propose.csv', 'propose.png')
     outputs = {name: str(out / name) for name in names}
     fits = proposal['fits']
     command = (f'tissue-sim calibrate --data-spec {data_spec} --scene {out / "proposed.yaml"} '
@@ -111,16 +111,16 @@ def write_proposal(out: Path, proposal: dict, *, data_spec, scene_file, sets) ->
                f"{l['force_n']:.3f} +- {l['force_sd_n']:.3f} N" for k, l in enumerate(layers)]
     header += [f"NRMSE over every sample {proposal['nrmse_all_samples']:.4f}; calibrate it with:", '  ' + command]
     (out / 'proposed.yaml').write_text(scene_yaml(proposal['spec'], proposal['base_dir'], header))
-    (out / 'proposal.json').write_text(dumps(report))
-    (out / 'proposal.md').write_text(_markdown(report))
-    with (out / 'proposal.csv').open('w', newline='') as handle:
+    (out / 'propose.json').write_text(dumps(report))
+    (out / 'propose.md').write_text(_markdown(report))
+    with (out / 'propose.csv').open('w', newline='') as handle:
         columns = ['layer', 'region', 'depth_m', 'depth_sd_m', 'depth_min_m', 'depth_max_m', 'force_n', 'force_sd_n',
                    'drop_n', 'found', 'repeats', 'assisted', 'young_modulus_pa', 'rupture_force_n', 'cutting_force_n']
         writer = csv.DictWriter(handle, fieldnames=columns, extrasaction='ignore')
         writer.writeheader()
         for k, layer in enumerate(layers):
             writer.writerow(dict(layer, layer=k))
-    _plot(out / 'proposal.png', proposal)
+    _plot(out / 'propose.png', proposal)
     return report
 
 

@@ -3,7 +3,7 @@
 - ``calibrated.yaml``: the complete scene at the optimum (every key, the mass scaling it ran
   with), the fitted values with their standard errors, the data and the command in comments;
   every command that takes ``--scene`` accepts it.
-- ``report.json``: ``parameters`` (per fitted key: ``value``, ``stderr``, ``start``, ``low``,
+- ``calibrate.json``: ``parameters`` (per fitted key: ``value``, ``stderr``, ``start``, ``low``,
   ``high``, ``log``, ``phase``), ``correlation`` (``keys`` and ``matrix``), ``fit``
   (``nrmse_mean`` and ``nrmse_mean_start`` over the fitted trials, ``speeds``), ``validation``
   (the same over the held-out trials, when given), ``cross_validation`` (with leave-one-speed-out:
@@ -21,10 +21,10 @@
   ``stopped_at_start`` (the start was within the noise floor), ``noise_floor_nrmse``; per key in
   ``parameters`` also ``moved`` and ``why_not_moved`` (at a bound, insensitive, correlated, at its
   optimum), ``outputs``.
-- ``report.md``: the same for a person; ``calibration.csv``: one row per speed and role (fit,
+- ``calibrate.md``: the same for a person; ``calibrate.csv``: one row per speed and role (fit,
   held out, left out);
   ``evaluations.jsonl``: every evaluation of the search (written as it ran);
-  ``calibration_<role>_<speed>.png``: per speed the data (trials, mean and one standard
+  ``calibrate_<role>_<speed>.png``: per speed the data (trials, mean and one standard
   deviation, punctures) against depth and against time since contact, the starting and the
   calibrated scene (punctures marked), and their NRMSEs beside the noise floor and the nearest
   other speed's data.
@@ -207,7 +207,7 @@ def _plot(out, study_start, study_final, role, rows) -> dict:
         fig.suptitle(f'{role}: {speed_label(speed)}, {len(members)} trial(s): punctures as circles (data) and '
                      'crosses (simulations)', fontsize=9)
         fig.tight_layout()
-        name = f"calibration_{role.replace(' ', '_')}_{'unknown' if speed is None else f'{speed * 1e3:g}mm_s'}.png"
+        name = f"calibrate_{role.replace(' ', '_')}_{'unknown' if speed is None else f'{speed * 1e3:g}mm_s'}.png"
         fig.savefig(out / name, dpi=100)
         plt.close(fig)
         written[name] = str(out / name)
@@ -319,16 +319,16 @@ def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_fi
                                       'speeds': cross_validation}
     rows = rows + list(cross_validation or [])   # the CSV and the warnings; report['speeds'] keeps its roles
     report['warnings'] = _warnings(fit, rows, spread)
-    outputs = {name: str(out / name) for name in ('calibrated.yaml', 'report.json', 'report.md',
-                                                  'calibration.csv', 'evaluations.jsonl')}
+    outputs = {name: str(out / name) for name in ('calibrated.yaml', 'calibrate.json', 'calibrate.md',
+                                                  'calibrate.csv', 'evaluations.jsonl')}
     for role, (start, final) in studies.items():
         outputs.update(_plot(out, start, final, role, report['speeds']))
     report['outputs'] = outputs
     _calibrated_yaml(out / 'calibrated.yaml', calibrated_spec(fit), report, scene_file=scene_file, sets=sets,
                      data_spec=data_spec, base_dir=start_scene.base_dir)
-    (out / 'report.json').write_text(json.dumps(report, indent=2, default=float))
-    (out / 'report.md').write_text(_markdown(report))
-    with (out / 'calibration.csv').open('w', newline='') as handle:
+    (out / 'calibrate.json').write_text(json.dumps(report, indent=2, default=float))
+    (out / 'calibrate.md').write_text(_markdown(report))
+    with (out / 'calibrate.csv').open('w', newline='') as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]), extrasaction='ignore')
         writer.writeheader()
         writer.writerows(rows)

@@ -28,8 +28,8 @@ For each trial (one file of a study, :mod:`tissue_sim_ros.io.trials.data_spec`):
 
 The simulations run in a process pool (or on a Dask cluster, ``scheduler``) with a progress
 bar, and each is kept in ``DIR/simulations`` as it finishes: a second run with the same inputs
-reuses them (resume). Outputs (:mod:`~tissue_sim_ros.analysis.compare.report`): report.json,
-report.md, comparison.csv, and PNGs of force against depth and against time.
+reuses them (resume). Outputs (:mod:`~tissue_sim_ros.analysis.compare.report`): compare.json,
+compare.md, compare.csv, and PNGs of force against depth and against time.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The outputs of ``tissue-sim compare`` in ``--out DIR``.
 
-``report.json`` (schema ``tissue_sim_ros/compare/1``; NaN written as null):
+``compare.json`` (schema ``tissue_sim_ros/compare/1``; NaN written as null):
 
 - ``trials``: one entry per data file: ``file``, ``speed_m_s``, ``repeat``, ``nrmse`` (the RMSE
   over the trial's measured axial-force range, 0.15 mm around each puncture left out: see
@@ -21,9 +21,9 @@
   ``noise_floor_nrmse`` (mean over the speeds that have repeats; null without), ``wall_s``;
 - ``scene``, ``overrides``, ``align``, ``normaliser``, ``outputs``.
 
-``report.md``: the same in a table a person reads. ``comparison.csv``: every data sample with
+``compare.md``: the same in a table a person reads. ``compare.csv``: every data sample with
 the simulation aligned to it (``file, speed_mm_s, repeat, time_since_contact_s,
-depth_since_contact_m, phase, measured_n, simulated_n``). ``compare_depth.png`` and
+depth_since_contact_m, phase, measured_n, simulated_n``). ``compare.png`` and
 ``compare_time.png``: per speed the data (each repeat thin, the mean and one standard deviation
 as a band when there are repeats), the simulation line, punctures marked (circles: data,
 crosses: simulation).
@@ -227,13 +227,13 @@ def write_report(out, study: dict, *, scene_label: str, overrides=(), align: str
     """Write every output into ``out``; the report dict."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    names = ('report.json', 'report.md', 'comparison.csv', 'compare_depth.png', 'compare_time.png')
+    names = ('compare.json', 'compare.md', 'compare.csv', 'compare.png', 'compare_time.png')
     outputs = {name: str(out / name) for name in names}
     report = report_dict(study, scene_label=scene_label, overrides=overrides, align=align, outputs=outputs)
-    (out / 'report.json').write_text(json.dumps(report, indent=2))
-    (out / 'report.md').write_text(_markdown(report))
-    _write_csv(out / 'comparison.csv', study['comparisons'])
+    (out / 'compare.json').write_text(json.dumps(report, indent=2))
+    (out / 'compare.md').write_text(_markdown(report))
+    _write_csv(out / 'compare.csv', study['comparisons'])
     panels = study_panels(study)
-    plot_comparison(out / 'compare_depth.png', panels, 'depth')
+    plot_comparison(out / 'compare.png', panels, 'depth')
     plot_comparison(out / 'compare_time.png', panels, 'time')
     return report
