@@ -16,7 +16,9 @@ Modules here:
 - :mod:`.predict`: a candidate path's prediction without ROS (``tissue-sim predict``);
 - :mod:`.replay`: a node log through the engine again (``tissue-sim replay``);
 - :mod:`.synthetic_study`: a load-cell study made by the simulator, for tests and benchmarks;
+- :mod:`.synthetic_curves`: layered force curves from a formula whose every event is known (pre-drops,
+  rounded peaks, partial drops), for the detectors' tests;
 - :mod:`.demo`: the main job (``tissue-sim demo``).
 """
 __all__ = ['calibration', 'charting', 'compare', 'demo', 'force_plot', 'insertion', 'jobs', 'predict',
-           'replay', 'synthetic_study']
+           'replay', 'synthetic_curves', 'synthetic_study']

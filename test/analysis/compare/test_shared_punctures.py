@@ -113,7 +113,8 @@ def test_a_simulated_puncture_within_the_repeats_spread_is_no_miss_of_the_sample
     """compare's pointwise NRMSE: a simulated puncture 1 mm from the data's, where the repeats
     themselves spread over 2.5 mm, leaves the samples between the two out, so a curve that is the
     data's but for that scores 0; the same puncture 4 mm away (outside the spread) charges them."""
-    from tissue_sim_ros.analysis.compare.compare import away_from_events, within_spread
+    from tissue_sim_ros.analysis.compare.compare import away_from_events
+    from tissue_sim_ros.analysis.compare.shared_punctures import within_spread
     from tissue_sim_ros.analysis.compare.force_events import Puncture
     from tissue_sim_ros.analysis.compare.force_metrics import curve_errors
     from tissue_sim_ros.analysis.compare.shared_punctures import Layer

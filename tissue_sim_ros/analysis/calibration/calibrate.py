@@ -134,7 +134,8 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
     """Fit ``keys`` (FittedKey) of ``scene`` to ``trials``; everything the report needs."""
     from tqdm import tqdm
 
-    from tissue_sim_ros.analysis.calibration.objective import Budget, Objective, logged_runs
+    from tissue_sim_ros.analysis.calibration.evaluation_log import logged_runs
+    from tissue_sim_ros.analysis.calibration.objective import Budget, Objective
     from tissue_sim_ros.analysis.calibration.fine import fine_finish, refit_loading
     from tissue_sim_ros.analysis.calibration.search import search, uncertainty, why_not_moved
     from tissue_sim_ros.analysis.compare.trial_simulation import ResultStore

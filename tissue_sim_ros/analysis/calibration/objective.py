@@ -67,12 +67,13 @@ so a second run over the same inputs replays them instead of simulating again (r
 """
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+
+from tissue_sim_ros.analysis.calibration.evaluation_log import log_evaluation, logged_keys
 
 __all__ = ['Budget', 'Evaluation', 'Objective', 'FAILED_RESIDUAL', 'BudgetSpent', 'calibrated_spec', 'huber_root',
            'puncture_shift_residuals']
@@ -194,7 +195,7 @@ class Objective:
         self.keep_time_step_s, self.max_mass_scaling = keep_time_step_s, max_mass_scaling
         self.store, self.workers, self.scheduler, self.pool = store, workers, scheduler, pool
         self.log_path = None if log_path is None else Path(log_path)
-        self._logged, self.run_number = _logged_keys(self.log_path)       # a resumed run logs each evaluation once
+        self._logged, self.run_number = logged_keys(self.log_path)       # a resumed run logs each evaluation once
         self.started = time.perf_counter()
         from tissue_sim_ros.analysis.compare.compare import measured_layers
         self._measured, self._layers = measured_layers(self.trials, self.plan.motions)
@@ -463,66 +464,10 @@ class Objective:
         return np.concatenate([samples, events_part])
 
     def _log(self, evaluation: Evaluation) -> None:
-        if self.log_path is None:
-            return
-        phases = None if evaluation.phases is None else str(evaluation.phases)
-        key = _log_key(evaluation.values, phases)
-        if key in self._logged:
-            return
-        self._logged.add(key)
-        stage = None if evaluation.phases is None else self.stage_residuals(evaluation, evaluation.phases)
-        record = {'time': time.strftime('%Y-%m-%dT%H:%M:%S'), 'values': evaluation.values, 'phases': phases,
-                  'objective': evaluation.objective if stage is None else None,
-                  'stage_objective': None if stage is None else float(stage @ stage),
-                  'nrmse_mean': evaluation.nrmse_mean if stage is None else None,
-                  'failures': evaluation.failures,
-                  'mass_scaling': max((r.mass_scaling for r in evaluation.results), default=float('nan')),
-                  'run': self.run_number, 'elapsed_s': time.perf_counter() - self.started,
-                  'replayed': bool(evaluation.replayed)}
-        with self.log_path.open('a') as log:
-            log.write(json.dumps(record, default=float) + '\n')
-
-
-def _log_key(values: dict, phases) -> str:
-    return json.dumps([values, phases], sort_keys=True, default=float)
-
-
-def _logged_keys(path) -> tuple[set, int]:
-    """The evaluations an earlier run of the study logged (a line cut by a kill is skipped), and
-    this run's number (one more than the last logged)."""
-    keys, last = set(), 0
-    if path is None or not path.exists():
-        return keys, 1
-    text = path.read_text()
-    if text and not text.endswith('\n'):
-        with path.open('a') as log:                      # the next record starts on its own line
-            log.write('\n')
-    for line in text.splitlines():
-        try:
-            record = json.loads(line)
-        except json.JSONDecodeError:
-            continue
-        keys.add(_log_key(record.get('values'), record.get('phases')))
-        last = max(last, int(record.get('run') or 1))
-    return keys, last + 1
-
-
-def logged_runs(path) -> dict:
-    """Per run of a study (its number): the evaluations it logged and its last ``elapsed_s``
-    (the wall time it ran, to its last evaluation): what the report counts across resumes."""
-    runs: dict = {}
-    if path is None or not Path(path).exists():
-        return runs
-    for line in Path(path).read_text().splitlines():
-        try:
-            record = json.loads(line)
-        except json.JSONDecodeError:
-            continue
-        run = runs.setdefault(int(record.get('run') or 1), {'evaluations': 0, 'elapsed_s': 0.0})
-        run['evaluations'] += 1
-        run['elapsed_s'] = max(run['elapsed_s'], float(record.get('elapsed_s') or 0.0))
-    return runs
-
+        if self.log_path is not None:
+            stage = None if evaluation.phases is None else self.stage_residuals(evaluation, evaluation.phases)
+            log_evaluation(self.log_path, self._logged, evaluation, stage, run=self.run_number,
+                           elapsed_s=time.perf_counter() - self.started)
 
 def _cut(schedule, end):
     """``schedule`` up to its sample ``end`` (None: whole)."""

@@ -28,7 +28,6 @@
 """
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
@@ -311,19 +310,3 @@ def main(*, data_spec, scene_file=None, sets=(), out='out/propose', refine_runs=
     print('calibrate it with:\n  ' + report['calibrate_command'], file=stream)
     print(f"wrote {', '.join(report['outputs'].values())}", file=stream)
     return report
-
-
-def _json(value):
-    if isinstance(value, dict):
-        return {str(k): _json(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json(v) for v in value]
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
-
-
-def dumps(value) -> str:
-    return json.dumps(_json(value), indent=2)

@@ -17,11 +17,13 @@
 from __future__ import annotations
 
 import csv
+import json
+import math
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ['SCHEMA', 'write_proposal']
+__all__ = ['SCHEMA', 'dumps', 'write_proposal']
 
 SCHEMA = 'tissue_sim_ros/propose/1'
 
@@ -80,7 +82,6 @@ def _plot(path, proposal) -> None:
 
 def write_proposal(out: Path, proposal: dict, *, data_spec, scene_file, sets) -> dict:
     """Write every output (module docstring); the report dict."""
-    from tissue_sim_ros.analysis.calibration.propose import dumps
     from tissue_sim_ros.engine.scene.scene import scene_yaml
     out.mkdir(parents=True, exist_ok=True)
     names = ('proposed.yaml', 'propose.json', 'propose.md', 'propose.csv', 'propose.png')
@@ -149,3 +150,20 @@ def _markdown(report) -> str:
     lines += [f"| `{f['text']}` | {f['acts_on']} |" for f in report['fits']]
     lines += ['', '```bash', report['calibrate_command'], '```']
     return '\n'.join(lines) + '\n'
+
+
+def _json(value):
+    if isinstance(value, dict):
+        return {str(k): _json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def dumps(value) -> str:
+    """``value`` as indented JSON: numpy numbers as plain ones, NaN and inf as null."""
+    return json.dumps(_json(value), indent=2)

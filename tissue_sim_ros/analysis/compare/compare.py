@@ -39,39 +39,17 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_sim_ros.analysis.compare.shared_punctures import EVENT_WINDOW_M, within_spread
+from tissue_sim_ros.analysis.compare.simulated_curve import SimulatedCurve, simulated_curve
+
 __all__ = ['ALIGNMENTS', 'TrialComparison', 'SimulatedCurve', 'simulated_curve', 'compare_trial',
            'measured_layers', 'plan_simulations', 'compare_trials', 'within_spread']
 
 ALIGNMENTS = ('contact', 'xcorr', 'depth')
 MAX_SHIFT_S = 0.5
-#: the pointwise errors leave out this much travel, and these samples, around each puncture
-EVENT_WINDOW_M = 0.00015
+#: the pointwise errors leave out EVENT_WINDOW_M of travel (shared_punctures's), and these samples,
+#: around each puncture
 EVENT_WINDOW_SAMPLES = 3
-
-
-@dataclass
-class SimulatedCurve:
-    """A simulation on a trial's clock: time since contact [s], travel since contact [m],
-    axial force [N]; ``diverged``: the watchdog's reason, or ''; ``puncture_events``: the scene's
-    own punctures as (travel since contact [m], layer) pairs (the layer: the region's place among
-    those with a membrane)."""
-
-    time_since_contact_s: np.ndarray
-    travel_since_contact_m: np.ndarray
-    axial_force_n: np.ndarray
-    diverged: str = ''
-    puncture_events: tuple = ()
-
-
-def simulated_curve(result, schedule, motion, scene_gap_m: float) -> SimulatedCurve:
-    """The simulation ``result`` of ``schedule`` (made from ``motion``) on the trial's clock."""
-    contact_time = float(motion.time_s[motion.contact_index])
-    keep = schedule.trial_time_s >= 0.0                       # not the pre-roll
-    events = tuple((float(t) - scene_gap_m, int(layer)) for t, layer in
-                   zip(result.puncture_travel_m, result.puncture_layer))
-    return SimulatedCurve(schedule.trial_time_s[keep] - contact_time,
-                          schedule.travel_m[keep] - scene_gap_m, np.asarray(result.axial_force_n)[keep],
-                          result.diverged, events)
 
 
 @dataclass
@@ -173,23 +151,8 @@ def away_from_events(travel, punctures, between=()) -> np.ndarray:
     return keep
 
 
-#: a simulated puncture is within the repeats' spread when it is this many standard deviations of
-#: their depths from its layer's mean, or within their range (and EVENT_WINDOW_M beyond)
-SPREAD_DEVIATIONS = 2.0
 #: a simulated curve's puncture is the scene's event within this much travel of it
 EVENT_MATCH_M = 0.001
-
-
-def within_spread(measured, simulated, layers) -> bool:
-    """Whether ``simulated`` (paired with the repeat's puncture ``measured``) lies within the
-    depths of that layer's repeats (``layers``: :class:`~.shared_punctures.Layer` by layer index;
-    see SPREAD_DEVIATIONS)."""
-    if not layers or not 0 <= measured.layer < len(layers):
-        return False
-    layer = layers[measured.layer]
-    low, high = layer.depth_range_m
-    reach = max(SPREAD_DEVIATIONS * layer.depth_sd_m, 0.5 * (high - low)) + EVENT_WINDOW_M
-    return abs(simulated.travel_m - layer.depth_m) <= reach
 
 
 def _labelled(punctures, curve: SimulatedCurve) -> list:

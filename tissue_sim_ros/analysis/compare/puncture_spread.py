@@ -8,8 +8,8 @@ puncture (a nominal scene) or, with ``simulated_repeats`` N and a scene that sta
 (``regions[].membrane.rupture_force_spread_n``, ``regions[].depth_spread_m``), N runs of the
 same motion with ``variation.seed`` 1..N, each drawing its layers' rupture forces and depths: a
 simulated study whose spread is set beside the measured one. A simulated layer is within the
-repeats' spread when its mean depth is (``compare.within_spread``'s rule: two standard deviations,
-or half the range, and the puncture window).
+repeats' spread when its mean depth is (``shared_punctures.within_spread``'s rule: two standard
+deviations, or half the range, and the puncture window).
 
 The scene's own puncture events give the simulated depths and forces (the depth since the
 simulated contact, found by the detector the data's contact was found by, with the data's noise).
@@ -50,7 +50,7 @@ def run_simulated_repeats(plan, scene, count: int, *, store=None, workers=None, 
 
 def _events_since_contact(result, schedule, motion, scene_gap_m, noise_n):
     """(depth since the simulated contact [m], force [N], layer) of a run's puncture events."""
-    from tissue_sim_ros.analysis.compare.compare import simulated_curve
+    from tissue_sim_ros.analysis.compare.simulated_curve import simulated_curve
     from tissue_sim_ros.analysis.compare.force_events import detect_contact
     if result.diverged:
         return []
@@ -74,7 +74,7 @@ def spread_by_speed(study: dict, repeats: list[list], scene_gap_m: float) -> dic
     """Per speed (as ``study['speeds']``, by index): per layer the measured depth and force
     distributions beside the simulated ones (the nominal run's, or the simulated study's), and
     whether the simulated depth lies within the repeats' spread."""
-    from tissue_sim_ros.analysis.compare.compare import within_spread
+    from tissue_sim_ros.analysis.compare.shared_punctures import within_spread
     from tissue_sim_ros.analysis.compare.force_events import Puncture, baseline_and_noise
     plan, comparisons = study['plan'], study['comparisons']
     out = {}

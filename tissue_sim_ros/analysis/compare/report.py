@@ -151,7 +151,7 @@ def _write_csv(path: Path, comparisons) -> None:
 
 def study_panels(study: dict) -> list[dict]:
     """One panel per speed of a study: its title, its trials' comparisons, its simulations."""
-    from tissue_sim_ros.analysis.compare.compare import simulated_curve
+    from tissue_sim_ros.analysis.compare.simulated_curve import simulated_curve
     panels, plan, comparisons = [], study['plan'], study['comparisons']
     for group in study['speeds']:
         members = [i for i, c in enumerate(comparisons) if str(c.file) in group['files']]

@@ -30,10 +30,17 @@ import numpy as np
 
 from tissue_sim_ros.analysis.compare.force_events import PUNCTURE, Puncture, detect_drops
 
-__all__ = ['GROUP_GAP_M', 'Layer', 'SharedPunctures', 'pair_punctures', 'shared_punctures']
+__all__ = ['EVENT_WINDOW_M', 'GROUP_GAP_M', 'Layer', 'SPREAD_DEVIATIONS', 'SharedPunctures', 'pair_punctures',
+           'shared_punctures', 'within_spread']
 
 #: a group of punctures ends where the next is this much deeper than its last
 GROUP_GAP_M = 0.0015
+#: compare's pointwise errors leave out this much travel around each puncture of either curve
+EVENT_WINDOW_M = 0.00015
+#: a simulated puncture is within the repeats' spread when it is this many standard deviations of
+#: their depths from its layer's mean, or within their range (and EVENT_WINDOW_M beyond)
+SPREAD_DEVIATIONS = 2.0
+
 #: a repeat missing a layer's puncture is searched within this many standard deviations of its
 #: depth, and at least SEARCH_MARGIN_M
 SEARCH_SPREADS, SEARCH_MARGIN_M = 3.0, 0.0008
@@ -159,3 +166,15 @@ def pair_punctures(measured, simulated, max_distance_m: float = float('inf')) ->
             continue
         pairs.append((i, j))
     return [(measured[i], simulated[j]) for i, j in sorted(pairs)]
+
+
+def within_spread(measured, simulated, layers) -> bool:
+    """Whether ``simulated`` (paired with the repeat's puncture ``measured``) lies within the
+    depths of that layer's repeats (``layers``: :class:`Layer` by layer index;
+    see SPREAD_DEVIATIONS)."""
+    if not layers or not 0 <= measured.layer < len(layers):
+        return False
+    layer = layers[measured.layer]
+    low, high = layer.depth_range_m
+    reach = max(SPREAD_DEVIATIONS * layer.depth_sd_m, 0.5 * (high - low)) + EVENT_WINDOW_M
+    return abs(simulated.travel_m - layer.depth_m) <= reach
