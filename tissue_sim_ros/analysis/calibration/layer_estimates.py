@@ -43,6 +43,9 @@ SLOPE_FRACTIONS = (0.3, 0.8)
 POST_START_M = 0.001
 #: a pause relaxing by less than this fraction of its force states no relaxation
 MIN_RELAXATION = 0.03
+#: a cut's slope above this many times its valley's force over the valley's depth is the next
+#: layer's rise, not a cut (:func:`starting_values`)
+MAX_CUT_OVER_VALLEY = 3.0
 
 
 @dataclass
@@ -230,7 +233,12 @@ def starting_values(measured: CurveFeatures, base_modulus_pa: float) -> dict:
     - ``rupture_n[k]``: the peak (a membrane ruptures at its contact force; the shaft above a deeper
       layer's contact adds what the simulation then shows, and the refinement takes it off);
     - ``friction_n_per_m[k]``: the slope of the cut through layer k before layer k + 1 loads (the
-      hinge's first line), the last layer's the slope f after the last puncture;
+      hinge's first line); where that slope exceeds ``MAX_CUT_OVER_VALLEY`` times the valley's
+      force over its depth, the valley's force over its depth instead (the shaft's friction up to
+      the valley cannot be far above the force there: layers close together leave no cut to read,
+      and the next layer's rise read as a cut is several times that bound, where a true cut stays
+      near it, above it only as far as the tissue relaxes after the puncture);
+      the last layer's the slope f after the last puncture;
     - ``cutting_n[k]``: the last layer c; a layer before it its valley force less f x there;
     - ``retraction_n[k]``: the retraction plateau while the tip is in it (a constant pull);
     - ``relaxing`` and ``relax_time_s``: the pause's fit, when it relaxes by MIN_RELAXATION at least.
@@ -243,9 +251,17 @@ def starting_values(measured: CurveFeatures, base_modulus_pa: float) -> dict:
         cut = measured.cut_slope_n_per_m[k] if k < len(measured.cut_slope_n_per_m) else math.nan
         if k == n - 1 or not np.isfinite(cut) or cut <= 0:
             values[f'friction_n_per_m[{k}]'] = (f, 'the slope of the force after the last puncture')
-        else:
+            continue
+        valley_n, valley_m = measured.valley_n[k], measured.valley_m[k]
+        readable = np.isfinite(valley_n) and np.isfinite(valley_m) and valley_m > 0
+        most = valley_n / valley_m if readable else math.inf
+        if cut <= MAX_CUT_OVER_VALLEY * most:
             values[f'friction_n_per_m[{k}]'] = (cut, f'the slope of the cut through it, before layer {k + 1} '
                                                      'loads')
+        else:
+            how = (f"its valley force over the valley's depth (the cut through it rises at {cut:.3g} N/m: "
+                   'the next layer loads before its onset is seen)')
+            values[f'friction_n_per_m[{k}]'] = (max(most, 0.0), how)
     slope0 = measured.slope_n_per_m[0] if n else math.nan
     for k in range(n):
         if k >= 1:
