@@ -19,7 +19,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
 from support.paths import ROOT  # noqa: E402
-from support.ros_clients import call_service, diag_values, subscribe_node_outputs  # noqa: E402
+from support.ros_clients import call_service, diag_values, subscribe_node_outputs, wait_until  # noqa: E402
 from tissue_sim_ros.ros.messages import conversions as cv  # noqa: E402
 
 BIN = Path(sys.executable).parent
@@ -125,16 +125,7 @@ class Client:
             time.sleep(0.02)
         return self.get(key)[since:]
 
-    def wait_until(self, read, accept, timeout=10.0, what='the condition'):
-        """Poll ``read()`` until ``accept(value)``; the value (asserts it comes within ``timeout``
-        seconds, a bound generous enough for a loaded machine)."""
-        deadline = time.monotonic() + timeout
-        while True:
-            value = read()
-            if accept(value):
-                return value
-            assert time.monotonic() < deadline, f'{what}: not reached in {timeout} s (last: {value!r})'
-            time.sleep(0.02)
+    wait_until = staticmethod(wait_until)
 
     def poses_judged(self, timeout=10.0):
         """The node's diagnostics once it has judged every pose this client sent."""

@@ -52,3 +52,15 @@ def diag_values(msg):
         level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
         out[st.name] = (level, st.message, {kv.key: kv.value for kv in st.values})
     return out
+
+
+def wait_until(read, accept, timeout=10.0, what='the condition'):
+    """Poll ``read()`` until ``accept(value)``; the value (asserts it comes within ``timeout``
+    seconds, a bound generous enough for a loaded machine)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = read()
+        if accept(value):
+            return value
+        assert time.monotonic() < deadline, f'{what}: not reached in {timeout} s (last: {value!r})'
+        time.sleep(0.02)

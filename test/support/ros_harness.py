@@ -16,7 +16,8 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
-from support.ros_clients import DOMAIN_ID, call_service, diag_values, subscribe_node_outputs  # noqa: E402
+from support.ros_clients import (DOMAIN_ID, call_service, diag_values,  # noqa: E402
+                                 subscribe_node_outputs, wait_until)
 from tissue_sim_ros.ros import node as node_mod  # noqa: E402
 from tissue_sim_ros.ros.messages import conversions as cv  # noqa: E402
 from tissue_sim_ros.ros.node_main import make_executor  # noqa: E402
@@ -141,16 +142,7 @@ class Harness:
     def call(self, client, request, timeout=5.0):
         return call_service(client, request, timeout)
 
-    def wait_until(self, read, accept, timeout=10.0, what='the condition'):
-        """Poll ``read()`` until ``accept(value)``; the value (asserts it comes within ``timeout``
-        seconds, a bound generous enough for a loaded machine)."""
-        deadline = time.monotonic() + timeout
-        while True:
-            value = read()
-            if accept(value):
-                return value
-            assert time.monotonic() < deadline, f'{what}: not reached in {timeout} s (last: {value!r})'
-            time.sleep(0.02)
+    wait_until = staticmethod(wait_until)
 
     def diagnostics_now(self):
         """Ask the node for diagnostics now (on its executor thread's terms: via the timer
