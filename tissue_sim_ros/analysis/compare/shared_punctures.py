@@ -10,12 +10,14 @@ The rules (:func:`shared_punctures`; depths are travel since contact, one origin
 2. Groups: the punctures of every repeat, sorted by depth; a group ends where the next one is
    more than ``GROUP_GAP_M`` deeper than the last one in it, or belongs to a repeat the group
    already holds (a repeat passes a layer once).
-3. Layers: the groups that hold punctures of more than half the repeats; with one repeat, each of
-   its punctures. Groups of fewer repeats are dropped (one repeat's stray drop).
-4. A repeat without a puncture in a layer: the largest of its drops (a pre-drop, or a drop under
-   the fraction a puncture needs, down to the noise threshold) within the layer's depths widened
-   by ``max(SEARCH_SPREADS x the depth's standard deviation, SEARCH_MARGIN_M)`` is its puncture
-   there (the other repeats say the layer is there); with none there, the repeat missed it.
+3. For each group, a repeat without a puncture in it: the largest of its drops (a pre-drop, or a
+   drop under the fraction a puncture needs, down to the noise threshold) within the group's
+   depths widened by ``max(SEARCH_SPREADS x the depth's standard deviation, SEARCH_MARGIN_M)`` is
+   its puncture there; with none there, the repeat missed it.
+4. Layers: the groups whose punctures, with those found by rule 3, come from more than half the
+   repeats; with one repeat, each of its punctures. A small drop near the puncture fraction is a
+   puncture in one repeat and just under it in another; the group of one repeat's stray drop, that
+   no other repeat has a drop near, is dropped.
 5. Each layer: depth and peak force as distributions over the repeats that have it (mean, sample
    standard deviation, range), the mean drop, and how many repeats have it.
 
@@ -120,22 +122,23 @@ def shared_punctures(travels, forces, *, inserting=None, min_drop_fraction: floa
     needed = repeats // 2 + 1
     layers, by_repeat = [], [[] for _ in range(repeats)]
     for group in _groups(events):
-        if len(group) < needed:
-            continue
         members = dict(group)
         depth, depth_sd, _ = _spread([p.travel_m for p in members.values()])
         margin = max(SEARCH_SPREADS * depth_sd, SEARCH_MARGIN_M)
         low = min(p.travel_m for p in members.values()) - margin
         high = max(p.travel_m for p in members.values()) + margin
-        assisted = 0
+        found_near = {}
         for r in range(repeats):
             if r in members:
                 continue
             taken = {p.index for p in by_repeat[r] if p is not None}
             near = [p for p in weak[r] if low <= p.travel_m <= high and p.index not in taken]
             if near:
-                members[r] = max(near, key=lambda p: p.drop_n)
-                assisted += 1
+                found_near[r] = max(near, key=lambda p: p.drop_n)
+        if len(group) + len(found_near) < needed:
+            continue
+        members.update(found_near)
+        assisted = len(found_near)
         members = {r: replace(p, layer=len(layers)) for r, p in members.items()}
         for r in range(repeats):
             by_repeat[r].append(members.get(r))
