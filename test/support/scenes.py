@@ -1,5 +1,5 @@
-"""Small needle scenes: a 30 x 30 x 20 mm sample with the tip just above it, a rigid-like one, and
-the needle pushed down tick by tick."""
+"""Small needle scenes: a 30 x 30 x 20 mm sample with the tip just above it, a rigid-like one, the
+needle pushed down tick by tick, and two layers whose rupture force and depth vary per run."""
 
 import math
 
@@ -11,6 +11,19 @@ DOWN = [1.0, 0.0, 0.0, 0.0]          # needle axis (+z of its frame) along world
 E, NU = 16000.0, 0.45
 
 COARSE_FAR = ['mesh.divisions=[6,6,5]']          # the default fine zone near the needle, coarser far away
+
+#: two layers on a small box: the outer one's rupture force drawn per run (0.1 N spread), the deep
+#: one under a plane 11 mm down drawn 0.5 mm deep per run
+TWO_LAYERS = {
+    'mesh': {'generator': 'box', 'divisions': [4, 4, 3]},
+    'regions': [{'name': 'outer', 'select': 'all', 'membrane': {'criterion': 'force', 'rupture_force_n': 0.8,
+                                                                'rupture_force_spread_n': 0.1}},
+                {'name': 'deep', 'select': {'below_z_m': -0.011}, 'depth_spread_m': 0.0005, 'young_modulus_pa': 9000.0,
+                 'membrane': {'criterion': 'force', 'rupture_force_n': 1.0}}],
+    'solver': {'mass_scaling': 400.0},
+    'needle': {'diameter_m': 0.00127, 'tip': {'shape': 'bevel'}, 'start_gap_m': 0.001},
+}
+
 
 
 def small_scene(**options):

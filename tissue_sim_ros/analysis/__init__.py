@@ -17,7 +17,9 @@ Modules here:
 - :mod:`.replay`: a node log through the engine again (``tissue-sim replay``);
 - :mod:`.steering`: a flexible needle's path, its bend and curvature (``tissue-sim bench steering``);
 - :mod:`.synthetic_study`: a load-cell study made by the simulator, for tests and benchmarks;
+- :mod:`.synthetic_curves`: layered force curves from a formula whose every event is known (pre-drops,
+  rounded peaks, partial drops), for the detectors' tests;
 - :mod:`.demo`: the main job (``tissue-sim demo``).
 """
 __all__ = ['calibration', 'charting', 'compare', 'demo', 'force_plot', 'insertion', 'jobs', 'predict',
-           'replay', 'steering', 'synthetic_study']
+           'replay', 'steering', 'synthetic_curves', 'synthetic_study']

@@ -8,6 +8,8 @@ docs/performance.md gives how to run each and its latest figures.
 - :mod:`.ripple`: how smooth the axial force is after a puncture;
 - :mod:`.study`: replay and compare timings;
 - :mod:`.calibration`: ``calibrate`` on synthetic data with known values;
+- :mod:`.layered`: ``propose`` and ``calibrate`` on synthetic two- and three-layer phantoms;
+- :mod:`.dask_study`: ``compare`` in this process, on a process pool and on a local Dask scheduler;
 - :mod:`.steering`: a flexible needle in air and in the tissue, its curvature, its step's cost;
 - :mod:`.node_bench`, :mod:`.node_bench_figures`, :mod:`.node_bench_paired`: the node's timing
   from outside, its figures, and paired runs against another revision (``tissue-sim node-bench``);
@@ -15,6 +17,6 @@ docs/performance.md gives how to run each and its latest figures.
   node; a burst of planner requests during a run;
 - :mod:`.robot_graph`: TF input against the pose topic, the action against the topic pair.
 """
-__all__ = ['background_load', 'calibration', 'cold_start', 'inertia', 'node_bench', 'node_bench_figures',
-           'node_bench_paired', 'prediction_burst', 'ripple', 'robot_graph', 'speed', 'steering',
-           'study']
+__all__ = ['background_load', 'calibration', 'cold_start', 'dask_study', 'inertia', 'layered', 'node_bench',
+           'node_bench_figures', 'node_bench_paired', 'prediction_burst', 'ripple', 'robot_graph', 'speed',
+           'steering', 'study']

@@ -65,7 +65,7 @@ def _compare(args):
                'file_name.pattern': args.file_pattern}
     main(data_spec=args.data_spec, files=args.files, options=options, scene_file=args.scene,
          sets=args.set, align=args.align, gap_mm=args.start_gap_mm, max_depth_mm=args.max_depth_mm,
-         per_trial=args.per_trial,
+         per_trial=args.per_trial, simulated_repeats=args.simulated_repeats,
          tick_ms=args.tick_ms, workers=args.jobs, scheduler=args.scheduler, out=args.out)
 
 
@@ -112,6 +112,23 @@ def _calibrate(args):
          global_search=args.global_search, max_evaluations=args.max_evaluations,
          refit_steps=args.refit_steps, fine_steps=args.fine_steps, workers=args.jobs,
          scheduler=args.scheduler, out=args.out)
+
+
+def _propose(args):
+    from tissue_sim_ros.analysis.calibration.propose import main
+    main(data_spec=args.data_spec, scene_file=args.scene, sets=args.set, out=args.out, refine_runs=args.refine_runs,
+         align=args.align, max_depth_mm=args.max_depth_mm, tick_ms=args.tick_ms, workers=args.jobs,
+         scheduler=args.scheduler)
+
+
+def _data_keys(args):
+    from tissue_sim_ros.io.trials.data_spec_keys import data_keys_markdown, describe_data_keys
+    print(data_keys_markdown() if args.markdown else '\n'.join(describe_data_keys()), end='' if args.markdown else '\n')
+
+
+def _inspect(args):
+    from tissue_sim_ros.analysis.compare.inspect_data import main
+    main(data_spec=args.data_spec, out=args.out)
 
 
 def _column(text):
@@ -194,6 +211,10 @@ def build_parser():
     compare.add_argument('--per-trial', action='store_true',
                          help="simulate every trial's own motion (default: one simulation per speed)")
     compare.add_argument('--tick-ms', type=POSITIVE, default=10.0, help='simulation sampling [ms] (default 10)')
+    compare.add_argument('--simulated-repeats', type=number(0, inclusive=True, whole=True), default=0,
+                         help="with a scene that states its spread (regions[].membrane.rupture_force_spread_n, "
+                              "regions[].depth_spread_m): simulate each speed this many times more, with "
+                              "variation.seed 1..N, and set their punctures' spread beside the repeats' (default 0)")
     add_pool_and_out(compare, 'out/compare')
     columns = compare.add_argument_group('columns of the data files (without --data-spec)')
     columns.add_argument('--time-column', default=None, help='time column: header name or 0-based index')
@@ -265,6 +286,31 @@ def build_parser():
                                 "none, standard errors from that scene's Jacobian at the re-fitted point)")
     add_pool_and_out(calibrate, 'out/calibrate')
     calibrate.set_defaults(run=_calibrate)
+    propose = commands.add_parser('propose', help='a layered scene proposed from load-cell data: the layers the '
+                                  'repeats share, starting values from the curves, refined by a few simulations; '
+                                  'the start calibrate takes')
+    propose.add_argument('--data-spec', type=input_file, required=True, metavar='SPEC.yaml',
+                         help='the data description of the study (docs/data.md)')
+    add_scene(propose, help_text="base scene: its mesh, model, solver and needle (default: the packaged one)")
+    propose.add_argument('--refine-runs', type=number(0, inclusive=True, whole=True), default=3,
+                         help='simulations that refine the starting values, each value moved by what its feature '
+                              'misses (default 3; 0: the values read from the data)')
+    propose.add_argument('--align', choices=['contact', 'xcorr', 'depth'], default='contact',
+                         help="how simulation and data are put side by side (compare's --align)")
+    add_max_depth(propose)
+    propose.add_argument('--tick-ms', type=POSITIVE, default=10.0, help='simulation sampling [ms] (default 10)')
+    add_pool_and_out(propose, 'out/propose')
+    propose.set_defaults(run=_propose)
+    data_keys = commands.add_parser('data-keys', help='list every key of a data description with its default '
+                                    'and meaning')
+    data_keys.add_argument('--markdown', action='store_true', help="as the table of docs/data.md")
+    data_keys.set_defaults(run=_data_keys)
+    inspect = commands.add_parser('inspect', help='what a data description reads: trials, speeds, units, ranges, '
+                                  'contact, punctures and layers, without a simulation')
+    inspect.add_argument('--data-spec', type=input_file, required=True, metavar='SPEC.yaml',
+                         help='the data description of the study (docs/data.md)')
+    inspect.add_argument('--out', type=output_dir, default='out/inspect', help='output directory (default out/inspect)')
+    inspect.set_defaults(run=_inspect)
     replay = commands.add_parser('replay', help='run a recorded node log through the engine again: '
                                  'the same wrenches (exact), or the same motion through --scene/--set')
     replay.add_argument('log', type=input_file, metavar='LOG.mcap', help='a log the node recorded (or '

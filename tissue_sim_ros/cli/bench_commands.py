@@ -52,6 +52,16 @@ def _steering(args):
     steering.main(parts=args.parts, depth_mm=args.depth_mm, speed_mm_s=args.speed_mm_s, jobs=args.jobs, out=args.out)
 
 
+def _layered(args):
+    from tissue_sim_ros.bench import layered
+    layered.main(out=args.out, jobs=args.jobs, max_evaluations=args.max_evaluations)
+
+
+def _dask(args):
+    from tissue_sim_ros.bench import dask_study
+    dask_study.main(out=args.out, workers=args.workers)
+
+
 def _speed_options(parser):
     parser.add_argument('--sizes', nargs='+', choices=['1e3', '1e4', '1e5', '5e5'], default=None,
                         help='mesh sizes to run (default: all)')
@@ -66,7 +76,7 @@ def _speed_options(parser):
 def add_bench_commands(commands):
     """Add ``bench`` and its benchmarks to the subparsers ``commands``."""
     bench = commands.add_parser('bench', help='benchmarks: speed per mesh size (default), cold-start, inertia, '
-                                'ripple, study, calibration, robot-graph, steering')
+                                'ripple, study, calibration, layered, dask, robot-graph, steering')
     _speed_options(bench)
     bench.set_defaults(run=_speed)
     which = bench.add_subparsers(dest='benchmark', required=False, metavar='BENCHMARK')
@@ -123,3 +133,16 @@ def add_bench_commands(commands):
                           help='worker processes (default: the cores)')
     steering.add_argument('--out', type=output_dir, default=None, help='keep the figures as DIR/steering.json')
     steering.set_defaults(run=_steering)
+    layered = which.add_parser('layered', help='propose and calibrate on synthetic two- and three-layer phantoms '
+                               'with known values')
+    layered.add_argument('--out', type=output_dir, default='out/bench_layered', help='output directory')
+    layered.add_argument('--jobs', type=number(1, inclusive=True, whole=True), default=None)
+    layered.add_argument('--max-evaluations', type=number(10, inclusive=True, whole=True), default=110,
+                         help="the 8-key calibration's budget (default 110)")
+    layered.set_defaults(run=_layered)
+    dask = which.add_parser('dask', help='compare in this process, on a process pool and on a local Dask '
+                            'scheduler with its own workers')
+    dask.add_argument('--out', type=output_dir, default='out/bench_dask', help='output directory')
+    dask.add_argument('--workers', type=number(1, inclusive=True, whole=True), default=2,
+                      help='Dask workers (one thread each) and pool processes (default 2)')
+    dask.set_defaults(run=_dask)

@@ -45,9 +45,9 @@ def test_known_parameters_come_back_and_predict_a_held_out_speed_at_the_noise_le
     for key, entry in report['parameters'].items():
         from tissue_sim_ros.analysis.calibration.parameters import read_key
         assert read_key(calibrated.spec, key) == pytest.approx(entry['value'], rel=1e-9)
-    saved = json.loads((tmp_path / 'out' / 'report.json').read_text())
+    saved = json.loads((tmp_path / 'out' / 'calibrate.json').read_text())
     assert saved['fit']['nrmse_mean'] == pytest.approx(report['fit']['nrmse_mean'])
-    for name in ('report.md', 'calibration.csv', 'evaluations.jsonl', 'calibration_held_out_3mm_s.png'):
+    for name in ('calibrate.md', 'calibrate.csv', 'evaluations.jsonl', 'calibrate_held_out_3mm_s.png'):
         assert (tmp_path / 'out' / name).stat().st_size > 0
 
 
@@ -76,8 +76,8 @@ def test_leave_one_speed_out_predicts_each_speed_from_the_others_at_the_noise_le
         for key, value in row['parameters'].items():
             assert value == pytest.approx(TRUE[key], rel=0.10)
     assert report['cross_validation']['nrmse_mean'] == pytest.approx(np.mean([r['nrmse_calibrated'] for r in folds]))
-    assert 'Leave one speed out' in (tmp_path / 'out' / 'report.md').read_text()
-    assert (tmp_path / 'out' / 'calibration.csv').read_text().count('left out') == 3
+    assert 'Leave one speed out' in (tmp_path / 'out' / 'calibrate.md').read_text()
+    assert (tmp_path / 'out' / 'calibrate.csv').read_text().count('left out') == 3
 
 
 def test_leave_one_speed_out_refuses_data_it_cannot_split(cheap_study, tmp_path):
@@ -120,7 +120,7 @@ def test_an_interrupted_calibration_resumes_to_the_uninterrupted_result(cheap_st
     process.kill()                                             # a hard stop mid-search
     process.wait()
     done_before = len(log.read_text().splitlines())
-    assert done_before >= 4 and not (tmp_path / 'cut' / 'report.json').exists()
+    assert done_before >= 4 and not (tmp_path / 'cut' / 'calibrate.json').exists()
     resumed = cheap_run(cheap_study, tmp_path / 'cut', workers=1)
     print(f'killed after {done_before} evaluations; resumed: '
           f"{resumed['simulations']} simulations run of {whole['simulations']}")
@@ -137,4 +137,38 @@ def test_coarse_to_fine_finishes_on_the_scene_as_asked_and_says_whose_jacobian_t
         print(key, report['parameters'][key]['value'], TRUE[key])
         assert report['parameters'][key]['value'] == pytest.approx(TRUE[key], rel=0.10)
     assert report['jacobian'] == "the scene as asked, before the fine finish's steps"
-    assert 'before the fine finish' in (tmp_path / 'coarse' / 'report.md').read_text()
+    assert 'before the fine finish' in (tmp_path / 'coarse' / 'calibrate.md').read_text()
+
+
+@pytest.mark.parametrize('fit, says', [
+    ('model.relaxation[0].relative_modulus=0.2:1.2', 'the relative moduli sum to 1.2'),
+    ('model.relaxation[1].time_constant_s=0.5:5', 'model.relaxation[1]: the list has 1 entry'),
+    ('regions[2].young_modulus_pa=1000:9000', 'regions[2]: the list has 2 entries'),
+    ('regions[0].select.below_z_m=-0.01:0', "regions[0].select = 'all' has no below_z_m"),
+])
+def test_a_fit_key_that_cannot_be_applied_is_refused_before_any_simulation(tmp_path, fit, says, monkeypatch, capsys):
+    """calibrate refuses the key naming it before the first evaluation: no simulation runs."""
+    import yaml
+
+    from support.scenes import TWO_LAYERS
+    from tissue_sim_ros.analysis.compare import trial_simulation
+    from tissue_sim_ros.analysis.synthetic_curves import layered_curve
+    from tissue_sim_ros.cli import main
+    from tissue_sim_ros.engine.scene.keys import set_key
+    scene = tmp_path / 'scene.yaml'
+    scene.write_text(yaml.safe_dump(set_key(TWO_LAYERS, 'model.relaxation',
+                                            [{'relative_modulus': 0.3, 'time_constant_s': 1.0}])))
+    curve = layered_curve(np.random.default_rng(1), hold_s=0.0)
+    rows = np.column_stack([curve.time_s, curve.force_n, curve.travel_m * 1e3])
+    np.savetxt(tmp_path / 'trial.csv', rows, delimiter=',', header='time,fz,pz', comments='')
+    (tmp_path / 'spec.yaml').write_text("files: [trial.csv]\ntime: {column: time}\nforce: {column: fz}\n"
+                                        "position: {column: pz, unit: mm}\n")
+
+    def no_simulation(job):
+        raise AssertionError('a simulation ran')
+    monkeypatch.setattr(trial_simulation, 'simulate', no_simulation)
+    status = main(['calibrate', '--data-spec', str(tmp_path / 'spec.yaml'), '--scene', str(scene), '--fit', fit,
+                   '--out', str(tmp_path / 'out')])
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    print(error)
+    assert status == 2 and error.startswith('tissue-sim calibrate: error:') and says in error

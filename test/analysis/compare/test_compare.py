@@ -79,9 +79,9 @@ def test_a_study_compares_back_to_its_scene_at_the_noise_level_and_a_stiffer_one
     assert stiffer['summary']['nrmse_mean'] > 5.0 * floor
     assert stiffer['summary']['noise_floor_nrmse'] == pytest.approx(floor)   # the data's, unchanged
     out = tmp_path / 'same'
-    for name in ('report.json', 'report.md', 'comparison.csv', 'compare_depth.png', 'compare_time.png'):
+    for name in ('compare.json', 'compare.md', 'compare.csv', 'compare.png', 'compare_time.png'):
         assert (out / name).stat().st_size > 200, name
-    rows = np.genfromtxt(out / 'comparison.csv', delimiter=',', names=True, dtype=None, encoding=None)
+    rows = np.genfromtxt(out / 'compare.csv', delimiter=',', names=True, dtype=None, encoding=None)
     assert len(rows) == sum(t['samples_compared'] for t in report['trials']) + \
         sum(1 for r in rows if r['simulated_n'] == '' or np.isnan(r['simulated_n']))
 

@@ -135,8 +135,11 @@ def test_a_drop_smaller_than_the_fraction_is_not_a_puncture():
     record = insertion(np.random.default_rng(2), force_noise=0.005, stiffness=stiffness,
                        punctures=((where, 0.1 * peak),))
     assert detect_punctures(record['travel_m'], record['force_n']) == []
-    (found,) = detect_punctures(record['travel_m'], record['force_n'], min_drop_fraction=0.05)
-    assert abs(found.travel_m - (5e-3 + where)) <= SMOOTHING_M
+    # a lower fraction makes it an event; the same loading regains its peak within 0.4 mm of the
+    # 7 mm that built it, so it is a pre-drop, not a puncture
+    from tissue_sim_ros.analysis.compare.force_events import detect_drops
+    (found,) = detect_drops(record['travel_m'], record['force_n'], min_drop_fraction=0.05)
+    assert abs(found.travel_m - (5e-3 + where)) <= SMOOTHING_M and found.kind == 'pre-drop'
 
 
 def test_punctures_refuse_bad_arguments():

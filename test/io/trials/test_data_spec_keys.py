@@ -55,3 +55,11 @@ def test_every_key_is_described_once_with_its_default():
     for dotted, default in _leaves(DATA_SPEC_KEYS).items():
         described = [line for line in lines if line.startswith(f'{dotted} (default ')]
         assert len(described) == 1 and f'(default {default!r})' in described[0], dotted
+
+
+def test_the_data_description_keys_page_is_what_data_keys_prints():
+    from support.paths import ROOT
+    from tissue_sim_ros.io.trials.data_spec_keys import data_keys_markdown
+    page = (ROOT / 'docs' / 'data.md').read_text()
+    table = page.split('<!-- data-keys -->\n')[1].split('<!-- /data-keys -->')[0]
+    assert table == data_keys_markdown(), 'docs/data.md is stale: tissue-sim data-keys --markdown'

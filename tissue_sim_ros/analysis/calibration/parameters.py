@@ -8,9 +8,10 @@ finite-difference step means the same relative change for every key.
 
 Each key belongs to the phase of the curve where it acts, which the staged start fits it on
 (:data:`PHASE_RULES`, first match on the key's name): stiffness and law coefficients on the
-loading before the first puncture, the puncture threshold on the peaks, cutting and insertion
-friction on the steady part after the puncture, retraction friction on the retraction,
-relaxation on the hold.
+loading before the first puncture, the puncture threshold and a layer's boundary (where it is
+punctured) on the peaks, cutting and insertion friction on the steady part after the puncture,
+retraction friction on the retraction, relaxation on the hold; layer by layer
+(:mod:`~tissue_sim_ros.analysis.calibration.stages`).
 """
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ __all__ = ['FittedKey', 'PHASE_RULES', 'parse_fit', 'phase_of', 'read_key']
 
 #: (pattern on the key, the phase it is fitted on in the staged start); the first match wins
 PHASE_RULES = (
-    (r'membrane|rupture|puncture', 'puncture'),
+    (r'membrane|rupture|puncture|\.select\.', 'puncture'),
     (r'friction\.retraction', 'retraction'),
     (r'cutting|friction', 'inserted'),
     (r'relaxation|prony', 'hold'),

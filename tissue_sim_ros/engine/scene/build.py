@@ -35,6 +35,11 @@ def check_combinations(spec: dict) -> None:
         raise SceneError(f"solver.integrator = {integrator!r} needs model.precision = float64, got "
                          f"{model['precision']!r}: its Newton tangent differences forces 1e-8 of the body "
                          "size apart, below float32 arithmetic's resolution (1e-7)")
+    for k, region in enumerate(spec['regions']):
+        if region['depth_spread_m'] > 0 and (region['select'] == 'all' or 'tag' in region['select']):
+            raise SceneError(f"regions[{k}].depth_spread_m = {region['depth_spread_m']!r} with "
+                             f"regions[{k}].select = {region['select']!r}: a spread of depth needs a boundary "
+                             'with a depth (below_z_m, above_z_m, box_m or sphere_m)')
     if integrator != 'explicit' and model['relaxation']:
         raise SceneError(f'solver.integrator = {integrator!r} with model.relaxation: the implicit and '
                          'quasi-static integrators do not support relaxation yet (its internal variables '

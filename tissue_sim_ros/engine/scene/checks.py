@@ -1,8 +1,9 @@
 """The kinds of scene values and their checks: each value checked once, where it enters.
 
-A kind is a string (``'float+'``: a number > 0, ``'float0'``: >= 0, ``'float'``, ``'bool'``,
-``'str'``, ``'vec2'``, ``'vec3'``, ``'vec3+'``, ``'quat'``, ``'floats'``, ``'scaling'``: a
-number >= 1 or ``'auto'``, ``'faces'``, ``'select'``, ``'needles'``), a tuple of allowed
+A kind is a string (``'float+'``: a number > 0, ``'float0'``: >= 0, ``'float'``, ``'int0'``: a
+whole number >= 0, ``'bool'``, ``'str'``, ``'vec2'``, ``'vec3'``, ``'vec3+'``, ``'quat'``,
+``'floats'``, ``'scaling'``: a number >= 1 or ``'auto'``, ``'faces'``, ``'select'``,
+``'needles'``), a tuple of allowed
 strings, a :class:`Range` or a :class:`MappingList`. A refusal is a SceneError naming the dotted
 key, the value and what was expected.
 
@@ -137,6 +138,11 @@ def check_value(name, value, kind):
         v = number(value)
         if not (v >= 1 and v == int(v)):
             fail('a whole number >= 1')
+        return int(v)
+    if kind == 'int0':
+        v = number(value)
+        if not (v >= 0 and v == int(v)):
+            fail('a whole number >= 0')
         return int(v)
     if kind in ('float', 'float+', 'float0'):
         v = number(value)

@@ -36,6 +36,7 @@ from tissue_sim_ros.engine.scene.checks import apply_schema
 from tissue_sim_ros.engine.scene.keys import apply_overrides, set_keys
 from tissue_sim_ros.engine.scene.schema import SCHEMA
 from tissue_sim_ros.engine.scene.targets import Targets
+from tissue_sim_ros.engine.scene.variation import drawn_regions
 from tissue_sim_ros.errors import SceneError
 from tissue_sim_ros.system.paths import shared_file
 
@@ -95,15 +96,17 @@ class Scene:
         self.base_dir = Path(base_dir)
         self.mesh_frame_id = mesh_frame_id
         s = self.spec
+        #: this run's regions (the spread between repeats drawn: engine.scene.variation) and what was drawn
+        regions, self.drawn = drawn_regions(s)
         raw_mesh = build_mesh(s['mesh'], self.base_dir)
-        self.selectors = RegionSelectors(s['regions'], raw_mesh.element_tags)
+        self.selectors = RegionSelectors(regions, raw_mesh.element_tags)
         element_region = _element_regions(raw_mesh, self.selectors)
         self.mesh = make_mesh(raw_mesh.rest_positions, raw_mesh.tetrahedra, element_region)
-        materials = {k: build_material(r) for k, r in enumerate(s['regions']) if np.any(element_region == k)}
+        materials = {k: build_material(r) for k, r in enumerate(regions) if np.any(element_region == k)}
         self.model = build_model(self.mesh, materials, s['model'])
         self.simulation = build_simulation(self.model, s['solver'], fixed_nodes(self.mesh, s['boundary']['fixed']))
         check_time_step(self.simulation, s['solver'])
-        interactions = [region_interaction(r) for r in s['regions']]
+        interactions = [region_interaction(r) for r in regions]
         self.needle_names, self.needles = [], []
         for i, (name, n) in enumerate(needle_sections(s)):
             geometry = needle_geometry(n, f'needles[{i}]' if s['needles'] else 'needle')

@@ -54,7 +54,13 @@ SCHEMA = {
                                             "needle's axial speed v (0: the same at every speed; negative: "
                                             'falls with speed)'),
             'reference_speed_m_s': (0.001, 'float+', "criterion 'force': v0 of the rate law [m/s]"),
+            'rupture_force_spread_n': (0.0, 'float0', "criterion 'force': standard deviation of the rupture force "
+                                                      'between repeats [N]: a run with variation.seed k >= 1 draws '
+                                                      'its rupture force from it (0: the same in every run)'),
         },
+        'depth_spread_m': (0.0, 'float0', 'standard deviation of the depth of this layer\'s boundary between '
+                                          'repeats [m]: a run with variation.seed k >= 1 moves the selector '
+                                          'down by a drawn offset (a plane, box or sphere; 0: no offset)'),
         'cutting_force_n': (0.0, 'float0', 'cutting force at the tip while advancing inside [N]'),
         'friction': {
             'insertion_static_n_per_m': (0.0, 'float0', 'Karnopp static limit D per inserted length, insertion [N/m]'),
@@ -108,6 +114,11 @@ SCHEMA = {
                                "with a unique 'name' and any needle.* keys that differ from the needle "
                                'section (which gives the rest): initial_position_m at least. [] (default): '
                                "the needle section is the one needle, named 'needle'"),
+    'variation': {
+        'seed': (0, 'int0', 'which run of a simulated study this is: 0, the nominal scene (no spread '
+                            'drawn); k >= 1, the k-th draw of the regions\' rupture_force_spread_n and '
+                            'depth_spread_m (engine.scene.variation)'),
+    },
     'boundary': {
         'fixed': (['bottom', 'walls'], 'faces', 'bounding-box faces held fixed: bottom, top, walls, '
                                                 'x_min, x_max, y_min, y_max'),
@@ -200,7 +211,8 @@ def _kind_text(kind) -> str:
         return kind.text().replace('a number in ', '')
     if isinstance(kind, MappingList):
         return 'list of mappings'
-    return {'float+': '> 0', 'float0': '>= 0', 'int+': 'integer >= 1', 'float': 'number', 'vec3+': '3 numbers > 0',
+    return {'float+': '> 0', 'float0': '>= 0', 'int+': 'integer >= 1', 'int0': 'whole number >= 0', 'float': 'number',
+            'vec3+': '3 numbers > 0',
             'vec3': '3 numbers', 'vec2': '2 numbers', 'quat': 'x, y, z, w', 'floats': 'numbers',
             'scaling': ">= 1 or auto", 'faces': 'box faces', 'select': 'a region shape',
             'needles': 'list of needles'}.get(kind, kind)
