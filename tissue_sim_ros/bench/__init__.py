@@ -8,10 +8,11 @@ docs/performance.md gives how to run each and its latest figures.
 - :mod:`.ripple`: how smooth the axial force is after a puncture;
 - :mod:`.study`: replay and compare timings;
 - :mod:`.calibration`: ``calibrate`` on synthetic data with known values;
+- :mod:`.organ_scale`: the node at organ scale, per model and mesh size (``tissue-sim bench organ``);
 - :mod:`.node_bench`, :mod:`.node_bench_figures`, :mod:`.node_bench_paired`: the node's timing
   from outside, its figures, and paired runs against another revision (``tissue-sim node-bench``);
 - :mod:`.background_load`, :mod:`.prediction_burst`: busy processes and a listener beside the
   node; a burst of planner requests during a run.
 """
 __all__ = ['background_load', 'calibration', 'cold_start', 'inertia', 'node_bench', 'node_bench_figures',
-           'node_bench_paired', 'prediction_burst', 'ripple', 'speed', 'study']
+           'node_bench_paired', 'organ_scale', 'prediction_burst', 'ripple', 'speed', 'study']

@@ -312,8 +312,9 @@ def _add_model_studies(commands):
                   "scene's insertion and a plate compression, with the Pareto front",
                   "three mesh levels, the reference on the scene's mesh (under 5 minutes on 2 cores)",
                   _chart, 'out/chart')
-    chart.add_argument('--travel-mm', type=POSITIVE, default=12.0,
-                       help='tip travel from 1 mm above the surface [mm] (default 12: past the default '
+    chart.add_argument('--travel-mm', type=POSITIVE, default=None,
+                       help="tip travel from 1 mm above the surface [mm] (default: the scene's "
+                            'needle.planned_travel_m from its start pose, else 12: past the default '
                             "scene's capsule puncture)")
     recommend = study('recommend', 'the cheapest model, mesh, step and integrator within a force error '
                       'tolerance that keeps real time (runs the chart)', "the chart's quick preset", _recommend,
@@ -321,7 +322,8 @@ def _add_model_studies(commands):
     recommend.add_argument('--tolerance', type=POSITIVE, default=0.05,
                            help="the force NRMSE allowed against the chart's reference (default 0.05)")
     recommend.add_argument('--rate-hz', type=POSITIVE, default=50.0, help="the node's tick rate (default 50)")
-    recommend.add_argument('--travel-mm', type=POSITIVE, default=12.0, help='tip travel [mm] (default 12)')
+    recommend.add_argument('--travel-mm', type=POSITIVE, default=None,
+                           help="tip travel [mm] (default: the scene's planned travel, else 12)")
     study('stability', "each model's and integrator's largest stable time step against the estimate, and "
           'induced failures (caught or survived)', 'the coarse mesh and shorter searches (under 5 minutes on '
           '2 cores)', _stability, 'out/stability')

@@ -8,14 +8,18 @@ mesh with a target edge length at each node, interpolated linearly) grades it.
 
 pytetwild's package import also loads PyVista for an optional accessor; the compiled extension
 needs only numpy, so it is loaded here on its own (:func:`_extension`) and PyVista is not a
-dependency. pytetwild is MPL-2.0 (fTetWild's licence): a file-level copyleft that an Apache-2.0
+dependency. fTetWild writes a file of its own (``_tracked_surface.stl``) into the working
+directory whatever its options; the call runs in a temporary one (:func:`_scratch_directory`).
+pytetwild is MPL-2.0 (fTetWild's licence): a file-level copyleft that an Apache-2.0
 package may depend on unchanged.
 """
 from __future__ import annotations
 
+import contextlib
 import importlib.machinery
 import importlib.util
 import os
+import tempfile
 
 import numpy as np
 
@@ -47,6 +51,19 @@ def _extension():
     return _loaded
 
 
+@contextlib.contextmanager
+def _scratch_directory():
+    """The working directory a temporary one for the block (the process's: meshing is a command's
+    foreground work, not a node's)."""
+    previous = os.getcwd()
+    with tempfile.TemporaryDirectory(prefix='tetwild_') as scratch:
+        os.chdir(scratch)
+        try:
+            yield
+        finally:
+            os.chdir(previous)
+
+
 def tetrahedralize(vertices, triangles, edge_length, *, epsilon=1e-3, sizing=None, threads=0,
                    iterations=80, stop_energy=10.0, coarsen=False):
     """(points (n, 3), tetrahedra (m, 4), positively oriented) of the volume the triangles bound.
@@ -64,10 +81,11 @@ def tetrahedralize(vertices, triangles, edge_length, *, epsilon=1e-3, sizing=Non
         background = (np.array(sizing[0], dtype=np.float64, order='C'),     # writeable copies: the
                       np.array(sizing[1], dtype=np.int32, order='C'),       # binding refuses read-only ones
                       np.array(sizing[2], dtype=np.float64, order='C').ravel())
-    points, tetrahedra = _extension().tetrahedralize_mesh(
-        np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(triangles, dtype=np.uint32),
-        True, False, 0.05, float(edge_length), float(epsilon), float(stop_energy), bool(coarsen), int(threads),
-        int(iterations), 6, True, False, False, *background)
+    with _scratch_directory():
+        points, tetrahedra = _extension().tetrahedralize_mesh(
+            np.array(vertices, dtype=np.float64, order='C'), np.array(triangles, dtype=np.uint32, order='C'),
+            True, False, 0.05, float(edge_length), float(epsilon), float(stop_energy), bool(coarsen), int(threads),
+            int(iterations), 6, True, False, False, *background)
     points = np.asarray(points, dtype=np.float64)
     tetrahedra = np.asarray(tetrahedra, dtype=np.int64)
     if len(tetrahedra) == 0:

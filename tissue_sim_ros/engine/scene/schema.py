@@ -173,6 +173,10 @@ SCHEMA = {
         'start_gap_m': (None, 'float0', 'tip distance above the tissue surface along the axis at start '
                                         'and reset [m]; null: initial_position_m as given, else that '
                                         'position moved along the axis to this gap'),
+        'planned_travel_m': (None, 'float+', 'the insertion the scene is for: tip travel along the axis from '
+                                             'the start pose [m] (tissue-sim insert\'s default travel; chart, '
+                                             'recommend and the mass-scaling rule score this insertion); null: '
+                                             "the commands' own defaults"),
         'shaft_point_spacing_m': (0.001, 'float+', 'tissue points along the shaft, one per this advance [m]'),
         'max_jump_m': (DEFAULT_MAX_JUMP_M, 'float+', 'largest base or tip move accepted in one advance() call [m]'),
         'tip': {
