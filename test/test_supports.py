@@ -47,9 +47,9 @@ def test_a_block_on_a_foundation_settles_to_the_analytic_column():
     assert -np.sum(stiffness_zz * u[bottom, 2]) == pytest.approx(weight, rel=1e-9)
     assert -np.sum(stiffness_zz * u[bottom, 2]) / np.sum(stiffness_zz) == pytest.approx(column(0.0), rel=1e-9)
     # the top moves by the foundation's settlement plus the column's own compression (lumped
-    # gravity on linear elements: within 2 % at four layers)
+    # gravity on linear elements: 1.4e-4 off at four layers, 2e-5 at eight)
     top = np.isclose(x[:, 2], SIZE[2])
-    assert -u[top, 2].mean() == pytest.approx(column(SIZE[2]), rel=0.02)
+    assert -u[top, 2].mean() == pytest.approx(column(SIZE[2]), rel=0.002)
     # no Poisson effect and no sliding: what moves sideways is the Kuhn split's own skew (1 %)
     assert np.abs(u[:, :2]).max() < 0.02 * column(SIZE[2])
     # the state is the one a reset returns to, and the tissue stays there
