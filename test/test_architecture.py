@@ -1,12 +1,15 @@
 """The house's rules, read from the sources: layers one way, no import loops, small modules in
-small folders, a map in every package, no history in the code, and every file it cites there."""
+small folders, a map in every package, no history in the code, every file it cites there, and
+tests that mirror the package."""
+
 import ast
 import re
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from support.paths import ROOT
+
 PACKAGE = ROOT / 'tissue_sim_ros'
 
 #: layers bottom up: a module may import its own layer and those below, never one above
@@ -201,3 +204,34 @@ def test_every_file_the_sources_cite_exists():
                     continue
                 missing.append(f'{path.relative_to(ROOT)}:{n}: {cited}')
     assert not missing, '\n'.join(missing)
+
+
+TESTS = ROOT / 'test'
+#: folders of test/ that mirror no package: shared helpers
+TEST_HELPERS = ('support',)
+
+
+def _test_folders():
+    return [p for p in TESTS.rglob('*') if p.is_dir() and p.name != '__pycache__'
+            and p.relative_to(TESTS).parts[0] not in TEST_HELPERS]
+
+
+def test_every_test_file_in_a_mirrored_folder_names_a_module_there():
+    """test/<path>/test_<name>.py tests tissue_sim_ros/<path>/<name>.py: a file whose module
+    was renamed, moved or removed is found here, not by a reader looking for its tests."""
+    orphans = [str(path.relative_to(ROOT)) for folder in _test_folders()
+               for path in sorted(folder.glob('test_*.py'))
+               if not (PACKAGE / folder.relative_to(TESTS) / f'{path.stem[len("test_"):]}.py').is_file()]
+    assert not orphans, 'test files that name no module:\n' + '\n'.join(orphans)
+
+
+def test_the_tests_mirror_the_sub_packages_and_nothing_else():
+    """test/ holds a folder for each sub-package (test/engine/needle for engine/needle), every
+    folder of test/ but the helpers' is one, and none is a Python package: a test/io/__init__.py
+    would shadow the standard library's io (pytest imports the tests in importlib mode)."""
+    packages = {init.parent.relative_to(PACKAGE) for init in PACKAGE.rglob('__init__.py')
+                if init.parent != PACKAGE}
+    folders = {folder.relative_to(TESTS) for folder in _test_folders()}
+    assert sorted(map(str, packages - folders)) == [], 'sub-packages without their test folder'
+    assert sorted(map(str, folders - packages)) == [], 'test folders that mirror no sub-package'
+    assert sorted(str(p.relative_to(ROOT)) for p in TESTS.rglob('__init__.py')) == []

@@ -19,7 +19,6 @@ needs a C compiler where the package is built, and builds generic x86-64 code by
 AVX2/FMA, or the host features system.numba_threads gives numba), so shipped kernels would run
 slower than the ones a first start compiles once for its host.
 """
-import os
 import subprocess
 import sys
 import tempfile

@@ -134,5 +134,4 @@ def main(*, scene=None, sets=(), speed_mm_s=5.0, travel_mm=17.0, scalings=SCALIN
 
 
 if __name__ == '__main__':
-    import sys
     sys.exit('this benchmark runs as: tissue-sim bench inertia (tissue-sim bench --help)')

@@ -288,7 +288,7 @@ def build_parser():
                               'the axial force against the scene as configured) is within this, as the '
                               "node's prediction.max_error (default 0: as configured)")
     predict.add_argument('--out', type=output_dir, default='out/predict',
-                         help='output directory for prediction.csv, .png, .md, .json (default: out/predict)')
+                         help='output directory for predict.csv, .png, .md, .json (default: out/predict)')
     predict.set_defaults(run=_predict)
     _add_model_studies(commands)
     add_bench_commands(commands)

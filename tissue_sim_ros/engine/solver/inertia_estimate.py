@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 __all__ = ['SMOOTHING_S', 'InertiaEstimate', 'weighted_body_force', 'inertia_line']

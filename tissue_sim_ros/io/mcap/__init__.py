@@ -7,6 +7,7 @@
 - :mod:`.writer`: :class:`McapRecorder` and its hard-kill loss bound;
 - :mod:`.reader`: :func:`read_log` (skips and reports undecodable messages),
   :func:`read_metadata`, :func:`summarize_log`;
+- :mod:`.salvage`: every readable record of a damaged file, and what lies between them;
 - :mod:`.recovery`: :func:`recover_truncated` (``tissue-sim recover``).
 
 The public names are here. Importing this package imports no numba (the engine is not loaded
