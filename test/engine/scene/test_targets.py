@@ -80,7 +80,7 @@ def test_tip_distance_and_lateral_miss(scene):
     ('[{name: t, position_m: [0.0, 0.0, 0.05]}]', ['targets[0].position_m', 'outside the tissue mesh']),
     ('[{name: t, position_m: [0.0, 0.0, -0.01]}, {name: t, position_m: [0.0, 0.0, -0.02]}]',
      ['targets[1].name', 'another target']),
-    ('[{name: t}]', ['targets[0].position_m', 'required']),
+    ('[{name: t}]', ['targets[0]: give one of position_m', 'and region']),
     ('[{position_m: [0.0, 0.0, -0.01]}]', ['targets[0].name']),
 ])
 def test_bad_targets_refused_by_name(targets, words):
