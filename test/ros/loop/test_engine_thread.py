@@ -256,3 +256,34 @@ def test_nothing_is_simulated_or_owed_before_the_first_tick():
             time.sleep(0.01)
     finally:
         engine.stop()
+
+
+def test_time_dropped_before_any_pose_is_not_warned_of_as_lag():
+    """On a machine too loaded to keep real time (each substep made to cost 1.5 times its
+    simulated time) the engine drops the time it cannot simulate. Before any pose that is the
+    resting tissue's time: dropped and counted, but not reported as lag behind the poses; the
+    first pose makes the same lag a warning."""
+    scene = Scene.from_file(None, values={'mesh.fine_size_m': 0.004, 'mesh.divisions': [5, 5, 4]})
+    driver = SimulationDriver(scene, wrench_frame='needle', on_divergence='reset')
+    logged = []
+    engine = EngineLoop(driver, PoseInput(PoseInputLimits(), reference_pose=scene.needle_pose), period_s=0.02,
+                        now_ns=time.time_ns, decode=lambda pose: pose,
+                        log_once=lambda kind, *a: logged.append(kind), log=lambda *a: None,
+                        slow_down=lambda substeps: 1.5 * substeps * scene.dt)
+
+    def tick_until(condition, what):
+        deadline = time.monotonic() + 30.0
+        while not condition():
+            assert time.monotonic() < deadline, what
+            engine.tick()
+            time.sleep(0.02)
+    engine.start()
+    try:
+        tick_until(lambda: driver.dropped_s > 0.2, 'no time dropped')
+        assert 'lag' not in logged
+        position, orientation = scene.needle_pose
+        now = time.time_ns()
+        engine.receiver.add(now, (position, orientation, 'world', now))
+        tick_until(lambda: 'lag' in logged, 'no lag warned of after a pose')
+    finally:
+        engine.stop()

@@ -354,9 +354,12 @@ class EngineLoop:
             self._diverged(outcome.diverged)
         if not self.sim_time and driver.drop_lag(pacing.max_lag_s) > 0.0:
             self._record(event_row(DROP, self.advances, pacing.max_lag_s))
-            self._log_once('lag', f'the engine is more than engine.max_lag_s = {pacing.max_lag_s:g} s '
-                           'behind the poses: the excess is dropped (the needle then moves faster '
-                           'in simulated time)', 'warning')
+            # before any pose the needle rests where the scene put it: the time dropped is the
+            # resting tissue's, and no pose is behind (a loaded machine's start is not a fault)
+            if any(i.newest() is not None for i in [self.input] + self.other_inputs):
+                self._log_once('lag', f'the engine is more than engine.max_lag_s = {pacing.max_lag_s:g} s '
+                               'behind the poses: the excess is dropped (the needle then moves faster '
+                               'in simulated time)', 'warning')
         self._publish_state()
 
     def _diverged(self, exc) -> None:
