@@ -20,7 +20,7 @@ LAYERS = (('tissue_sim_ros.errors', 'tissue_sim_ros.units', 'tissue_sim_ros.syst
           ('tissue_sim_ros.ros',),
           ('tissue_sim_ros.analysis',),
           ('tissue_sim_ros.bench',),
-          ('tissue_sim_ros.cli',))
+          ('tissue_sim_ros.cli', 'tissue_sim_ros.client'))
 MAX_LINES, MAX_KERNEL_SET_LINES, MAX_MODULES_PER_FOLDER = 500, 800, 15
 _COMPILED = re.compile(r'@(numba\.)?(njit|jit|register_jitable|intrinsic|overload)\b')
 

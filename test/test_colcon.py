@@ -47,7 +47,9 @@ def test_colcon_build_installs_and_colcon_test_passes(tmp_path):
     share = install / 'share' / 'tissue_sim_ros'
     assert (install / 'share' / 'ament_index' / 'resource_index' / 'packages' /
             'tissue_sim_ros').is_file()
-    for rel in ('package.xml', 'config/tissue_sim.yaml', 'config/liver_sample.yaml'):
+    for rel in ('package.xml', 'config/tissue_sim.yaml', 'config/liver_sample.yaml',
+                'launch/tissue_sim.launch.py',
+                'rviz/tissue_sim.rviz', 'foxglove/tissue_sim.json'):
         assert (share / rel).is_file(), rel
     assert sorted(p.name for p in (share / 'msg_examples').glob('*.yaml')) == \
         sorted(p.name for p in (ROOT / 'msg_examples').glob('*.yaml'))

@@ -30,11 +30,19 @@ def test_tissue_sim_replay_reproduces_a_node_log_and_drives_another_model(harnes
     assert summary['max_abs_difference_n'] <= 1e-9 and np.abs(recorded).max() > 0.05
     with AnyReader([tmp_path / 'exact' / 'replay.mcap']) as reader:
         types = {c.topic: c.msgtype for c in reader.connections}
-        assert types == {'/needle/wrench': 'geometry_msgs/msg/WrenchStamped',
+        assert types == {'/needle/wrench': 'geometry_msgs/msg/WrenchStamped', '/needle/shape': 'nav_msgs/msg/Path',
                          '/tissue/nodes': 'sensor_msgs/msg/PointCloud2',
                          '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray'}
         wrench_conn = [c for c in reader.connections if c.topic == '/needle/wrench']
         replayed = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(connections=wrench_conn)]
+        shape_conn = [c for c in reader.connections if c.topic == '/needle/shape']
+        shapes = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(connections=shape_conn)]
+    # the shape's last pose is the tip replay.csv gives; the rigid needle's tip went straight down
+    exact_rows = np.loadtxt(tmp_path / 'exact' / 'replay.csv', delimiter=',', skiprows=1)
+    tips = np.array([[p.x, p.y, p.z] for p in (s.poses[-1].pose.position for s in shapes)])
+    np.testing.assert_allclose(tips, exact_rows[:, 13:16], rtol=1e-8, atol=1e-12)       # (9 digits)
+    assert np.all(exact_rows[:, 16] == 0.0) and np.ptp(tips[:, :2], axis=0).max() < 1e-12
+    assert tips[0, 2] - tips[-1, 2] > 0.01
     logged_stamps, logged, _ = node_log(log)
     np.testing.assert_array_equal([cv.stamp_to_ns(w.header.stamp) for w in replayed], logged_stamps)
     np.testing.assert_allclose([[w.wrench.force.x, w.wrench.force.y, w.wrench.force.z] for w in replayed],

@@ -145,3 +145,34 @@ def test_two_real_runs_are_compared(tmp_path):
     assert summary['ratios'] == pytest.approx(
         [runs['after']['node_cpu_pct_of_one_core'] / runs['before']['node_cpu_pct_of_one_core']])
     assert summary['scene'] == str(scene)
+
+
+def test_against_a_scene_runs_this_checkout_on_both_scenes_in_turn(tmp_path, monkeypatch):
+    """--against-scene: both versions are this tree, the reference on its scene and the other on
+    --scene, alternating; a missing scene or both comparisons at once are refused."""
+    calls = []
+    scenes = {'before': ROOT / 'config' / 'liver_sample.yaml', 'after': ROOT / 'config' / 'liver_sample_flexible.yaml'}
+
+    def fake_run(command, **kw):
+        if command[0] == 'git':
+            return subprocess.CompletedProcess(command, 0, b'', b'')
+        tree, out = Path(command[3]), Path(kw['cwd']) / command[command.index('--out') + 1]
+        scene = Path(command[command.index('--scene-file') + 1])
+        assert tree == ROOT and kw['env'].get('XDG_CACHE_HOME') == os.environ.get('XDG_CACHE_HOME')
+        version = next(v for v, s in scenes.items() if s == scene)
+        calls.append((out.name, version))
+        (out / 'node_bench.json').write_text(json.dumps({'node_cpu_pct_of_one_core': {'before': 50.0, 'after': 60.0}[
+            version], 'node_exit_code': 0, 'wrench_rate_hz': 50.0, 'ticks': 100}))
+        return subprocess.CompletedProcess(command, 0, 'ran\n', '')
+
+    monkeypatch.setattr(paired.subprocess, 'run', fake_run)
+    summary = paired.run(None, tmp_path / 'out', pairs=2, duration_s=1.0, scene_file=str(scenes['after']),
+                         against_scene=str(scenes['before']), stream=lambda *_: None)
+    assert calls == [('pair1_before', 'before'), ('pair1_after', 'after'), ('pair2_after', 'after'),
+                     ('pair2_before', 'before')]
+    assert summary['ratios'] == pytest.approx([1.2, 1.2]) and summary['against'].startswith('scene ')
+    assert 'goal' not in (tmp_path / 'out' / 'paired.md').read_text()       # a cost, not a revision's cut
+    with pytest.raises(paired.BenchError, match='no such file'):
+        paired.run(None, tmp_path / 'other', against_scene=str(tmp_path / 'none.yaml'), stream=lambda *_: None)
+    with pytest.raises(paired.BenchError, match='one of'):
+        paired.run('HEAD', tmp_path / 'other', against_scene=str(scenes['before']), stream=lambda *_: None)

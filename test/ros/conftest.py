@@ -76,3 +76,20 @@ def two_needle_node(monkeypatch):
     node.destroy_node()
     client.destroy_node()
     rclpy.shutdown(context=ctx)
+
+
+@pytest.fixture
+def graph():
+    """make(**params): the node with those parameters and a client in this process, on the private
+    graph (support/ros_graph.py), the node ticking; all closed at the end of the test."""
+    pytest.importorskip('rclpy')
+    pytest.importorskip('tf2_msgs.msg')
+    from support.ros_graph import Graph
+    made = []
+
+    def make(**params):
+        made.append(Graph(**params))
+        return made[-1]
+    yield make
+    for g in made:
+        g.close()

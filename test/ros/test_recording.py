@@ -58,17 +58,22 @@ def test_recording_holds_every_message_in_and_out(harness, tmp_path):
     expected = {'/needle/wrench': len(received['wrench']), '/tissue/nodes': len(received['nodes']),
                 '/tissue/surface': len(received['surface']),
                 '/tissue/marker': len(received['marker']),
-                '/diagnostics': len(received['diag']), '/needle/pose': len(h.published)}
+                '/diagnostics': len(received['diag']), '/needle/pose': len(h.published),
+                '/needle/shape': len(received['wrench'])}     # a shape with each tick's wrench
     key_of = {'/needle/wrench': 'wrench', '/tissue/nodes': 'nodes', '/tissue/marker': 'marker',
-              '/diagnostics': 'diag'}
+              '/diagnostics': 'diag', '/needle/shape': 'wrench'}
     types = {'/needle/wrench': 'geometry_msgs/msg/WrenchStamped',
              '/tissue/nodes': 'sensor_msgs/msg/PointCloud2', '/tissue/surface': 'shape_msgs/msg/Mesh',
              '/tissue/marker': 'visualization_msgs/msg/Marker',
              '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
-             '/needle/pose': 'geometry_msgs/msg/PoseStamped',
+             '/needle/pose': 'geometry_msgs/msg/PoseStamped', '/needle/shape': 'nav_msgs/msg/Path',
              '/tissue_sim/reset/_service_event': 'std_srvs/srv/Trigger_Event',
              '/tissue_sim/pause/_service_event': 'std_srvs/srv/SetBool_Event',
-             '/tissue_sim/engine_trace': 'std_msgs/msg/Float64MultiArray'}
+             '/tissue_sim/engine_trace': 'std_msgs/msg/Float64MultiArray',
+             '/tissue_sim/set_tissue_pose/_service_event': 'tissue_sim_msgs/srv/SetTissuePose_Event',
+             '/tissue_sim/register_needle/_service_event': 'std_srvs/srv/Trigger_Event',
+             '/tf': 'tf2_msgs/msg/TFMessage', '/tf_static': 'tf2_msgs/msg/TFMessage',
+             '/tissue_sim/ready': 'std_msgs/msg/Bool'}      # TF and readiness: test/ros/test_tf_out.py
     with AnyReader([path]) as reader:
         assert {c.topic: c.msgtype for c in reader.connections} == types
         raw_events = [raw for _, _, raw in reader.messages(
@@ -92,7 +97,8 @@ def test_recording_holds_every_message_in_and_out(harness, tmp_path):
                     for _ in reader.messages(connections=[c]))
         assert traces == ticks     # one engine trace per tick (replay)
         for c in reader.connections:
-            if c.topic.endswith('/_service_event') or c.topic.endswith('/engine_trace'):
+            if c.topic.endswith('/_service_event') or c.topic.endswith('/engine_trace') or \
+                    c.topic in ('/tf', '/tf_static', '/tissue_sim/ready'):
                 continue
             msgs = [reader.deserialize(raw, c.msgtype) for _, _, raw in
                     reader.messages(connections=[c])]

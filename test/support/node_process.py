@@ -36,6 +36,10 @@ TOPIC_TYPES = {
     '/tissue_sim/engine_trace': 'std_msgs/msg/Float64MultiArray',        # recorded, one per tick
     '/plan/candidate': 'nav_msgs/msg/Path',                             # channels from the start,
     '/plan/prediction': 'trajectory_msgs/msg/JointTrajectory',          # messages per request
+    '/tf': 'tf2_msgs/msg/TFMessage', '/tf_static': 'tf2_msgs/msg/TFMessage',     # TF out
+    '/tissue_sim/ready': 'std_msgs/msg/Bool',
+    '/tissue_sim/set_tissue_pose/_service_event': 'tissue_sim_msgs/srv/SetTissuePose_Event',
+    '/tissue_sim/register_needle/_service_event': 'std_srvs/srv/Trigger_Event',
 }
 _DOMAINS = iter(range(110 + os.getpid() % 40 * 2, 232))
 SCENE_OVERRIDE = os.environ.get('TISSUE_SIM_TEST_SCENE') or None

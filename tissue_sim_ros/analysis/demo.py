@@ -49,7 +49,7 @@ def _drive_node(out, logs, speed_mm_s, depth_mm):
     from tissue_sim_ros.ros.clients.node_process import NodeProcess, console_script
     print(f'starting tissue_sim_node (recording to {logs}) ...', flush=True)
     with NodeProcess([f'recording.directory:={logs}'], out / 'node.log') as node:
-        node.wait_for_subscriber('needle/pose')
+        node.wait_until_ready()              # its latched ~/ready: it ticks, its subscriptions are up
         drive = subprocess.run(console_script('tissue-sim', 'tissue_sim_ros.cli') +
                                ['drive', '--speed-mm-s', str(speed_mm_s), '--depth-mm', str(depth_mm),
                                 '--hold-s', '0.5'], env=node.env, timeout=300)

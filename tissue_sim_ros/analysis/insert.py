@@ -2,8 +2,9 @@
 
 Runs :func:`~tissue_sim_ros.analysis.insertion.run_insertion`, prints what happened (punctures,
 targets, the peak force, the speed, the mass scaling's estimated inertia error) and writes into
-``--out DIR``: ``insert.csv`` (a row per tick: time, tip travel, wrench, axial force, phase,
-targets), ``insert.png`` (force against travel), ``insert.md`` and ``insert.json`` (the
+``--out DIR``: ``insert.csv`` (a row per tick: time, tip travel, where the tip is and its
+deflection from the base axis, wrench, axial force, phase, targets), ``insert.png`` (force
+against travel), ``insert.md`` and ``insert.json`` (the
 figures). On the packaged scene, which models the bovine liver of Okamura et al. (2004), it also
 compares the run with that measurement (``insert_vs_bovine_liver.png``).
 """
@@ -74,6 +75,10 @@ def main(scene_file, speed_mm_s, out, *, travel_mm=None, depth_mm=None, hold_s=0
         print(f'target {name}: the tip came within {result.target_tip_distance[closest, j] * 1e3:.2f} mm of it '
               f'(t = {result.time[closest]:.2f} s, lateral miss {result.target_lateral_miss[closest, j] * 1e3:.2f} mm); '
               f'the tissue carried it {moved.max() * 1e3:.2f} mm at most', file=stream)
+    if scene.needle.rod is not None:
+        k = int(np.argmax(result.tip_deflection))
+        print(f'flexible needle: the tip deflected {result.tip_deflection[-1] * 1e3:.3f} mm from the base axis at '
+              f'the end ({result.tip_deflection[k] * 1e3:.3f} mm at most, t = {result.time[k]:.2f} s)', file=stream)
     print(f'peak axial force {result.axial_force.max():.3f} N; simulated {result.time[-1]:.2f} s in '
           f'{result.wall_time:.2f} s wall: real-time factor {result.real_time_factor:.2f} '
           f'({result.steps} steps)', file=stream)
@@ -98,6 +103,9 @@ def write_summary(out: Path, scene_file, speed_mm_s, kind, scene, result) -> dic
         'simulated_s': float(result.time[-1]), 'wall_s': float(result.wall_time),
         'real_time_factor': float(result.real_time_factor), 'steps': int(result.steps),
         'inertia_error_estimate': result.inertia_error,
+        'final_tip_m': [float(v) for v in result.tip[-1]],
+        'final_tip_deflection_m': float(result.tip_deflection[-1]),
+        'max_tip_deflection_m': float(result.tip_deflection.max()),
     }
     (out / 'insert.json').write_text(json.dumps(figures, indent=1))
     lines = [f"# Insertion at {speed_mm_s:g} mm/s: {figures['scene']}", '',
@@ -105,6 +113,8 @@ def write_summary(out: Path, scene_file, speed_mm_s, kind, scene, result) -> dic
              f"mass scaling {figures['mass_scaling']:g}.", '',
              f"Peak axial force {figures['peak_axial_force_n']:.3f} N; simulated {figures['simulated_s']:.2f} s in "
              f"{figures['wall_s']:.2f} s (real-time factor {figures['real_time_factor']:.2f}).", '',
+             f"Tip deflection from the base axis: {figures['final_tip_deflection_m'] * 1e3:.3f} mm at the end, "
+             f"{figures['max_tip_deflection_m'] * 1e3:.3f} mm at most.", '',
              '| puncture of | travel [mm] | axial force [N] |', '|---|---|---|']
     lines += [f"| {p['region']} | {p['travel_m'] * 1e3:.2f} | {p['axial_force_n']:.3f} |" for p in figures['punctures']]
     lines += ['', '![force against travel](insert.png)', '']

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-CSV_HEADER = ('time_s', 'travel_m', 'force_x_n', 'force_y_n', 'force_z_n', 'torque_x_nm', 'torque_y_nm',
-              'torque_z_nm', 'axial_force_n', 'phase')
+CSV_HEADER = ('time_s', 'travel_m', 'tip_x_m', 'tip_y_m', 'tip_z_m', 'tip_deflection_m', 'force_x_n', 'force_y_n',
+              'force_z_n', 'torque_x_nm', 'torque_y_nm', 'torque_z_nm', 'axial_force_n', 'phase')
 
 
 @dataclass
@@ -37,6 +37,8 @@ class InsertionResult:
     target_positions_at_rest: np.ndarray = None  # (n_targets, 3) m, at the start (settled under gravity)
     inertia_error: float = None     # the mass scaling's estimated force NRMSE (solver.inertia_estimate)
     inertia_rms_n: float = 0.0      # the same in N
+    tip: np.ndarray = None          # (k, 3) m, the tip's apex, world frame
+    tip_deflection: np.ndarray = None   # (k,) m, the tip's distance from the base frame's axis
 
     @property
     def real_time_factor(self):
@@ -94,7 +96,7 @@ def run_insertion(scene, speed, travel, *, hold_s=0.0, tick=0.02, retract=True, 
                            list(scene.puncture_events), time.perf_counter() - wall0,
                            samples.substeps, scene.dt, tuple(scene.targets.names), target_positions,
                            target_distance, target_miss, targets_at_start,
-                           driver.inertia.error, driver.inertia.rms_n)
+                           driver.inertia.error, driver.inertia.rms_n, samples.tip, samples.tip_deflection)
 
 
 def target_columns(names) -> list[str]:
@@ -116,6 +118,7 @@ def write_csv(result, path):
                             f'{np.linalg.norm(position - result.target_positions_at_rest[j]):.6g}',
                             f'{result.target_tip_distance[k, j]:.6g}', f'{result.target_lateral_miss[k, j]:.6g}']
             writer.writerow([f'{result.time[k]:.6f}', f'{result.travel[k]:.7f}',
+                             *(f'{v:.9g}' for v in result.tip[k]), f'{result.tip_deflection[k]:.6g}',
                              *(f'{v:.6g}' for v in result.force[k]), *(f'{v:.6g}' for v in result.torque[k]),
                              f'{result.axial_force[k]:.6g}', result.phase[k], *targets])
 

@@ -9,10 +9,13 @@ docs/performance.md gives how to run each and its latest figures.
 - :mod:`.study`: replay and compare timings;
 - :mod:`.calibration`: ``calibrate`` on synthetic data with known values;
 - :mod:`.organ_scale`: the node at organ scale, per model and mesh size (``tissue-sim bench organ``);
+- :mod:`.steering`: a flexible needle in air and in the tissue, its curvature, its step's cost;
 - :mod:`.node_bench`, :mod:`.node_bench_figures`, :mod:`.node_bench_paired`: the node's timing
   from outside, its figures, and paired runs against another revision (``tissue-sim node-bench``);
 - :mod:`.background_load`, :mod:`.prediction_burst`: busy processes and a listener beside the
-  node; a burst of planner requests during a run.
+  node; a burst of planner requests during a run;
+- :mod:`.robot_graph`: TF input against the pose topic, the action against the topic pair.
 """
 __all__ = ['background_load', 'calibration', 'cold_start', 'inertia', 'node_bench', 'node_bench_figures',
-           'node_bench_paired', 'organ_scale', 'prediction_burst', 'ripple', 'speed', 'study']
+           'node_bench_paired', 'organ_scale', 'prediction_burst', 'ripple', 'robot_graph', 'speed',
+           'steering', 'study']

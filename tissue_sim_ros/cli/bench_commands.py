@@ -49,6 +49,14 @@ def _organ(args):
         raise CommandLineError(f'--models {" ".join(unknown)}: unknown; expected some of '
                                f'{", ".join(organ_scale.MODELS)}')
     organ_scale.main([int(s) for s in args.sizes], args.models, args.set, args.duration_s, args.out, args.threads)
+def _robot_graph(args):
+    from tissue_sim_ros.bench import robot_graph
+    robot_graph.main(rounds=args.rounds, seconds=args.seconds, rate_hz=args.rate_hz, goals=args.goals)
+
+
+def _steering(args):
+    from tissue_sim_ros.bench import steering
+    steering.main(parts=args.parts, depth_mm=args.depth_mm, speed_mm_s=args.speed_mm_s, jobs=args.jobs, out=args.out)
 
 
 def _speed_options(parser):
@@ -65,7 +73,7 @@ def _speed_options(parser):
 def add_bench_commands(commands):
     """Add ``bench`` and its benchmarks to the subparsers ``commands``."""
     bench = commands.add_parser('bench', help='benchmarks: speed per mesh size (default), cold-start, inertia, '
-                                'ripple, study, calibration')
+                                'ripple, study, calibration, robot-graph, steering')
     _speed_options(bench)
     bench.set_defaults(run=_speed)
     which = bench.add_subparsers(dest='benchmark', required=False, metavar='BENCHMARK')
@@ -116,3 +124,23 @@ def add_bench_commands(commands):
                        help="the node's engine.threads (default: its parameter file's)")
     organ.add_argument('--out', type=output_dir, default='out/bench_organ', help='output directory')
     organ.set_defaults(run=_organ)
+    graph = which.add_parser('robot-graph',
+                             help='TF input against the pose topic; the action against the topic '
+                             'pair (paired)')
+    graph.add_argument('--rounds', type=number(1, inclusive=True, whole=True), default=3, help='paired runs')
+    graph.add_argument('--seconds', type=POSITIVE, default=1.2, help='length of each insertion [s]')
+    graph.add_argument('--rate-hz', type=POSITIVE, default=1000.0, help="the robot's rate (default 1000)")
+    graph.add_argument('--goals', type=number(1, inclusive=True, whole=True), default=6,
+                       help='predictions asked each way')
+    graph.set_defaults(run=_robot_graph)
+    steering = which.add_parser('steering', help="a flexible needle's figures: in air, its bend in the default "
+                                'tissue, curvature trends, a 180-degree flip, the step cost with the rod')
+    steering.add_argument('--parts', nargs='+', choices=['air', 'tissue', 'phantom', 'flip', 'cost'],
+                          default=['air', 'tissue', 'phantom', 'flip', 'cost'], help='which figures (default: all)')
+    steering.add_argument('--depth-mm', type=POSITIVE, default=80.0,
+                          help='insertion depth below the surface in the default tissue [mm] (default 80)')
+    steering.add_argument('--speed-mm-s', type=POSITIVE, default=5.0, help='needle speed [mm/s] (default 5)')
+    steering.add_argument('--jobs', type=number(1, inclusive=True, whole=True), default=None,
+                          help='worker processes (default: the cores)')
+    steering.add_argument('--out', type=output_dir, default=None, help='keep the figures as DIR/steering.json')
+    steering.set_defaults(run=_steering)

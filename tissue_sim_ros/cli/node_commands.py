@@ -20,11 +20,11 @@ def _drive(args):
 
 
 def _node_bench(args):
-    if args.against is not None:
+    if args.against is not None or args.against_scene is not None:
         _node_bench_paired(args)
         return
     if args.pairs is not None:
-        raise CommandLineError('--pairs: only with --against REV')
+        raise CommandLineError('--pairs: only with --against REV or --against-scene SCENE')
     from tissue_sim_ros.bench import node_bench
     node_bench.run(duration_s=args.duration_s, rate_hz=args.rate_hz, scene_file=args.scene,
                    out=args.out, threads=args.threads, executor=args.executor, load=args.load,
@@ -35,7 +35,10 @@ def _node_bench(args):
 def _node_bench_paired(args):
     from tissue_sim_ros.bench import node_bench_paired
     if args.out is None:
-        raise CommandLineError('--against needs --out DIR (the runs, the revision and the figures go there)')
+        raise CommandLineError('--against and --against-scene need --out DIR (the runs, the revision and the '
+                               'figures go there)')
+    if args.against is not None and args.against_scene is not None:
+        raise CommandLineError('--against and --against-scene: one or the other')
     fixed = [name for name, value in (('--threads', args.threads), ('--executor', args.executor),
                                       ('--predictions', args.predictions or None), ('--param', args.param or None),
                                       ('--listen', args.listen or None))
@@ -45,7 +48,8 @@ def _node_bench_paired(args):
                            'options, and an earlier one may not have these)')
     try:
         node_bench_paired.run(args.against, args.out, pairs=args.pairs or 3, duration_s=args.duration_s,
-                              rate_hz=args.rate_hz, load=args.load, scene_file=args.scene)
+                              rate_hz=args.rate_hz, load=args.load, scene_file=args.scene,
+                              against_scene=args.against_scene)
     except node_bench_paired.BenchError as exc:
         raise CommandLineError(str(exc)) from exc
 
@@ -100,6 +104,9 @@ def add_node_commands(commands):
     node_bench.add_argument('--against', default=None, metavar='REV',
                             help='also run git revision REV of this checkout, alternating with this one, and '
                                  'compare the node CPU pair by pair (needs --out)')
+    node_bench.add_argument('--against-scene', default=None, metavar='SCENE',
+                            help='also run this checkout on SCENE, alternating with --scene, and compare the '
+                                 "node CPU pair by pair: what a scene's option costs (needs --out)")
     node_bench.add_argument('--pairs', type=number(1, inclusive=True, whole=True), default=None, metavar='N',
-                            help='pairs of runs with --against (default 3)')
+                            help='pairs of runs with --against or --against-scene (default 3)')
     node_bench.set_defaults(run=_node_bench)

@@ -63,6 +63,8 @@ class Samples:
     tip_depth: np.ndarray   # (k,) m below the entry point, 0 outside
     phase: list             # (k,) str
     substeps: int
+    tip: np.ndarray = None              # (k, 3) m, the tip's apex, world frame
+    tip_deflection: np.ndarray = None   # (k,) m, the tip's distance from the base frame's axis
 
 
 class SimulationDriver:
@@ -73,7 +75,8 @@ class SimulationDriver:
             raise ValueError(f"wrench_frame = {wrench_frame!r}: expected 'world' or 'needle'")
         if on_divergence not in ON_DIVERGENCE:
             raise ValueError(f'on_divergence = {on_divergence!r}: expected one of {ON_DIVERGENCE}')
-        warm_up()                  # the needle's kernels compiled before the first advance
+        # the needles' kernels compiled before the first advance
+        warm_up(flexible=any(n.rod is not None for n in scene.needles))
         self.scene = scene
         self.wrench_frame = wrench_frame
         self.on_divergence = on_divergence
@@ -173,6 +176,7 @@ class SimulationDriver:
         k = times.size
         force, torque = np.empty((k, 3)), np.empty((k, 3))
         when, depth, phase = np.empty(k), np.empty(k), []
+        tip, deflection = np.empty((k, 3)), np.empty(k)
         substeps, previous = 0, 0.0
         for i in range(k):
             outcome = self.advance(times[i] - previous, positions[i], orientations[i])
@@ -182,10 +186,11 @@ class SimulationDriver:
                 raise outcome.refused
             force[i], torque[i] = self.force, self.torque
             when[i], depth[i] = self.scene.time, self.scene.tip_depth
+            tip[i], deflection[i] = self.scene.needle.tip, self.scene.tip_deflection
             phase.append(str(self.scene.phase))
             if progress is not None:
                 progress(i, self)
-        return Samples(when, force, torque, depth, phase, substeps)
+        return Samples(when, force, torque, depth, phase, substeps, tip, deflection)
 
     def take_state(self) -> None:
         """Take the wrench of the scene's state as it is (after an advance, or of a scene copied
@@ -221,6 +226,14 @@ class SimulationDriver:
         rest state's (zeros if that is not finite: never a NaN out of a reset)."""
         self.scene.reset()
         self.held = False
+        self._take_finite_wrenches()
+        self.inertia.reset()
+        self._update_inertia(0.0)
+
+    def place_needle(self, position, orientation) -> None:
+        """The first needle starts at this pose from now on (``Scene.place_needle``; PoseError when
+        it touches the tissue or the pose lies inside it); its wrench is then the state's."""
+        self.scene.place_needle(position, orientation)
         self._take_finite_wrenches()
         self.inertia.reset()
         self._update_inertia(0.0)

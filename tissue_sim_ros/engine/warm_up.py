@@ -24,19 +24,28 @@ WARM_UP_SCENE = {
 }
 
 
-def warm_up():
+def warm_up(flexible=False):
     """Compile (or load from numba's cache) the kernels of every needle phase once per process,
     on a tiny scene driven through contact, puncture, cutting with friction and retraction.
     Otherwise a fresh clone compiles each at its first use: seconds in which the node falls
     behind its robot at first contact (and may then refuse the robot's next pose as a jump).
-    On a first start this is what the second compile process runs (engine.compiled.cache)."""
-    if _WARM:
-        return
-    _WARM.append(True)
-    compile_cache.wait_for_helper()
+    On a first start this is what the second compile process runs (engine.compiled.cache).
+    ``flexible``: also a flexible needle's (engine.needle.rod_step), once per process: a scene
+    with one asks for them, so a scene without one does not compile them."""
+    if not _WARM:
+        _WARM.append(True)
+        compile_cache.wait_for_helper()
+        _drive({})
+    if flexible and len(_WARM) == 1:
+        _WARM.append(True)
+        _drive({'flexible': True, 'inner_diameter_m': 0.0006, 'young_modulus_pa': 60e9, 'rod_segments': 30})
+
+
+def _drive(needle):
+    """The warm-up scene's needle with the keys ``needle``, flat then bevelled, in and out."""
     from tissue_sim_ros.engine.scene.scene import Scene
     for tip in ({'shape': 'flat'}, {'shape': 'bevel'}):     # the bonded end; a sharp tip's kernels
-        scene = Scene({**WARM_UP_SCENE, 'needle': {**WARM_UP_SCENE['needle'], 'tip': tip}})
+        scene = Scene({**WARM_UP_SCENE, 'needle': {**WARM_UP_SCENE['needle'], **needle, 'tip': tip}})
         position, orientation = scene.needle_pose
         for depth in (0.0015, 0.003, 0.0045, 0.003):     # down through the membrane, then back up
             scene.advance(0.05, position - np.array([0.0, 0.0, depth]), orientation)

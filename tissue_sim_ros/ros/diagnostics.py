@@ -97,13 +97,19 @@ class NodeStats:
 
 
 def diagnostics_statuses(name: str, now_ns: int, *, stats: NodeStats, engine, pose_input,
-                         ticks: int, recorder=None, needle_names=('needle',), other_inputs=()) -> list:
+                         ticks: int, recorder=None, needle_names=('needle',), other_inputs=(),
+                         ready: str = 'ready', source: str = 'needle/pose') -> list:
     """The DiagnosticStatus tuples (name, level, message, values) of this moment. With several
     needles (``needle_names``; ``other_inputs``: (name, PoseInput) of all but the first) each
-    needle's input has a status ``input <name>`` (the others' bad poses counted since start)."""
+    needle's input has a status ``input <name>`` (the others' bad poses counted since start).
+    ``ready``: the node's readiness (:mod:`~tissue_sim_ros.ros.readiness`); ``source``: where the
+    first needle's poses come from."""
     first = f' {needle_names[0]}' if len(needle_names) > 1 else ''
-    return [_engine_status(name, now_ns, stats, engine, ticks),
-            _input_status(name, now_ns, stats, pose_input, first)] + \
+    engine_status = _engine_status(name, now_ns, stats, engine, ticks)
+    engine_status[3]['ready'] = ready
+    input_status = _input_status(name, now_ns, stats, pose_input, first)
+    input_status[3]['source'] = source
+    return [engine_status, input_status] + \
         [_input_status(name, now_ns, stats, other, f' {needle}', 0) for needle, other in other_inputs] + \
         ([] if recorder is None else [_recording_status(name, recorder)])
 
@@ -170,6 +176,10 @@ def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
         'stability': 'held after divergence' if driver.held else 'stable',
         'phase': str(scene.phase),
         'tip_depth_m': float(scene.tip_depth),
+        'tip_x_m': float(scene.needle.tip[0]),
+        'tip_y_m': float(scene.needle.tip[1]),
+        'tip_z_m': float(scene.needle.tip[2]),
+        'tip_deflection_m': float(scene.tip_deflection),
         'topology_version': int(scene.topology_version),
         'punctures': len(scene.puncture_events),
     }

@@ -70,3 +70,10 @@ def test_the_mesh_limit_is_a_key_and_a_large_mesh_is_announced(capsys, monkeypat
     scene = Scene.from_file(None, values={'mesh.generator': 'box', 'mesh.divisions': [4, 4, 5]})
     assert scene.mesh.n_elements == 480
     assert 'building a mesh of about 480 tetrahedra' in capsys.readouterr().err
+
+
+def test_the_flexible_keys_are_checked():
+    with pytest.raises(SceneError, match=r'needle.inner_diameter_m = 0.002: expected less than needle.diameter_m'):
+        Scene.from_file(sets=['needle.flexible=true', 'needle.inner_diameter_m=0.002'])
+    with pytest.raises(SceneError, match=r'needle.rod_segments = 2.5: expected a whole number'):
+        Scene.from_file(sets=['needle.flexible=true', 'needle.rod_segments=2.5'])

@@ -50,12 +50,16 @@ def test_a_stall_gives_up_the_slots_it_overran():
         times.append(time.monotonic())
         if len(times) == 5:
             time.sleep(3.5 * PERIOD)                 # a stall of three and a half periods
-    start, _, _ = _run(tick, 0.3)
+    start, _, ticker = _run(tick, 0.3)
     gaps = np.diff(times)
     assert gaps[4] >= 3.5 * PERIOD                 # after the stall
     assert gaps[5:].min() > 0.5 * PERIOD           # no burst of late ticks to catch up
     slots = (np.array(times) - start) / PERIOD
     assert np.round(slots[5]) - np.round(slots[4]) >= 4        # slots 6..8 given up
+    # the count of slots given up: every slot of the schedule was run or counted, over the
+    # stall and whatever stalls a loaded machine added
+    assert len(times) + ticker.slots_given_up == pytest.approx(np.round(slots[-1]), abs=1)
+    assert ticker.slots_given_up >= 3
 
 
 def test_an_exception_is_reported_and_the_ticks_go_on():

@@ -12,6 +12,7 @@ import pytest
 pytest.importorskip('rclpy')
 
 from geometry_msgs.msg import WrenchStamped  # noqa: E402
+from nav_msgs.msg import Path  # noqa: E402
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension  # noqa: E402
@@ -19,7 +20,7 @@ from visualization_msgs.msg import Marker  # noqa: E402
 
 from tissue_sim_ros.ros.loop.trace import (COLUMNS, HEADER_SIZE, RESET, advance_row, decode, event_row)  # noqa: E402
 from tissue_sim_ros.ros.messages import conversions as cv  # noqa: E402
-from tissue_sim_ros.ros.messages.cdr_bytes import (CloudBytes, SurfaceMarkerBytes, TraceBytes,
+from tissue_sim_ros.ros.messages.cdr_bytes import (CloudBytes, NeedleShapeBytes, SurfaceMarkerBytes, TraceBytes,
                                                    WrenchBytes)  # noqa: E402
 
 STAMPS = (0, 7, 1_700_000_000_123_456_789, 2**31 * 1_000_000_000 - 1)
@@ -114,3 +115,28 @@ def test_marker_bytes_decode_to_the_marker_message_at_each_stamp_and_state():
         assert got == want and len(got.points) == 3 * len(triangles[::cv.decimation_stride(len(triangles), 40)])
     with pytest.raises(ValueError, match='not finite'):
         marker.serialized(np.full_like(mesh.rest_positions, np.nan), 0)
+
+
+@pytest.mark.parametrize('n, frame_id', [(1, 'world'), (2, 'world'), (61, 'mesh_frame_7'), (36, '')])
+def test_needle_shape_bytes_decode_to_the_path_message(n, frame_id):
+    rng = np.random.default_rng(n)
+    writer = NeedleShapeBytes(n, frame_id, serialize_message)
+    for stamp in STAMPS:
+        positions = rng.normal(size=(n, 3))
+        quaternions = rng.normal(size=(n, 4))
+        quaternions /= np.linalg.norm(quaternions, axis=1)[:, None]
+        got = deserialize_message(writer.serialized(positions, quaternions, stamp), Path)
+        assert got == cv.needle_shape_msg(positions, quaternions, frame_id, stamp)
+    assert len(got.poses) == n and got.poses[-1].header.stamp.sec == STAMPS[-1] // 1_000_000_000
+    assert got.poses[-1].pose.orientation.w == quaternions[-1, 3]
+
+
+def test_needle_shape_bytes_refuse_what_is_not_finite_or_of_another_size():
+    writer = NeedleShapeBytes(3, 'world', serialize_message)
+    good_q = np.tile([0.0, 0.0, 0.0, 1.0], (3, 1))
+    positions = np.zeros((3, 3))
+    positions[1, 2] = math.nan
+    with pytest.raises(ValueError, match=r'positions: .*row 1'):
+        writer.serialized(positions, good_q, 5)
+    with pytest.raises(ValueError, match='3 finite'):
+        writer.serialized(np.zeros((4, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (4, 1)), 5)

@@ -19,7 +19,7 @@ EXAMPLES = sorted((ROOT / 'msg_examples').glob('*.yaml'))
 
 
 def test_there_are_examples():
-    assert len(EXAMPLES) == 11
+    assert len(EXAMPLES) == 18
 
 
 @pytest.mark.parametrize('path', EXAMPLES, ids=lambda p: p.name)
@@ -31,7 +31,7 @@ def test_example_converts_into_its_type_and_survives_serialization(path):
         assert deserialize_message(serialize_message(back), cls) == back, role
         if role == 'message':
             assert cls is message_type(example['type'])
-    assert ('topic' in example) != ('service' in example)
+    assert sum(key in example for key in ('topic', 'service', 'action')) == 1
 
 
 def _by_name(name):
@@ -60,6 +60,7 @@ def node_facts(tmp_path_factory):
             'diagnostics': {name: list(values) for name, _, _, values in
                             node.diagnostics_statuses(node.get_clock().now().nanoseconds)},
             'namespace': ns,
+            'actions': {node.action_server.name},
             'wrench_frame_id': node.config.wrench_frame_id,
             'frame_id': node.config.frame_id,
         }
@@ -70,16 +71,19 @@ def node_facts(tmp_path_factory):
 
 
 def test_examples_cover_every_topic_and_service_of_the_node(node_facts):
-    topics, services = set(), set()
+    topics, services, actions = set(), set(), set()
     for path in EXAMPLES:
         doc = yaml.safe_load(path.read_text())
         if 'topic' in doc:
-            name = doc['topic']
+            name = doc['topic'].replace('~', node_facts['namespace'])
             topics.add(name if name.startswith('/') else '/' + name)
-        else:
+        elif 'service' in doc:
             services.add(doc['service'].replace('~', node_facts['namespace']))
+        else:
+            actions.add(doc['action'].replace('~', node_facts['namespace']))
     assert topics == node_facts['published'] | node_facts['subscribed']
     assert services == node_facts['services']
+    assert actions == node_facts['actions']
 
 
 def test_diagnostics_example_has_the_nodes_keys(node_facts):

@@ -28,3 +28,9 @@ def test_each_profile_keeps_its_depth_with_the_stated_reliability_and_durability
     assert profile.history == HistoryPolicy.KEEP_LAST and profile.depth == depth
     assert profile.reliability == (ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT)
     assert profile.durability == (DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+
+def test_one_needle_keeps_todays_topics_and_several_get_their_own():
+    assert topics.needle_topics(['needle']) == [('needle/pose', 'needle/wrench')]
+    assert topics.needle_topics(['a', 'b']) == [('needle/a/pose', 'needle/a/wrench'),
+                                                ('needle/b/pose', 'needle/b/wrench')]

@@ -35,6 +35,7 @@ meets a membrane; it reads and writes the needle's state (the arrays made in its
 common case runs in one compiled call (:func:`~tissue_sim_ros.engine.needle.step.inserted_step`).
 """
 from tissue_sim_ros.engine.needle.kernels import follow_rigid_samples, locate_point, locate_walk, put_rows
+from tissue_sim_ros.engine.needle.rod_step import rod_inserted_step
 from tissue_sim_ros.engine.needle.step import inserted_step
 
 __all__ = ['InsideTissue']
@@ -46,15 +47,16 @@ class InsideTissue:
     def _inserted_step(self, inverse_mass, dt):
         """after_step inside the tissue, not touching a membrane: the same kernels in the same
         order as the general path, in one compiled call (engine.needle.step)."""
+        step = inserted_step if self.rod is None else rod_inserted_step
         (self.friction_force, self.cutting_force, self.n_tip, self.n_applied, work, apex, travel_along, deepest,
-         speed_along) = inserted_step(*self.inserted_arguments(inverse_mass, dt), self.apex_element,
-                                      self._forces_applied)
+         speed_along) = step(*self.inserted_arguments(inverse_mass, dt), self.apex_element, self._forces_applied)
         self.simulation.input_work += work
         self.after_inserted_step(inverse_mass, dt, apex, travel_along, deepest, speed_along)
 
     def inserted_arguments(self, inverse_mass, dt):
         """The arguments of ``step.inserted_step`` but the last two (the apex's element to
-        walk from, whether to clear the applied forces first), as a tuple; valid until the needle's
+        walk from, whether to clear the applied forces first), as a tuple, and with a flexible
+        shaft the rod's after them (``rod_step.rod_inserted_step``'s); valid until the needle's
         state changes outside that call (the compiled substep keeps it over a slice)."""
         sim, geometry, faces = self.simulation, self.geometry, self._faces
         return (self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.tetrahedra,
@@ -69,7 +71,7 @@ class InsideTissue:
                 self.sharp and self.tip_contact.cutting, faces.engaged, faces.new, faces.nodes, faces.weights,
                 faces.params, faces.forces, faces.points, faces.total, self.applied_forces, self._applied_points,
                 self._applied_point_forces, self.wrench_force, self.wrench_torque, self._apex_weights,
-                self._apex_rest, sim.integrator == 'explicit')
+                self._apex_rest, sim.integrator == 'explicit') + (() if self.rod is None else self.rod.arguments())
 
     def after_inserted_step(self, inverse_mass, dt, apex, travel_along, deepest, speed_along):
         """What the Python decides after the compiled inside step, from the floats it returned:
@@ -85,7 +87,10 @@ class InsideTissue:
         self._update_phase(dt, speed_along)
 
     def _enter(self, region, nodes, weights):
-        """Puncture done (or no membrane): the needle is inside ``region``; first shaft point."""
+        """Puncture done (or no membrane): the needle is inside ``region``; first shaft point
+        (a flexible shaft leaves its guide from here, straight)."""
+        if self.rod is not None and not self.n_points:
+            self.rod.straighten(self.position, self.rotation, self._base_velocity)
         self.region = region
         self._add_point(nodes, weights)
         self.tip_elements[:] = -1
@@ -100,7 +105,7 @@ class InsideTissue:
         contact, sim = self.tip_contact, self.simulation
         contact.engage_found(self.tip_elements, self.tip_nodes, self.tip_weights)
         contact.solve(self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self._tip,
-                      self.rotation, dt, self.applied_forces,
+                      self.tip_rotation, dt, self.applied_forces,
                       self.regions[self.region].cutting_force_n / len(contact.offsets))
         n = len(contact.offsets)
         start = self._add_applied(n)
@@ -117,6 +122,8 @@ class InsideTissue:
         self.point_weights[k, :len(weights)] = weights
         self.point_depths[k] = self.geometry.length_m
         self.point_offsets[k] = 0.0
+        if self.rod is not None:
+            self.rod.add_point(k)
         self.n_points += 1
 
     def _track_apex(self, inverse_mass, walked=None, deepest=None):
@@ -169,7 +176,7 @@ class InsideTissue:
         up again after each: a dip of up to 9 % every shaft point spacing."""
         self.n_tip = follow_rigid_samples(self.rest, self.simulation.displacement, self.tetrahedra,
                                           self._neighbours, self.element_boxes, self.mesh_nodes, self._tip,
-                                          self.rotation, self.disc_offsets,
+                                          self.tip_rotation, self.disc_offsets,
                                           self.tip_elements, self.tip_offsets, self.tip_nodes,
                                           self.tip_weights, self._weights, self._candidates, self._near_boxes)
 
@@ -179,10 +186,12 @@ class InsideTissue:
         coarse element) ahead of the tip, and releasing it took the needle out, so the same
         membrane was punctured again at once (three times in 1 mm at 10 mm/s on 2 mm cells)."""
         limit = self._release_beyond
-        if float(self._travel @ self.axis) >= 0.0 or self.point_depths[:self.n_points].max() <= limit:
+        if float(self._travel @ self.tip_axis) >= 0.0 or self.point_depths[:self.n_points].max() <= limit:
             return
         keep = self.point_depths[:self.n_points] <= limit
         n = int(keep.sum())
+        if self.rod is not None:
+            self.rod.keep_points(keep, self.n_points)
         for arr in (self.point_nodes, self.point_weights, self.point_depths, self.point_offsets):
             arr[:n] = arr[:self.n_points][keep]
         self.n_points = n

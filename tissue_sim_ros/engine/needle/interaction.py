@@ -47,6 +47,8 @@ from tissue_sim_ros.engine.needle.kernels import (applied_work, cell_boxes, firs
                                                   shaft_solve, wrench_about)
 from tissue_sim_ros.engine.needle.inside import InsideTissue
 from tissue_sim_ros.engine.needle.membrane import MembraneContact
+from tissue_sim_ros.engine.needle.rod_coupling import RodState, add_tip_loads
+from tissue_sim_ros.engine.needle.shaft import NeedleShaft
 from tissue_sim_ros.engine.needle.parameters import (Friction, Membrane, NeedleGeometry, RegionInteraction,
                                                      TipShape)
 from tissue_sim_ros.engine.needle.tip import SharpTipContact, tip_length, tip_samples
@@ -61,7 +63,7 @@ __all__ = ['PHASES', 'NeedleTissue', 'PoseError', 'Friction', 'Membrane', 'Regio
 PHASES = ('approach', 'contact', 'inserted', 'retracting')
 
 
-class NeedleTissue(InsideTissue, MembraneContact):
+class NeedleTissue(NeedleShaft, InsideTissue, MembraneContact):
     """The needle-tissue interaction state of one scene (see the module docstring).
 
     simulation: the tissue's Simulation. element_region: (m,) region index of each element.
@@ -92,6 +94,10 @@ class NeedleTissue(InsideTissue, MembraneContact):
         self.point_depths = np.zeros(capacity)
         self.point_offsets = np.zeros((capacity, 3))   # lateral, needle frame (shaft_solve)
         self.point_shares = np.zeros(capacity)
+        #: the elastic shaft (engine.needle.rod_coupling), or None: rigid and straight
+        self.rod = None if geometry.shaft is None else RodState(geometry.diameter_m, geometry.length_m,
+                                                                geometry.shaft, capacity, self.mesh.n_nodes)
+        self._rod_rows = 0                     # the shaft points' rows of the applied lists this step
         self.applied_forces = np.zeros((self.mesh.n_nodes, 3))
         n_disc = len(self.disc_offsets)
         self.tip_nodes = np.zeros((n_disc, 4), dtype=np.int64)     # cutting: material points at the tip
@@ -141,6 +147,20 @@ class NeedleTissue(InsideTissue, MembraneContact):
         self.reset()
         self._check_outside(*self._initial_pose, f'{name}.initial_pose')
 
+    def set_start(self, position, orientation, field_name='start'):
+        """Make (position, orientation) the pose the needle starts from and resets to, and put it
+        there (a registration: the needle starts where the robot holds it). PoseError unless the
+        needle is out of the tissue now (phase ``approach``, touching nothing) and the new pose lies
+        outside the (deformed) tissue: a needle cannot be put into or taken out of tissue."""
+        position, orientation = validate_pose(position, orientation, field_name)
+        if self.phase != 'approach' or self.n_points or self.patch is not None:
+            raise PoseError(field_name, {'position': position.tolist(), 'orientation': orientation.tolist()},
+                            f'the needle is in contact with the tissue (phase {self.phase}); a needle is '
+                            'placed only while it is out of the tissue: ~/reset first')
+        self._check_outside(position, orientation, field_name)
+        self._initial_pose = (position, orientation)
+        self.reset()
+
     # -- set-up --------------------------------------------------------------------------------
     def _surface_owner(self):
         """Surface triangles and the element each belongs to (for the membrane of the region hit)."""
@@ -160,6 +180,8 @@ class NeedleTissue(InsideTissue, MembraneContact):
         self.axis = self.rotation[:, 2].copy()
         self._previous_position = self.position.copy()
         self._previous_axis = self.axis.copy()
+        if self.rod is not None:
+            self.rod.straighten(self.position, self.rotation)
         self.phase = 'approach'
         self.patch = None
         if self.tip_contact is not None:
@@ -210,8 +232,12 @@ class NeedleTissue(InsideTissue, MembraneContact):
         return start
 
     def _update_tip(self):
+        if self.rod is not None and self.n_points:
+            return                              # the rod's tip, until its next step
         np.multiply(self.axis, self.geometry.length_m, out=self._tip)
         self._tip += self.position
+        if self.rod is not None:
+            self.rod.straighten(self.position, self.rotation)
 
     @property
     def tip(self):
@@ -291,6 +317,8 @@ class NeedleTissue(InsideTissue, MembraneContact):
         self.n_applied = 0
         needle_kinematics(self.position, self.axis, self._previous_position, self._previous_axis,
                            self.geometry.length_m, dt, self._tip, self._travel, self._base_velocity, self._axis_rate)
+        if self.rod is not None:
+            self._rod_shaft(inverse_mass, dt)
         self.after_kinematics(inverse_mass, dt)
 
     def after_kinematics(self, inverse_mass, dt):
@@ -320,7 +348,7 @@ class NeedleTissue(InsideTissue, MembraneContact):
         """The step after the membrane contact: the shaft and cutting, the work of the needle's
         forces, the phase, the wrench."""
         sim = self.simulation
-        if self.n_points:
+        if self.n_points and self.rod is None:        # (a flexible shaft's points: _rod_shaft)
             n = self.n_points
             self.friction_force = shaft_solve(
                 self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.point_nodes,
@@ -331,6 +359,7 @@ class NeedleTissue(InsideTissue, MembraneContact):
             start = self._add_applied(n)
             put_axis_points(self.position, self.axis, self.point_depths, n, self._applied_points, start)
             put_rows(self.point_forces, n, self._applied_point_forces, start)
+        if self.n_points:
             touching = self._touching()
             if not touching:
                 self._follow_tip_samples()
@@ -340,15 +369,20 @@ class NeedleTissue(InsideTissue, MembraneContact):
                 self._cutting_law[0] = self.regions[self.region].cutting_force_n / self.n_tip
                 self.cutting_force = shaft_solve(
                     self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.tip_nodes,
-                    self.tip_weights, self.n_tip, self.position, self.axis, self.rotation, self._base_velocity,
-                    self._axis_rate, dt, 0.0, self._cutting_law, 0, math.inf, 0.0, self._no_offsets, self.tip_forces,
-                    self.tip_depths, self._unit_shares, self.applied_forces)
+                    self.tip_weights, self.n_tip, *self._cutting_frame(), dt, 0.0, self._cutting_law, 0, math.inf,
+                    0.0, self._no_offsets, self.tip_forces, self.tip_depths, self._unit_shares, self.applied_forces)
                 start = self._add_applied(self.n_tip)
-                put_rigid_points(self._tip, self.rotation, self.tip_offsets, self.n_tip, self._applied_points, start)
+                put_rigid_points(self._tip, self.tip_rotation, self.tip_offsets, self.n_tip, self._applied_points,
+                                 start)
                 put_rows(self.tip_forces, self.n_tip, self._applied_point_forces, start)
             self._release_passed_points()
             if not self._touching() and self.n_points:
                 self._track_apex(inverse_mass)
+        if self.rod is not None and self._rod_rows:     # the tip's loads on the rod, for its next step
+            rod = self.rod
+            add_tip_loads(rod.nodes, rod.loads, self._applied_points, self._applied_point_forces, self._rod_rows,
+                          self.n_applied, rod.scratch)
+            self._rod_rows = 0
         self._forces_applied = self.n_applied > 0
         if self._forces_applied:         # work of the needle's forces, for the energy watchdog
             sim.input_work += applied_work(self.applied_forces, sim.velocity) * dt
@@ -366,7 +400,7 @@ class NeedleTissue(InsideTissue, MembraneContact):
         patch = self._bonds_in_solve = self.patch
         if patch is None:
             return ()
-        put_rigid_points(self._tip, self.rotation, patch.offsets, len(patch.offsets), patch.targets, 0)
+        put_rigid_points(self._tip, self.tip_rotation, patch.offsets, len(patch.offsets), patch.targets, 0)
         if self._patch_rows_of is not patch:          # made once a patch, its targets set each step
             self._patch_rows = BondRows.along_axes(np.broadcast_to(patch.nodes, patch.weights.shape),
                                                    patch.weights, patch.targets)

@@ -14,7 +14,7 @@ from numba import njit
 __all__ = ['dot3', 'applied_work', 'first_surface_hit', 'near_surface_hit', 'approach_hit', 'cell_boxes',
            'locate_point', 'locate_walk', 'cells_near', 'follow_rigid_samples', 'patch_solve', 'patch_apply',
            'needle_kinematics', 'put_rigid_points', 'put_axis_points', 'put_rows', 'wrench_about',
-           'length_shares', 'shaft_solve']
+           'length_shares', 'karnopp_impulse', 'shaft_solve']
 
 
 @njit(cache=True)
@@ -461,6 +461,33 @@ def length_shares(depths, n, tip_depth, shares):
     shares[n - 1] = max(tip_depth - 0.5 * (depths[n - 2] + depths[n - 1]), 0.0)
 
 
+@njit(cache=True, inline='always')
+def karnopp_impulse(relative, inverse_effective, scale, segment, inserted, friction, stick_half, dt):
+    """The friction impulse along the needle at one point (:func:`shaft_solve`'s law): ``relative``
+    the needle's speed past the tissue point [m/s], ``inverse_effective`` the point's inverse mass
+    along the needle, ``scale`` its force per impulse / dt, ``segment`` the length it stands for
+    [m], ``inserted`` the inserted length (the constant terms' share), ``friction`` the law's
+    coefficients, ``stick_half`` half the stick band. Inside the band the impulse that stops the
+    slip, within the static limit; outside it the slip force, solved implicitly in the viscous
+    term and never past the impulse that stops the slip."""
+    stop = relative / inverse_effective                    # impulse that ends the slip
+    if relative >= 0.0:
+        static, coulomb, viscous, constant = friction[0], friction[1], friction[2], friction[7]
+    else:
+        static, coulomb, viscous, constant = friction[3], friction[4], friction[5], friction[8]
+    fixed = constant * segment / inserted if inserted > 0.0 else 0.0   # the constant's share
+    if abs(relative) <= stick_half:
+        limit = (static * segment + fixed) * dt / scale
+        impulse = min(max(stop, -limit), limit)
+    else:
+        magnitude = ((segment * (coulomb + viscous * abs(relative)) + fixed) * dt
+                     / (scale + segment * viscous * inverse_effective * dt))
+        impulse = magnitude if relative > 0.0 else -magnitude
+        if abs(impulse) > abs(stop):
+            impulse = stop
+    return impulse
+
+
 @njit(cache=True)
 def shaft_solve(rest, displacement, velocity, inverse_mass, force_scale, point_nodes, point_weights, n_points,
                  base, axis, rotation, base_velocity, axis_rate, dt, tip_depth, friction, sweeps, free_beyond,
@@ -565,22 +592,8 @@ def shaft_solve(rest, displacement, velocity, inverse_mass, force_scale, point_n
         for r in range(3):
             needle_velocity += (base_velocity[r] + along * axis_rate[r]) * axis[r]
         relative = needle_velocity - tissue_velocity
-        stop = relative / inverse_effective                    # impulse that ends the slip
-        if relative >= 0.0:
-            static, coulomb, viscous, constant = friction[0], friction[1], friction[2], friction[7]
-        else:
-            static, coulomb, viscous, constant = friction[3], friction[4], friction[5], friction[8]
-        segment = shares[s] if tip_depth > 0.0 else 1.0
-        fixed = constant * segment / inserted if inserted > 0.0 else 0.0   # the constant's share
-        if abs(relative) <= stick_half:
-            limit = (static * segment + fixed) * dt / scale
-            impulse = min(max(stop, -limit), limit)
-        else:
-            magnitude = ((segment * (coulomb + viscous * abs(relative)) + fixed) * dt
-                         / (scale + segment * viscous * inverse_effective * dt))
-            impulse = magnitude if relative > 0.0 else -magnitude
-            if abs(impulse) > abs(stop):
-                impulse = stop
+        impulse = karnopp_impulse(relative, inverse_effective, scale, shares[s] if tip_depth > 0.0 else 1.0,
+                                  inserted, friction, stick_half, dt)
         for k in range(4):
             i = point_nodes[s, k]
             for r in range(3):

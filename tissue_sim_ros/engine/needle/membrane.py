@@ -93,9 +93,9 @@ class MembraneContact:
             patch.sample_forces[:] = self._patch_rows.forces.reshape(-1, 3)
             total = patch.sample_forces.sum(axis=0, out=patch.total)
         else:
-            total = patch.solve(self.rest, sim.displacement, self._tip, self.rotation, dt)
-        advancing = float(self._travel @ self.axis) > 0.0
-        if float(total @ self.axis) < 0.0 and not advancing:   # it would pull back: contact lost
+            total = patch.solve(self.rest, sim.displacement, self._tip, self.tip_rotation, dt)
+        advancing = float(self._travel @ self.tip_axis) > 0.0
+        if float(total @ self.tip_axis) < 0.0 and not advancing:   # it would pull back: contact lost
             self.patch = None
             if self.tip_contact is not None:
                 self.tip_contact.release()
@@ -109,7 +109,7 @@ class MembraneContact:
         start = self._add_applied(n)
         put_rows(patch.targets, n, self._applied_points, start)
         put_rows(patch.sample_forces, n, self._applied_point_forces, start)
-        axial = float(total @ self.axis)
+        axial = float(total @ self.tip_axis)
         if patch.ruptured(self.regions[patch.region].membrane, axial, self.geometry.diameter_m,
                           float(self._base_velocity @ self.axis)):
             self._punctured(axial, patch.work, patch.region)
@@ -136,10 +136,10 @@ class MembraneContact:
         if contact.on_surface:
             back = math.sqrt(dot3(self._travel, self._travel)) + self.geometry.diameter_m
             contact.engage_on_surface(self.rest, disp, self.surface_triangles, self.surface_boxes,
-                                      self.surface_nodes, self._tip, self.rotation, self.axis, back)
+                                      self.surface_nodes, self._tip, self.tip_rotation, self.tip_axis, back)
         else:
             contact.engage_in_region(self.rest, disp, self.tetrahedra, self._neighbours, self.element_boxes,
-                                     self.mesh_nodes, self._tip, self.rotation, self.selectors,
+                                     self.mesh_nodes, self._tip, self.tip_rotation, self.selectors,
                                      self.mesh.element_tags)
 
     def _take_engaged(self, inverse_mass):
@@ -157,7 +157,7 @@ class MembraneContact:
             self.patch.work = work
             self._reserve_applied(len(contact.offsets) + len(self.point_nodes) + len(self.disc_offsets))
             return first
-        elif self.patch is None and float(self._travel @ self.axis) <= 0.0:
+        elif self.patch is None and float(self._travel @ self.tip_axis) <= 0.0:
             contact.release()
             if self.n_points == 0:
                 self.phase = 'approach'

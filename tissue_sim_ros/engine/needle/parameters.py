@@ -12,7 +12,8 @@ from numba import njit
 
 from tissue_sim_ros.engine.needle.pose import DEFAULT_MAX_JUMP_M
 
-__all__ = ['Friction', 'MIN_RATE_SPEED_M_S', 'Membrane', 'RegionInteraction', 'NeedleGeometry', 'TipShape']
+__all__ = ['Friction', 'MIN_RATE_SPEED_M_S', 'Membrane', 'RegionInteraction', 'FlexibleShaft', 'NeedleGeometry',
+           'TipShape']
 
 
 @dataclass(frozen=True)
@@ -116,12 +117,24 @@ class RegionInteraction:
 
 
 @dataclass(frozen=True)
+class FlexibleShaft:
+    """A shaft that bends (:mod:`~tissue_sim_ros.engine.needle.rod`): the tube's inner diameter
+    [m] (0: a solid rod; the outer one is the needle's), its Young's modulus [Pa] and the
+    segments the rod is divided into."""
+    inner_diameter_m: float = 0.0
+    young_modulus_pa: float = 200e9
+    segments: int = 60
+
+
+@dataclass(frozen=True)
 class NeedleGeometry:
-    """The rigid needle: outer diameter and length [m] (base to the tip's apex), the spacing of
-    the shaft's material points along the inserted length [m], the largest base or tip move one
-    ``advance`` accepts [m], and its tip."""
+    """The needle: outer diameter and length [m] (base to the tip's apex), the spacing of the
+    shaft's material points along the inserted length [m], the largest base or tip move one
+    ``advance`` accepts [m], its tip, and its shaft: None, rigid and straight, or a
+    :class:`FlexibleShaft`."""
     diameter_m: float = 0.0024
     length_m: float = 0.15
     shaft_point_spacing_m: float = 0.001
     max_jump_m: float = DEFAULT_MAX_JUMP_M
     tip: TipShape = field(default_factory=TipShape)
+    shaft: FlexibleShaft | None = None

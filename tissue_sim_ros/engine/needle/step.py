@@ -22,7 +22,7 @@ from tissue_sim_ros.engine.needle.kernels import (follow_rigid_samples, locate_w
                                                   wrench_about)
 from tissue_sim_ros.engine.needle.tip import take_found, tip_contact_solve
 
-__all__ = ['inserted_step']
+__all__ = ['inserted_step', 'take_work']
 
 
 @njit(cache=True)
@@ -83,10 +83,10 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
         put_rows(tip_forces, n_tip, applied_point_forces, n_applied)
         n_applied += n_tip
     if sparse:
-        work = _take_work(applied_forces, velocity, point_nodes, n_points)
+        work = take_work(applied_forces, velocity, point_nodes, n_points)
         if faces_cut:
-            work += _take_work(applied_forces, velocity, face_nodes, face_nodes.shape[0])
-        work += _take_work(applied_forces, velocity, tip_nodes, n_tip)
+            work += take_work(applied_forces, velocity, face_nodes, face_nodes.shape[0])
+        work += take_work(applied_forces, velocity, tip_nodes, n_tip)
     else:
         work = np.vdot(applied_forces.reshape(-1), velocity.reshape(-1))
     wrench_about(applied_points, applied_point_forces, n_applied, position, wrench_force, wrench_torque)
@@ -111,7 +111,7 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
 
 
 @njit(cache=True)
-def _take_work(applied_forces, velocity, nodes, n_rows):
+def take_work(applied_forces, velocity, nodes, n_rows):
     """Sum of f . v over the nodes of ``nodes[:n_rows]``, each node's force zeroed once counted
     (a node in several rows counts once)."""
     work = 0.0

@@ -19,14 +19,16 @@ from tissue_sim_ros.engine.mesh.selectors import node_mask
 from tissue_sim_ros.engine.mesh.generators import box_axes, graded_box_axes, grid_elements, grid_mesh
 from tissue_sim_ros.engine.model.material import Material, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.model.tensor_mass import TensorMassModel
-from tissue_sim_ros.engine.needle.parameters import Friction, Membrane, RegionInteraction, TipShape
+from tissue_sim_ros.engine.needle.parameters import (FlexibleShaft, Friction, Membrane, NeedleGeometry,
+                                                     RegionInteraction, TipShape)
 from tissue_sim_ros.engine.solver.explicit import Simulation
 from tissue_sim_ros.engine.solver.settle import settled_state
 from tissue_sim_ros.engine.solver.supports import foundation, unrestrained_modes
 from tissue_sim_ros.errors import SceneError
 
 __all__ = ['build_gravity', 'build_material', 'build_mesh', 'build_supports', 'element_limit', 'build_model',
-           'build_simulation', 'check_combinations', 'check_time_step', 'fixed_nodes', 'point_sets_of', 'physical_law', 'region_interaction', 'tip_shape', 'viscosity']
+           'build_simulation', 'check_combinations', 'check_time_step', 'fixed_nodes', 'needle_geometry',
+           'point_sets_of', 'physical_law', 'region_interaction', 'tip_shape', 'viscosity']
 
 
 def check_combinations(spec: dict) -> None:
@@ -251,3 +253,16 @@ def region_interaction(region: dict) -> RegionInteraction:
 def tip_shape(tip: dict) -> TipShape:
     """The needle's TipShape (its angles checked by the schema)."""
     return TipShape(tip['shape'], tip['half_angle_deg'], tip['bevel_angle_deg'], tip['bevel_orientation_deg'])
+
+
+def needle_geometry(needle: dict, name: str = 'needle') -> NeedleGeometry:
+    """A needle section's NeedleGeometry (``name``: its key path, for the errors): a flexible
+    shaft's inner diameter must be below the outer one."""
+    shaft = None
+    if needle['flexible']:
+        if not needle['inner_diameter_m'] < needle['diameter_m']:
+            raise SceneError(f"{name}.inner_diameter_m = {needle['inner_diameter_m']!r}: expected less than "
+                             f"{name}.diameter_m = {needle['diameter_m']!r} (the tube's outer diameter)")
+        shaft = FlexibleShaft(needle['inner_diameter_m'], needle['young_modulus_pa'], needle['rod_segments'])
+    return NeedleGeometry(needle['diameter_m'], needle['length_m'], needle['shaft_point_spacing_m'],
+                          needle['max_jump_m'], tip_shape(needle['tip']), shaft)

@@ -142,6 +142,11 @@ def check_value(name, value, kind):
         if not v >= 1:
             fail("a factor >= 1 or 'auto'")
         return v
+    if kind == 'int+':
+        v = number(value)
+        if not (v >= 1 and v == int(v)):
+            fail('a whole number >= 1')
+        return int(v)
     if kind in ('float', 'float+', 'float0'):
         v = number(value)
         if kind == 'float+' and not v > 0:

@@ -27,11 +27,11 @@ from tissue_sim_ros.engine.compiled.clock import AVAILABLE as CLOCKS_IN_COMPILED
 from tissue_sim_ros.engine.compiled.substeps import CompiledSubsteps
 from tissue_sim_ros.engine.mesh.selectors import RegionSelectors
 from tissue_sim_ros.engine.mesh.tetmesh import make_mesh
-from tissue_sim_ros.engine.needle.interaction import NeedleGeometry, NeedleTissue, slerp
+from tissue_sim_ros.engine.needle.interaction import NeedleTissue, slerp
 from tissue_sim_ros.engine.needle.pose import needle_axis
 from tissue_sim_ros.engine.scene.build import (build_gravity, build_material, build_mesh, build_model,
                                                build_simulation, build_supports, check_combinations, check_time_step,
-                                               point_sets_of, region_interaction, tip_shape)
+                                               needle_geometry, point_sets_of, region_interaction)
 from tissue_sim_ros.engine.scene.checks import apply_schema
 from tissue_sim_ros.engine.scene.keys import apply_overrides, set_keys
 from tissue_sim_ros.engine.scene.schema import SCHEMA
@@ -111,8 +111,7 @@ class Scene:
         interactions = [region_interaction(r) for r in s['regions']]
         self.needle_names, self.needles = [], []
         for i, (name, n) in enumerate(needle_sections(s)):
-            geometry = NeedleGeometry(n['diameter_m'], n['length_m'], n['shaft_point_spacing_m'],
-                                      n['max_jump_m'], tip_shape(n['tip']))
+            geometry = needle_geometry(n, f'needles[{i}]' if s['needles'] else 'needle')
             self.needle_names.append(name)
             self.needles.append(NeedleTissue(self.simulation, element_region, interactions, geometry,
                                              _start_position(self.mesh, n, self.simulation.displacement),
@@ -259,6 +258,12 @@ class Scene:
             needle.reset()
         self._target_time = 0.0
 
+    def place_needle(self, position, orientation, needle=0):
+        """Start needle ``needle`` (its index) at this pose from now on, resets included
+        (``NeedleTissue.set_start``: refused while it touches the tissue or inside it)."""
+        name = f'{self.needle_names[needle]}.start' if len(self.needles) > 1 else 'needle.start'
+        self.needles[needle].set_start(position, orientation, name)
+
     # -- state ----------------------------------------------------------------------------------
     def reaction_wrench(self, frame='world', needle=0):
         """(force, torque) the tissue exerts on needle ``needle`` (its index) [N, N m]."""
@@ -271,6 +276,16 @@ class Scene:
     @property
     def tip_depth(self):
         return self.needle.tip_depth()
+
+    @property
+    def tip(self):
+        """The first needle's tip [m] (world): where its apex is, the rod's for a flexible one."""
+        return self.needle.tip.copy()
+
+    @property
+    def tip_deflection(self):
+        """The first needle's tip distance from its base frame's axis [m] (0 for a rigid one)."""
+        return self.needle.tip_deflection()
 
     def target_positions(self):
         """(k, 3) where the scene's targets are now [m] (engine.scene.targets)."""

@@ -179,6 +179,13 @@ SCHEMA = {
                                              "the commands' own defaults"),
         'shaft_point_spacing_m': (0.001, 'float+', 'tissue points along the shaft, one per this advance [m]'),
         'max_jump_m': (DEFAULT_MAX_JUMP_M, 'float+', 'largest base or tip move accepted in one advance() call [m]'),
+        'flexible': (False, 'bool', 'the shaft as an elastic rod that the tissue and the tip bend (a bevel '
+                                    'steers it); false: rigid and straight'),
+        'inner_diameter_m': (0.0, 'float0', 'flexible: the tube\'s inner diameter [m] (diameter_m is the outer '
+                                            'one; 0: a solid rod)'),
+        'young_modulus_pa': (200e9, 'float+', "flexible: the shaft's Young's modulus [Pa] (steel 200 GPa, "
+                                              'nitinol 50-75 GPa)'),
+        'rod_segments': (60, 'int+', 'flexible: segments the rod is divided into, equal along its length'),
         'tip': {
             'shape': ('flat', ('flat', 'conical', 'bevel'), 'the tip: flat end (bonded at first contact), '
                                                           'cone or bevel (bonded point by point as the indentation '
@@ -229,7 +236,7 @@ def _kind_text(kind) -> str:
         return kind.text().replace('a number in ', '')
     if isinstance(kind, MappingList):
         return 'list of mappings'
-    return {'float+': '> 0', 'float0': '>= 0', 'float': 'number', 'vec3+': '3 numbers > 0',
+    return {'float+': '> 0', 'float0': '>= 0', 'int+': 'integer >= 1', 'float': 'number', 'vec3+': '3 numbers > 0',
             'vec3': '3 numbers', 'vec2': '2 numbers', 'quat': 'x, y, z, w', 'floats': 'numbers',
             'scaling': ">= 1 or auto", 'faces': 'box faces',
             'supports': 'box faces, selectors', 'support': 'a selector', 'select': 'a region shape',

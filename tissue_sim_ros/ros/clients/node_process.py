@@ -119,6 +119,29 @@ class NodeProcess:
             finally:
                 probe.destroy_node()
 
+    def wait_until_ready(self, name: str = '/tissue_sim', timeout_s: float = 300.0) -> float:
+        """Wait until the node ``name`` says it ticks: its latched ``<name>/ready`` is true (the
+        node's readiness, :mod:`~tissue_sim_ros.ros.readiness`); the seconds since start."""
+        with client_context(self.domain_id) as context:
+            import rclpy
+            from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+            from std_msgs.msg import Bool
+            probe = rclpy.create_node('tissue_sim_probe', context=context)
+            ready = []
+            probe.create_subscription(Bool, f'{name}/ready', lambda msg: ready.append(msg.data), QoSProfile(
+                depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+            executor = rclpy.executors.SingleThreadedExecutor(context=context)
+            executor.add_node(probe)
+
+            def spun_ready():
+                executor.spin_once(timeout_sec=0.05)
+                return bool(ready) and ready[-1]
+            try:
+                return self.wait_until(spun_ready, timeout_s, f'say {name}/ready')
+            finally:
+                executor.remove_node(probe)
+                probe.destroy_node()
+
     def stop(self, timeout_s: float = 30.0) -> int | None:
         """SIGINT, then wait up to ``timeout_s`` (the node closes its log), else kill; the exit
         status."""

@@ -10,7 +10,11 @@ kind                 handling
 non_finite           NaN or inf in position or orientation: ignored
 non_unit_quaternion  quaternion norm off 1 by more than ``unit_quaternion_tolerance``:
                      ignored (closer than that: normalised and accepted)
-wrong_frame          ``header.frame_id`` is not ``expected_frame_id`` (no tf here): ignored
+wrong_frame          ``header.frame_id`` is not ``expected_frame_id`` nor a frame on TF: ignored
+                     (the node brings a pose in a frame on TF into the tissue frame first)
+tf_unavailable       (the node) a pose in a frame on TF that TF cannot relate to the tissue
+                     frame at its stamp, or, with ``input.source: tf``, a TF chain that cannot
+                     be looked up: ignored
 time_backwards       stamp older than the newest accepted pose's stamp: ignored
 future_stamp         stamp more than ``max_future_s`` ahead of the node's clock (a clock
                      mismatch, e.g. use_sim_time on one side only): ignored
@@ -78,7 +82,7 @@ __all__ = ['ACCEPTED_KINDS', 'BAD_INPUT_KINDS', 'RESYNC_STEP_MAX_S', 'PoseInput'
 #: Every kind of bad input the node counts, in the order diagnostics list them. The last one is
 #: counted by the node (the engine refused a pose that passed these checks, e.g. a needle that
 #: would start inside the tissue, or a move beyond the scene's max jump within one tick).
-BAD_INPUT_KINDS = ('non_finite', 'non_unit_quaternion', 'wrong_frame', 'time_backwards',
+BAD_INPUT_KINDS = ('non_finite', 'non_unit_quaternion', 'wrong_frame', 'tf_unavailable', 'time_backwards',
                    'future_stamp', 'jump', 'flood', 'unstamped', 'resynchronised', 'engine_refused',
                    'malformed', 'backlog')
 #: The kinds :meth:`PoseInput.offer` reports for a pose it stored (not in ``bad_total``).
@@ -124,6 +128,9 @@ class PoseInput:
         self.delivery_stall_max_s = 0.0    # the latest pose of any of them, after its stamp [s]
         self.last_stall_ns: int | None = None    # receipt time of the last stall's first pose
         self._on_time = True
+        #: (stamp ns, position, orientation) of the newest pose that passed the value, frame and
+        #: stamp checks, stored or not (a jump too): where the robot is (a needle registration)
+        self.seen = None
         self.reset(reference_pose)
 
     def reset(self, reference_pose=None) -> None:
@@ -165,7 +172,7 @@ class PoseInput:
                              f'{lim.unit_quaternion_tolerance}')
         if frame_id != lim.expected_frame_id:
             return self._bad('wrong_frame',
-                             f'frame_id {frame_id!r}; expected {lim.expected_frame_id!r}')
+                             f'frame_id {frame_id!r}; expected {lim.expected_frame_id!r} or a frame on TF')
         note = None
         if stamp_ns == 0:
             stamp_ns = receipt_ns
@@ -175,6 +182,7 @@ class PoseInput:
                              f'stamp {stamp_ns / NS_PER_S:.9f} s is '
                              f'{(stamp_ns - receipt_ns) / NS_PER_S:.3g} s ahead of the node clock '
                              f'(max {lim.max_future_s} s): use_sim_time set on one side only?')
+        self.seen = (stamp_ns, p, unit)
         newest = self._samples[-1] if self._samples else None
         if newest is not None and stamp_ns < newest[0]:
             return self._bad('time_backwards',
@@ -299,6 +307,10 @@ class PoseInput:
     def newest(self):
         """(stamp_ns, position, orientation) of the newest accepted pose, or None."""
         return self._samples[-1] if self._samples else None
+
+    def oldest(self):
+        """(stamp_ns, position, orientation) of the oldest buffered pose, or None."""
+        return self._samples[0] if self._samples else None
 
     def age_s(self, now_ns: int) -> float | None:
         """Seconds since the newest accepted pose was received (None: none yet)."""

@@ -32,6 +32,7 @@ class TickThread:
             raise ValueError(f'period_s: {period_s!r}; expected a period > 0 s')
         self.period_s, self._tick, self._on_error = float(period_s), tick, on_error
         self.errors = 0
+        self.slots_given_up = 0          # slots of the schedule a stall overran
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
 
@@ -61,4 +62,6 @@ class TickThread:
                 self.errors += 1
                 self._on_error(exc)
             # the next slot in the future: slots a stall overran are given up, not run late
-            k = max(k + 1, int((time.monotonic() - start) / period) + 1)
+            next_k = max(k + 1, int((time.monotonic() - start) / period) + 1)
+            self.slots_given_up += next_k - k - 1
+            k = next_k

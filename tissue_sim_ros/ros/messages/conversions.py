@@ -27,6 +27,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PoseStamped, Vector3, WrenchStamped
+from nav_msgs.msg import Path
 from sensor_msgs.msg import PointCloud2, PointField
 from shape_msgs.msg import Mesh, MeshTriangle
 from std_msgs.msg import ColorRGBA, Header
@@ -38,6 +39,7 @@ __all__ = [
     'decimation_stride',
     'diagnostic_array_msg',
     'header',
+    'needle_shape_msg',
     'ns_to_stamp',
     'point_cloud_arrays',
     'point_cloud_msg',
@@ -216,6 +218,27 @@ def wrench_msg(force, torque, frame_id: str, stamp) -> WrenchStamped:
     msg = WrenchStamped(header=header(frame_id, stamp))
     msg.wrench.force = Vector3(x=float(f[0]), y=float(f[1]), z=float(f[2]))
     msg.wrench.torque = Vector3(x=float(t[0]), y=float(t[1]), z=float(t[2]))
+    return msg
+
+
+def needle_shape_msg(positions, quaternions, frame_id: str, stamp) -> Path:
+    """nav_msgs/Path of the needle's centreline from the base to the tip: a pose per point
+    (position [m], the needle's frame there as a quaternion x y z w, its +z along the needle),
+    every pose stamped ``stamp`` in ``frame_id``; refuses NaN/inf naming the point."""
+    xyz = _points('positions', positions)
+    q = np.asarray(quaternions, dtype=np.float64).reshape(-1, 4)
+    for name, values in (('positions', xyz), ('quaternions', q)):
+        finite = np.all(np.isfinite(values), axis=1)
+        if len(values) != len(xyz) or not finite.all():
+            raise ValueError(f'{name}: expected {len(xyz)} finite rows, one per point of the needle'
+                             + ('' if len(values) != len(xyz) else f' (row {int(np.argmin(finite))} is not)'))
+    msg = Path(header=header(frame_id, stamp))
+    for (x, y, z), (qx, qy, qz, qw) in zip(xyz.tolist(), q.tolist()):
+        pose = PoseStamped(header=header(frame_id, stamp))
+        pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = x, y, z
+        o = pose.pose.orientation
+        o.x, o.y, o.z, o.w = qx, qy, qz, qw
+        msg.poses.append(pose)
     return msg
 
 
