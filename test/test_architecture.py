@@ -15,6 +15,7 @@ PACKAGE = ROOT / 'tissue_sim_ros'
 #: layers bottom up: a module may import its own layer and those below, never one above
 LAYERS = (('tissue_sim_ros.errors', 'tissue_sim_ros.units', 'tissue_sim_ros.system'),
           ('tissue_sim_ros.engine',),
+          ('tissue_sim_ros.meshing',),
           ('tissue_sim_ros.io',),
           ('tissue_sim_ros.ros',),
           ('tissue_sim_ros.analysis',),

@@ -33,7 +33,9 @@ def test_each_request_goes_on_along_the_needle_axis_from_the_current_pose():
     for r, msg in enumerate(requests):
         stamps, positions, orientations = path_arrays(msg, 'world')
         offsets = np.arange(21) * POSE_EVERY_S
-        np.testing.assert_allclose(stamps, 5.0 + r * 1e-3 + offsets, rtol=0, atol=1e-9)
+        first = msg.poses[0].header.stamp
+        assert first.sec * 1_000_000_000 + first.nanosec == 5_000_000_000 + r * 1_000_000
+        np.testing.assert_allclose(stamps, offsets, rtol=0, atol=1e-9)      # from the first pose
         np.testing.assert_allclose(positions, start + np.outer(0.004 * offsets, [0.0, 0.0, -1.0]), rtol=0,
                                    atol=1e-15)
         np.testing.assert_array_equal(orientations, np.tile(DOWN, (21, 1)))

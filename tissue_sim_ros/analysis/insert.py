@@ -23,19 +23,27 @@ from tissue_sim_ros.engine.solver.inertia_estimate import inertia_line
 __all__ = ['main']
 
 
+#: the travel of an insertion whose scene plans none [mm]
+DEFAULT_TRAVEL_MM = 35.0
+
+
 def main(scene_file, speed_mm_s, out, *, travel_mm=None, depth_mm=None, hold_s=0.0, sets=(),
          tick=0.02, stream=None, overrides=None):
     """The `tissue-sim insert` command: run, print a summary, write the outputs (module docstring).
     ``travel_mm``: tip travel from the start pose, or ``depth_mm``: depth below the surface (the
-    scene's start gap added); ``sets``: ``KEY=VALUE`` scene overrides."""
+    scene's start gap added), or neither: the scene's ``needle.planned_travel_m``, else
+    DEFAULT_TRAVEL_MM; ``sets``: ``KEY=VALUE`` scene overrides."""
     stream = sys.stdout if stream is None else stream
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     # the speed of the run is the one a `solver.mass_scaling: auto` is chosen for (a --set wins)
     sections = merge({'solver': {'design_speed_m_s': speed_mm_s * 1e-3}}, overrides or {})
     scene = load_scene(scene_file, sets=sets, **sections)
-    if (travel_mm is None) == (depth_mm is None):
+    if travel_mm is not None and depth_mm is not None:
         raise ValueError('give one of travel_mm (tip travel) and depth_mm (depth below the surface)')
+    if travel_mm is None and depth_mm is None:        # the insertion the scene is for, else 35 mm
+        planned = scene.spec['needle']['planned_travel_m']
+        travel_mm = DEFAULT_TRAVEL_MM if planned is None else planned * 1e3
     travel = travel_mm * 1e-3 if travel_mm is not None else scene.start_gap_m + depth_mm * 1e-3
     model = scene.model
     kind = ('full' if model.geometric and model.physical else 'geometric' if model.geometric

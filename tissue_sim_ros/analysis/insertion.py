@@ -34,7 +34,7 @@ class InsertionResult:
     target_positions: np.ndarray = None   # (k, n_targets, 3) m, world frame, each tick
     target_tip_distance: np.ndarray = None  # (k, n_targets) m, needle tip to target
     target_lateral_miss: np.ndarray = None  # (k, n_targets) m, target to the needle's line
-    target_positions_at_rest: np.ndarray = None  # (n_targets, 3) m
+    target_positions_at_rest: np.ndarray = None  # (n_targets, 3) m, at the start (settled under gravity)
     inertia_error: float = None     # the mass scaling's estimated force NRMSE (solver.inertia_estimate)
     inertia_rms_n: float = 0.0      # the same in N
     tip: np.ndarray = None          # (k, 3) m, the tip's apex, world frame
@@ -59,6 +59,7 @@ def run_insertion(scene, speed, travel, *, hold_s=0.0, tick=0.02, retract=True, 
     from tissue_sim_ros.engine.driver import SimulationDriver
     start = scene.needle_pose[0]
     axis = scene.needle.axis.copy()
+    targets_at_start = scene.target_positions()
     legs = [(0.0, travel, travel / speed)] + ([(travel, travel, hold_s)] if hold_s > 0 else []) + \
         ([(travel, 0.0, travel / speed)] if retract else [])
     times, depths, retracting, t = [], [], [], 0.0
@@ -94,7 +95,7 @@ def run_insertion(scene, speed, travel, *, hold_s=0.0, tick=0.02, retract=True, 
                            -(samples.force @ axis), samples.phase, np.array(retracting),
                            list(scene.puncture_events), time.perf_counter() - wall0,
                            samples.substeps, scene.dt, tuple(scene.targets.names), target_positions,
-                           target_distance, target_miss, scene.targets.rest.copy(),
+                           target_distance, target_miss, targets_at_start,
                            driver.inertia.error, driver.inertia.rms_n, samples.tip, samples.tip_deflection)
 
 

@@ -10,6 +10,7 @@ from tissue_sim_ros.cli.arguments import (NON_NEGATIVE, POSITIVE, Parser, add_ma
                                           add_scene, add_travel_or_depth, depth_below_surface, input_file,
                                           number, output_dir, travel_and_depth)
 from tissue_sim_ros.cli.bench_commands import add_bench_commands
+from tissue_sim_ros.cli.mesh_commands import add_mesh_commands
 from tissue_sim_ros.cli.node_commands import add_node_commands
 from tissue_sim_ros.errors import CommandLineError, SimulationDiverged, TissueSimError
 
@@ -33,7 +34,7 @@ def _compress(args):
 
 def _insert(args):
     from tissue_sim_ros.analysis.insert import main
-    travel, depth = travel_and_depth(args, default_travel_mm=35.0)
+    travel, depth = travel_and_depth(args)       # neither: the scene's planned travel, else 35 mm
     main(args.scene, args.speed_mm_s, args.out, travel_mm=travel, depth_mm=depth, hold_s=args.hold_s,
          sets=args.set)
 
@@ -173,8 +174,8 @@ def build_parser():
     insert = commands.add_parser('insert', help='simulate a straight needle insertion and retraction (no ROS)')
     add_scene(insert)
     insert.add_argument('--speed-mm-s', type=POSITIVE, default=3.0, help='needle speed [mm/s] (default 3)')
-    add_travel_or_depth(insert, default_help='default: --travel-mm 35; the default scene starts '
-                                              '9 mm above the tissue')
+    add_travel_or_depth(insert, default_help="default: the scene's needle.planned_travel_m, else --travel-mm 35; "
+                                              'the default scene starts 9 mm above the tissue')
     insert.add_argument('--hold-s', type=NON_NEGATIVE, default=0.0,
                         help='pause at the deepest point before retracting [s] (default 0)')
     insert.add_argument('--out', type=output_dir, default='out', help='output directory for insert.csv, .png, .md and .json (default: out)')
@@ -338,6 +339,7 @@ def build_parser():
     _add_model_studies(commands)
     add_bench_commands(commands)
     add_node_commands(commands)
+    add_mesh_commands(commands)
     return parser
 
 
@@ -356,8 +358,9 @@ def _add_model_studies(commands):
                   "scene's insertion and a plate compression, with the Pareto front",
                   "three mesh levels, the reference on the scene's mesh (under 5 minutes on 2 cores)",
                   _chart, 'out/chart')
-    chart.add_argument('--travel-mm', type=POSITIVE, default=12.0,
-                       help='tip travel from 1 mm above the surface [mm] (default 12: past the default '
+    chart.add_argument('--travel-mm', type=POSITIVE, default=None,
+                       help="tip travel from 1 mm above the surface [mm] (default: the scene's "
+                            'needle.planned_travel_m from its start pose, else 12: past the default '
                             "scene's capsule puncture)")
     recommend = study('recommend', 'the cheapest model, mesh, step and integrator within a force error '
                       'tolerance that keeps real time (runs the chart)', "the chart's quick preset", _recommend,
@@ -365,7 +368,8 @@ def _add_model_studies(commands):
     recommend.add_argument('--tolerance', type=POSITIVE, default=0.05,
                            help="the force NRMSE allowed against the chart's reference (default 0.05)")
     recommend.add_argument('--rate-hz', type=POSITIVE, default=50.0, help="the node's tick rate (default 50)")
-    recommend.add_argument('--travel-mm', type=POSITIVE, default=12.0, help='tip travel [mm] (default 12)')
+    recommend.add_argument('--travel-mm', type=POSITIVE, default=None,
+                           help="tip travel [mm] (default: the scene's planned travel, else 12)")
     study('stability', "each model's and integrator's largest stable time step against the estimate, and "
           'induced failures (caught or survived)', 'the coarse mesh and shorter searches (under 5 minutes on '
           '2 cores)', _stability, 'out/stability')

@@ -42,6 +42,13 @@ def _calibration(args):
     calibration.main(out=args.out, jobs=args.jobs)
 
 
+def _organ(args):
+    from tissue_sim_ros.bench import organ_scale
+    unknown = [m for m in args.models if m not in organ_scale.MODELS]
+    if unknown:
+        raise CommandLineError(f'--models {" ".join(unknown)}: unknown; expected some of '
+                               f'{", ".join(organ_scale.MODELS)}')
+    organ_scale.main([int(s) for s in args.sizes], args.models, args.set, args.duration_s, args.out, args.threads)
 def _robot_graph(args):
     from tissue_sim_ros.bench import robot_graph
     robot_graph.main(rounds=args.rounds, seconds=args.seconds, rate_hz=args.rate_hz, goals=args.goals)
@@ -58,8 +65,8 @@ def _layered(args):
 
 
 def _dask(args):
-    from tissue_sim_ros.bench import dask_study
-    dask_study.main(out=args.out, workers=args.workers)
+    from tissue_sim_ros.bench import study
+    study.dask_main(out=args.out, workers=args.workers)
 
 
 def _speed_options(parser):
@@ -113,6 +120,20 @@ def add_bench_commands(commands):
     calibration.add_argument('--out', type=output_dir, default='out/bench_calibration', help='output directory')
     calibration.add_argument('--jobs', type=number(1, inclusive=True, whole=True), default=None)
     calibration.set_defaults(run=_calibration)
+    organ = which.add_parser('organ', help='the node at organ scale: each model on the organ example meshed at '
+                             'each size, under node-bench; the largest mesh that holds 50 Hz per model')
+    organ.add_argument('--sizes', type=number(100, whole=True), nargs='+', default=[25000, 50000, 100000],
+                       help='tetrahedra to aim at (default 25000 50000 100000)')
+    organ.add_argument('--models', nargs='+', default=['linear', 'physical', 'geometric', 'full'],
+                       help='models (default: linear physical geometric full)')
+    organ.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
+                       help='a scene value for every run (e.g. model.precision=float32, solver.mass_scaling=1600)')
+    organ.add_argument('--duration-s', type=number(1, inclusive=True), default=20.0,
+                       help='measured window of each run [s] (default 20)')
+    organ.add_argument('--threads', type=number(0, inclusive=True, whole=True), default=None,
+                       help="the node's engine.threads (default: its parameter file's)")
+    organ.add_argument('--out', type=output_dir, default='out/bench_organ', help='output directory')
+    organ.set_defaults(run=_organ)
     graph = which.add_parser('robot-graph',
                              help='TF input against the pose topic; the action against the topic '
                              'pair (paired)')

@@ -10,6 +10,7 @@ import pytest
 
 from tissue_sim_ros.analysis.charting import chart
 from tissue_sim_ros.engine.scene.scene import Scene
+from tissue_sim_ros.system.paths import shared_file
 
 MEDIUM = chart.MESHES['medium']
 
@@ -98,3 +99,11 @@ def test_plate_compression_rows_against_the_analytic_force():
     assert rows['quasi_static']['time_step_s'] == pytest.approx(10 * rows['explicit']['time_step_s'])
     assert rows['explicit']['error'] > 100 * rows['quasi_static']['error']
     assert all(not r['failure'] and r['cost_s_per_sim_s'] > 0 for r in rows.values())
+
+
+def test_the_chart_scores_the_insertion_a_scene_plans():
+    example = shared_file('config/organ_example.yaml')
+    assert chart.insertion_task(example) == dict(travel_m=0.0419, start_gap_m=None, planned=True)
+    assert chart.insertion_task(None) == dict(travel_m=chart.DEFAULT_TRAVEL_M, start_gap_m=chart.START_GAP_M,
+                                              planned=False)
+    assert chart.insertion_task(example, travel=0.02)['travel_m'] == 0.02

@@ -5,6 +5,7 @@ needle moving as a static solve of the same indentation says."""
 import numpy as np
 import pytest
 
+from support.foundations import E, ON_FOUNDATION, RHO, block, column
 from support.solvers import static_solve
 from tissue_sim_ros.engine.driver import SimulationDriver
 from tissue_sim_ros.engine.scene.scene import Scene
@@ -79,7 +80,7 @@ def test_tip_distance_and_lateral_miss(scene):
     ('[{name: t, position_m: [0.0, 0.0, 0.05]}]', ['targets[0].position_m', 'outside the tissue mesh']),
     ('[{name: t, position_m: [0.0, 0.0, -0.01]}, {name: t, position_m: [0.0, 0.0, -0.02]}]',
      ['targets[1].name', 'another target']),
-    ('[{name: t}]', ['targets[0].position_m', 'required']),
+    ('[{name: t}]', ['targets[0]: give one of position_m', 'and region']),
     ('[{position_m: [0.0, 0.0, -0.01]}]', ['targets[0].name']),
 ])
 def test_bad_targets_refused_by_name(targets, words):
@@ -87,3 +88,19 @@ def test_bad_targets_refused_by_name(targets, words):
         Scene.from_file(None, sets=COARSE + [f'targets={targets}'])
     for word in words:
         assert word in str(caught.value)
+
+
+def test_a_target_at_a_region_centroid_moves_with_the_tissue():
+    regions = [{'name': 'tissue', 'young_modulus_pa': E, 'poisson_ratio': 0.0, 'density_kg_per_m3': RHO},
+               {'name': 'lump', 'select': {'box_m': [[0.01, 0.01, 0.005], [0.03, 0.03, 0.015]]},
+                'young_modulus_pa': E, 'poisson_ratio': 0.0, 'density_kg_per_m3': RHO}]
+    scene = block(ON_FOUNDATION, regions=regions, targets=[{'name': 'centre', 'region': 'lump'}],
+                  divisions=(4, 4, 4))
+    x, tets = scene.mesh.rest_positions, scene.mesh.tetrahedra
+    centroids = x[tets].mean(axis=1)
+    lump = np.all((centroids >= [0.01, 0.01, 0.005]) & (centroids <= [0.03, 0.03, 0.015]), axis=1)
+    volumes = scene.mesh.volumes()[lump]
+    expected = (centroids[lump] * volumes[:, None]).sum(axis=0) / volumes.sum()
+    assert np.allclose(scene.targets.rest[0], expected, atol=1e-12)
+    moved = scene.target_positions()[0] - scene.targets.rest[0]
+    assert -moved[2] == pytest.approx(column(expected[2]), rel=0.02)

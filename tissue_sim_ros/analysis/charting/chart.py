@@ -1,15 +1,19 @@
 """Speed against accuracy: ``tissue-sim chart --scene SCENE --out DIR``.
 
-Every configuration runs the scene's insertion task: the needle from 1 mm above the surface,
-``speed`` along its axis for ``travel`` (through the first layer's puncture on the default
-scene), sampled every 20 ms, no retraction. A configuration is the scene plus ``--set``
-overrides along four axes:
+Every configuration runs the scene's insertion task: the insertion the scene is for when it
+plans one (``needle.planned_travel_m`` from its own start pose, along its needle's axis: an
+organ scene's path to its tumour), else the needle from 1 mm above the surface for ``travel``
+(12 mm: through the first layer's puncture on the default scene); ``speed`` along the axis,
+sampled every 20 ms, no retraction (:func:`insertion_task`). A configuration is the scene plus
+``--set`` overrides along four axes:
 
 * the model (linear, physically non-linear, geometric, full; the full model without viscosity,
   with other non-linearity thresholds, and with its element pass in float32), on each mesh
   level;
 * the mesh refinement (``mesh.fine_size_m`` and ``mesh.divisions`` scaled: coarse, medium, the
-  scene's, and in the full preset a finer one);
+  scene's, and in the full preset a finer one); a mesh file has no such keys: its scene's mesh
+  is the one level (chart one mesh file against another with ``--set mesh.file=...``, meshes
+  that ``tissue-sim mesh --cell-mm`` makes);
 * the time step through the mass scaling (the full model on the scene's mesh, and the cheaper
   non-linear models at two smaller scalings), and the mass-proportional damping that the mass
   scaling multiplies (the full model at 400 and 1600 with lower damping rates);
@@ -50,7 +54,7 @@ import numpy as np
 
 from tissue_sim_ros.engine.scene.keys import override_text
 
-__all__ = ['configurations', 'force_nrmse', 'make_job', 'read_reference', 'run_chart', 'simulate_job', 'main']
+__all__ = ['configurations', 'force_nrmse', 'insertion_task', 'make_job', 'read_reference', 'run_chart', 'simulate_job', 'main']
 
 _NO_VISCOSITY = {'model.viscosity_mu_pa_s': 0.0, 'model.viscosity_lambda_pa_s': 0.0}
 #: model name -> scene values (the law, the viscosity and the threshold: the scene's unless set)
@@ -89,6 +93,8 @@ INTEGRATOR_RUNS = (('implicit', 1.0, None), ('implicit', 4.0, None), ('implicit'
 #: same error without inertia (0.049 against its 0.052)
 QUICK_INTEGRATOR_RUNS = tuple(run for run in INTEGRATOR_RUNS if run != ('implicit', 4.0, 1.0))
 START_GAP_M = 0.001
+#: the travel of a scene that plans no insertion [m]
+DEFAULT_TRAVEL_M = 0.012
 #: plate compression: (integrator, multiple of the cube's explicit step)
 COMPRESSION_INTEGRATORS = (('explicit', 1.0), ('implicit', 10.0), ('quasi_static', 10.0))
 COMPRESSION_STRAIN = 0.005
@@ -101,10 +107,23 @@ def _model_family(name: str) -> str:
     return name.split(',')[0]
 
 
-def configurations(scene_dt: float, *, quick: bool) -> list[dict]:
+def insertion_task(scene_file=None, sets=(), travel=None) -> dict:
+    """The insertion a chart scores (module docstring): {travel_m, start_gap_m (None: the scene's
+    own start pose), planned}. ``travel``: given, it replaces the scene's plan (from 1 mm above
+    the surface)."""
+    from tissue_sim_ros.engine.scene.scene import read_scene_keys
+    planned = read_scene_keys(scene_file, list(sets))[0]['needle']['planned_travel_m']
+    if travel is None and planned is not None:
+        return dict(travel_m=float(planned), start_gap_m=None, planned=True)
+    return dict(travel_m=float(travel if travel is not None else DEFAULT_TRAVEL_M), start_gap_m=START_GAP_M,
+                planned=False)
+
+
+def configurations(scene_dt: float, *, quick: bool, mesh_levels=True) -> list[dict]:
     """The grid (module docstring) as rows of (name fields, scene values); the first is the reference.
-    ``scene_dt``: the scene's explicit step, which the implicit runs multiply."""
-    levels = ['coarse', 'medium', 'scene'] + ([] if quick else ['fine'])
+    ``scene_dt``: the scene's explicit step, which the implicit runs multiply; ``mesh_levels``:
+    False for a mesh file (the scene's mesh the one level)."""
+    levels = (['coarse', 'medium', 'scene'] + ([] if quick else ['fine'])) if mesh_levels else ['scene']
     finest = levels[-1]
     rows = [dict(task='insertion', model='full', mesh=finest, integrator='explicit', mass_scaling=1.0, reference=True,
                  values={**MODELS['full'], **MESHES[finest], 'solver.mass_scaling': 1.0})]
@@ -179,16 +198,17 @@ def _insertion_job(job: dict) -> dict:
     row['task'] = 'insertion'
     row['mass_scaling'] = job.get('mass_scaling')
     row['values'] = dict(job['values'])
+    task = insertion_task(job['scene_file'], job['sets'], job['travel'])
+    gap = {} if task['start_gap_m'] is None else {'needle.start_gap_m': task['start_gap_m']}
     try:
-        scene = Scene.from_file(job['scene_file'], sets=job['sets'],
-                                values={**job['values'], 'needle.start_gap_m': START_GAP_M})
+        scene = Scene.from_file(job['scene_file'], sets=job['sets'], values={**job['values'], **gap})
     except (SceneError, ValueError) as exc:
         return dict(row, failure=f'refused: {exc}')
     row.update(tetrahedra=int(scene.mesh.n_elements), time_step_s=float(scene.dt),
                mass_scaling=float(scene.spec['solver']['mass_scaling']),
                damping_per_s=float(scene.spec['solver']['damping_per_s']))
     try:
-        result = run_insertion(scene, job['speed'], job['travel'], retract=False)
+        result = run_insertion(scene, job['speed'], task['travel_m'], retract=False)
     except SimulationDiverged as exc:
         return dict(row, failure=f'diverged: {exc.reason}')
     sim_time = float(result.time[-1])
@@ -247,9 +267,9 @@ def _pareto_of(rows: list[dict]) -> None:
             and (o['cost_s_per_sim_s'] < r['cost_s_per_sim_s'] or o['error'] < r['error']) for o in candidates)
 
 
-def make_job(config: dict, scene_file=None, sets=(), *, speed=0.005, travel=0.012) -> dict:
+def make_job(config: dict, scene_file=None, sets=(), *, speed=0.005, travel=None) -> dict:
     """A job for simulate_job: a configuration (``model``, ``mesh``, ``integrator``, ``reference``,
-    ``values``: {key path: value}) on the scene and task."""
+    ``values``: {key path: value}) on the scene and task (``travel`` None: :func:`insertion_task`'s)."""
     job = dict(config, scene_file=None if scene_file is None else str(scene_file), sets=list(sets), speed=speed,
                travel=travel)
     job['key'] = json.dumps(job, sort_keys=True)
@@ -258,12 +278,12 @@ def make_job(config: dict, scene_file=None, sets=(), *, speed=0.005, travel=0.01
 
 def jobs_for(scene_file, sets, *, quick, speed, travel) -> list[dict]:
     from tissue_sim_ros.engine.scene.scene import Scene
-    scene_dt = Scene.from_file(scene_file, sets=list(sets)).dt
+    scene = Scene.from_file(scene_file, sets=list(sets))
     return [make_job(config, scene_file, sets, speed=speed, travel=travel)
-            for config in configurations(scene_dt, quick=quick)]
+            for config in configurations(scene.dt, quick=quick, mesh_levels=scene.spec['mesh']['generator'] != 'file')]
 
 
-def run_chart(scene_file=None, sets=(), *, quick=False, speed=0.005, travel=0.012, out='out', workers=None,
+def run_chart(scene_file=None, sets=(), *, quick=False, speed=0.005, travel=None, out='out', workers=None,
               scheduler=None, jobs=None, quiet=False) -> dict:
     """Run the grid (or ``jobs``, a subset of jobs_for's) and write the outputs; returns the report."""
     from tissue_sim_ros.analysis.jobs import run_logged
@@ -284,7 +304,7 @@ def run_chart(scene_file=None, sets=(), *, quick=False, speed=0.005, travel=0.01
     _errors(rows)
     _pareto(rows)
     report = dict(scene=str(scene_file) if scene_file else 'packaged liver sample', sets=list(sets), quick=quick,
-                  task=dict(speed_m_s=speed, travel_m=travel, start_gap_m=START_GAP_M, tick_s=0.02),
+                  task=dict(speed_m_s=speed, tick_s=0.02, **insertion_task(scene_file, sets, travel)),
                   error_metric='force_nrmse: RMS difference of the axial force from the reference over the '
                                "insertion's ticks / the reference's force range",
                   compression_error_metric=f'|plate force / (E A strain) - 1| at {COMPRESSION_STRAIN:g} strain, held',
@@ -333,8 +353,10 @@ def _markdown(report: dict, rows: list[dict]) -> str:
     lines = [f"# Speed against accuracy: {report['scene']}", '',
              f"Cost: wall seconds per simulated second, one thread. {report['wall_s']:.0f} s of wall time"
              f"{' (quick preset)' if report['quick'] else ''}.", '',
-             f"## Needle insertion: from {task['start_gap_m'] * 1e3:g} mm above the surface, "
-             f"{task['travel_m'] * 1e3:g} mm at {task['speed_m_s'] * 1e3:g} mm/s", '',
+             f"## Needle insertion: "
+             + (f"the scene's planned insertion from its start pose, " if task['planned'] else
+                f"from {task['start_gap_m'] * 1e3:g} mm above the surface, ")
+             + f"{task['travel_m'] * 1e3:g} mm at {task['speed_m_s'] * 1e3:g} mm/s", '',
              f"Error: {report['error_metric']}.", '',
              '| model | mesh | tetrahedra | integrator | mass scaling | damping [1/s] | dt [s] | cost [s/s] | error | '
              'peak | puncture [mm] | Pareto |', '|---|---|---|---|---|---|---|---|---|---|---|---|']
@@ -406,9 +428,10 @@ def _plot_task(ax, rows: list[dict], families: list[str], task: str) -> None:
     ax.legend(fontsize=7, loc='best')
 
 
-def main(scene_file=None, sets=(), quick=False, speed_mm_s=5.0, travel_mm=12.0, out='out', workers=None,
+def main(scene_file=None, sets=(), quick=False, speed_mm_s=5.0, travel_mm=None, out='out', workers=None,
          scheduler=None) -> int:
-    run_chart(scene_file, sets, quick=quick, speed=speed_mm_s * 1e-3, travel=travel_mm * 1e-3, out=out,
+    run_chart(scene_file, sets, quick=quick, speed=speed_mm_s * 1e-3,
+              travel=None if travel_mm is None else travel_mm * 1e-3, out=out,
               workers=workers, scheduler=scheduler)
     print((Path(out) / 'chart.md').read_text())
     print(f'wrote {out}/chart.csv, chart.png, chart.md, chart.json', file=sys.stderr)

@@ -58,7 +58,7 @@ def choose(rows: list[dict], tolerance: float, rate_hz: float, budget: float = C
     return rows[k], verdicts
 
 
-def recommend(scene_file=None, sets=(), *, tolerance=0.05, rate_hz=50.0, quick=False, speed=0.005, travel=0.012,
+def recommend(scene_file=None, sets=(), *, tolerance=0.05, rate_hz=50.0, quick=False, speed=0.005, travel=None,
               out='out', workers=None, scheduler=None, jobs=None, quiet=False, budget=CORE_BUDGET) -> dict:
     """The study (module docstring); returns recommend.json's content. ``jobs``: a subset of the
     chart's; ``budget``: the share of a core the physics may take (CORE_BUDGET)."""
@@ -201,10 +201,10 @@ def _markdown(r: dict) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def main(scene_file=None, sets=(), tolerance=0.05, rate_hz=50.0, quick=False, speed_mm_s=5.0, travel_mm=12.0,
+def main(scene_file=None, sets=(), tolerance=0.05, rate_hz=50.0, quick=False, speed_mm_s=5.0, travel_mm=None,
          out='out', workers=None, scheduler=None) -> int:
     recommend(scene_file, sets, tolerance=tolerance, rate_hz=rate_hz, quick=quick, speed=speed_mm_s * 1e-3,
-              travel=travel_mm * 1e-3, out=out, workers=workers, scheduler=scheduler)
+              travel=None if travel_mm is None else travel_mm * 1e-3, out=out, workers=workers, scheduler=scheduler)
     print((Path(out) / 'recommend.md').read_text())
     print(f'wrote {out}/recommended.yaml, recommend.json, recommend.csv, recommend.png, recommend.md', file=sys.stderr)
     return 0

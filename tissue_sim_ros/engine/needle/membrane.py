@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from tissue_sim_ros.engine.needle.contact import ContactPatch, end_samples
+from tissue_sim_ros.engine.needle.contact import ContactPatch, bond_offsets, end_samples
 from tissue_sim_ros.engine.needle.kernels import approach_hit, dot3, locate_point, put_rows
 
 __all__ = ['MembraneContact']
@@ -150,7 +150,10 @@ class MembraneContact:
         if contact.take_new():
             first = self.patch is None
             work = 0.0 if first else self.patch.work
-            self.patch = ContactPatch.from_samples(*contact.engaged_samples(), inverse_mass, contact.region)
+            offsets, nodes, weights = contact.engaged_samples()
+            offsets = bond_offsets(offsets, self.rest, self.simulation.displacement, nodes, weights, self._tip,
+                                   self.rotation, self._crossing_tolerance())
+            self.patch = ContactPatch.from_samples(offsets, nodes, weights, inverse_mass, contact.region)
             self.patch.work = work
             self._reserve_applied(len(contact.offsets) + len(self.point_nodes) + len(self.disc_offsets))
             return first
@@ -159,6 +162,12 @@ class MembraneContact:
             if self.n_points == 0:
                 self.phase = 'approach'
         return False
+
+    def _crossing_tolerance(self):
+        """How far past the surface a sharp tip's sample may be and still be pulled onto the
+        needle: this step's travel along the axis, and a hundredth of the diameter
+        (contact.bond_offsets)."""
+        return max(float(self._travel @ self.axis), 0.0) + 0.01 * self.geometry.diameter_m
 
     def _region_of(self, rest_point, element):
         """The region of a material point (layers as surfaces), or its element's when the needle

@@ -14,18 +14,21 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_sim_ros.engine.mesh.files import load_mesh
+from tissue_sim_ros.engine.mesh.files import load_mesh, load_point_sets
+from tissue_sim_ros.engine.mesh.selectors import node_mask
 from tissue_sim_ros.engine.mesh.generators import box_axes, graded_box_axes, grid_elements, grid_mesh
 from tissue_sim_ros.engine.model.material import Material, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.model.tensor_mass import TensorMassModel
 from tissue_sim_ros.engine.needle.parameters import (FlexibleShaft, Friction, Membrane, NeedleGeometry,
                                                      RegionInteraction, TipShape)
 from tissue_sim_ros.engine.solver.explicit import Simulation
+from tissue_sim_ros.engine.solver.settle import settled_state
+from tissue_sim_ros.engine.solver.supports import foundation, unrestrained_modes
 from tissue_sim_ros.errors import SceneError
 
-__all__ = ['build_material', 'build_mesh', 'element_limit', 'build_model', 'build_simulation', 'check_combinations',
-           'check_time_step',
-           'fixed_nodes', 'needle_geometry', 'physical_law', 'region_interaction', 'tip_shape', 'viscosity']
+__all__ = ['build_gravity', 'build_material', 'build_mesh', 'build_supports', 'element_limit', 'build_model',
+           'build_simulation', 'check_combinations', 'check_time_step', 'fixed_nodes', 'needle_geometry',
+           'point_sets_of', 'physical_law', 'region_interaction', 'tip_shape', 'viscosity']
 
 
 def check_combinations(spec: dict) -> None:
@@ -147,8 +150,9 @@ def build_simulation(model, solver: dict, fixed=None, *, dt=SCENE_STEP, integrat
                       newton_tolerance=solver['newton_tolerance'])
 
 
-def fixed_nodes(mesh, faces) -> np.ndarray:
-    """Mask of the nodes on the named bounding-box faces (``boundary.fixed``)."""
+def fixed_nodes(mesh, faces, point_sets=None) -> np.ndarray:
+    """Mask of the nodes ``boundary.fixed`` holds: on the named bounding-box faces, or selected
+    (engine.mesh.selectors.node_mask; ``point_sets``: the mesh file's, for ``node_set``)."""
     x = mesh.rest_positions
     lo, hi = x.min(axis=0), x.max(axis=0)
     tol = 1e-9 * float(np.max(hi - lo))
@@ -157,9 +161,68 @@ def fixed_nodes(mesh, faces) -> np.ndarray:
           'bottom': np.abs(x[:, 2] - lo[2]) <= tol, 'top': np.abs(x[:, 2] - hi[2]) <= tol}
     on['walls'] = on['x_min'] | on['x_max'] | on['y_min'] | on['y_max']
     mask = np.zeros(len(x), dtype=bool)
-    for f in faces:
-        mask |= on[f]
+    for i, f in enumerate(faces):
+        mask |= on[f] if isinstance(f, str) else node_mask(f, mesh, point_sets, f'boundary.fixed[{i}]')
     return mask
+
+
+def point_sets_of(spec: dict, base_dir):
+    """The mesh file's point data when a support selects a ``node_set`` (else None: not read)."""
+    selects = list(spec['boundary']['fixed']) + [entry['select'] for entry in spec['boundary']['springs']]
+    if not any(isinstance(f, dict) and 'node_set' in f for f in selects):
+        return None
+    if spec['mesh']['generator'] != 'file':
+        raise SceneError("boundary: a node_set selector needs mesh.generator: file (the sets are the mesh file's "
+                         'point data)')
+    path = Path(spec['mesh']['file'])
+    return load_point_sets(path if path.is_absolute() else Path(base_dir) / path)
+
+
+def build_supports(simulation, mesh, boundary: dict, point_sets=None) -> np.ndarray:
+    """Hold ``simulation``'s nodes as ``boundary`` says (fixed nodes and foundations), refused
+    naming the key when they cannot stop rigid motion (engine.solver.supports); returns the
+    mask of the fixed nodes."""
+    held = fixed_nodes(mesh, boundary['fixed'], point_sets)
+    n = mesh.n_nodes
+    rows = np.full(n, -1, dtype=np.int64)
+    total = np.zeros((n, 6))
+    for i, entry in enumerate(boundary['springs']):
+        selected = node_mask(entry['select'], mesh, point_sets, f'boundary.springs[{i}].select')
+        nodes, stiffness = foundation(mesh.rest_positions, mesh.surface_triangles(), selected,
+                                      entry['normal_n_per_m3'], entry['tangential_n_per_m3'])
+        if len(nodes) == 0:
+            raise SceneError(f'boundary.springs[{i}].select = {entry["select"]!r}: selects no surface triangle '
+                             '(all three nodes of a surface triangle must be selected)')
+        total[nodes] += stiffness
+    supported = np.flatnonzero(np.abs(total).sum(axis=1) > 0)
+    rows[supported] = np.arange(len(supported))
+    loose = unrestrained_modes(mesh.rest_positions, held, rows, total[supported])
+    if loose:
+        count = int(held.sum())
+        raise SceneError(f'boundary.fixed = {boundary["fixed"]!r} holds {count} node{"s" * (count != 1)}'
+                         f'{" and boundary.springs " + str(len(boundary["springs"])) + " patches" if boundary["springs"] else ""}'
+                         f': the tissue is free to move rigidly ({", ".join(loose)}); hold at least three nodes '
+                         'not on one line, or add springs that stop it')
+    simulation.fix(held)
+    if len(supported):
+        simulation.set_supports(rows, total[supported])
+    return held
+
+
+def build_gravity(simulation, solver: dict, key_text: str) -> dict | None:
+    """Gravity (``solver.gravity_m_s2``) as body forces m_i g with the unscaled masses, and the
+    tissue settled under it (engine.solver.settle, cached per scene); returns how it settled,
+    None without gravity."""
+    g = np.asarray(solver['gravity_m_s2'], dtype=float)
+    if not g.any():
+        return None
+    masses = simulation.model.lumped_masses()
+    simulation.set_body_forces(masses[:, None] * g[None, :])
+    displacement, info = settled_state(simulation, key_text)
+    simulation.set_initial_state(displacement)
+    np.copyto(simulation.external_forces, simulation.body_forces)
+    info['max_displacement_m'] = float(np.linalg.norm(displacement, axis=1).max())
+    return info
 
 
 def check_time_step(simulation, solver: dict) -> None:

@@ -1,10 +1,11 @@
 """The kinds of scene values and their checks: each value checked once, where it enters.
 
-A kind is a string (``'float+'``: a number > 0, ``'float0'``: >= 0, ``'float'``, ``'int0'``: a
-whole number >= 0, ``'bool'``, ``'str'``, ``'vec2'``, ``'vec3'``, ``'vec3+'``, ``'quat'``,
-``'floats'``, ``'scaling'``: a number >= 1 or ``'auto'``, ``'faces'``, ``'select'``,
-``'needles'``), a tuple of allowed
-strings, a :class:`Range` or a :class:`MappingList`. A refusal is a SceneError naming the dotted
+A kind is a string (``'float+'``: a number > 0, ``'float0'``: >= 0, ``'float'``, ``'int+'``: a
+whole number >= 1, ``'int0'``: a whole number >= 0, ``'bool'``, ``'str'``, ``'vec2'``, ``'vec3'``,
+``'vec3+'``, ``'quat'``, ``'floats'``, ``'scaling'``: a number >= 1 or ``'auto'``, ``'faces'``,
+``'select'``: a region's volume, ``'support'``: a selector of nodes (a volume's, or the surface
+near a point, or a mesh file's node set), ``'supports'``: a list of box faces and support
+selectors, ``'needles'``), a tuple of allowed strings, a :class:`Range` or a :class:`MappingList`. A refusal is a SceneError naming the dotted
 key, the value and what was expected.
 
 Units (REP 103): a key's unit is in its name (``_m``, ``_pa``, ``_s``, ...; :func:`unit_of`).
@@ -22,10 +23,12 @@ from typing import Callable
 
 from tissue_sim_ros.errors import SceneError
 
-__all__ = ['FACES', 'MappingList', 'Range', 'apply_schema', 'check_value', 'select_keys', 'unit_of']
+__all__ = ['FACES', 'node_select_keys', 'MappingList', 'Range', 'apply_schema', 'check_value', 'select_keys', 'unit_of']
 
 FACES = ('bottom', 'top', 'walls', 'x_min', 'x_max', 'y_min', 'y_max')
-_SELECT_KEYS = ('below_z_m', 'above_z_m', 'box_m', 'sphere_m', 'tag')
+_SELECT_KEYS = ('below_z_m', 'above_z_m', 'box_m', 'sphere_m', 'half_space_m', 'tag')
+#: selectors of nodes only (supports): not volumes, so not a region's
+_NODE_SELECT_KEYS = ('surface_near_m', 'node_set')
 
 
 @dataclass(frozen=True)
@@ -59,7 +62,7 @@ class Range:
 
 #: SI unit of a key from the end of its name (longest first), and the units a value may be
 #: written in instead, with their factors to it
-_SUFFIX_UNITS = (('_n_s_per_m2', 'N s/m^2'), ('_j_per_m2', 'J/m^2'), ('_kg_per_m3', 'kg/m^3'),
+_SUFFIX_UNITS = (('_n_s_per_m2', 'N s/m^2'), ('_n_per_m3', 'N/m^3'), ('_j_per_m2', 'J/m^2'), ('_kg_per_m3', 'kg/m^3'),
                  ('_n_per_m', 'N/m'), ('_pa_s', 'Pa s'), ('_m_s2', 'm/s^2'), ('_m_s', 'm/s'),
                  ('_per_s', '1/s'), ('_pa', 'Pa'), ('_deg', 'deg'), ('_m', 'm'), ('_s', 's'),
                  ('_n', 'N'), ('_hz', 'Hz'), ('_xyzw', '-'))
@@ -83,6 +86,11 @@ def unit_of(name: str) -> str:
 def select_keys() -> tuple[str, ...]:
     """The shapes a region's ``select`` may take as a mapping."""
     return _SELECT_KEYS
+
+
+def node_select_keys() -> tuple[str, ...]:
+    """The selectors of nodes a support may use besides a region's shapes."""
+    return _NODE_SELECT_KEYS
 
 
 def _number_text(name, value):
@@ -167,6 +175,13 @@ def check_value(name, value, kind):
         if not isinstance(value, (list, tuple)) or any(f not in FACES for f in value):
             fail('a list of ' + ', '.join(FACES))
         return list(value)
+    if kind == 'supports':
+        if not isinstance(value, (list, tuple)):
+            fail('a list of box faces (' + ', '.join(FACES) + ') and selectors')
+        return [f if isinstance(f, str) and f in FACES else check_value(f'{name}[{i}]', f, 'support')
+                for i, f in enumerate(value)]
+    if kind == 'support':
+        return _select(name, value, number, fail, nodes=True)
     if isinstance(kind, MappingList):
         if not isinstance(value, (list, tuple)):
             fail('a list of mappings')
@@ -197,11 +212,23 @@ def _needle_entries(name, value):
     return [dict(entry) for entry in value]
 
 
-def _select(name, value, number, fail):
+def _select(name, value, number, fail, nodes=False):
     if value == 'all':
         return value
     if isinstance(value, dict) and len(value) == 1:
         (key, v), = value.items()
+        if key == 'half_space_m':
+            plane = check_value(f'{name}.half_space_m', v, 'floats')
+            if len(plane) != 6 or not any(plane[3:]):
+                fail('{half_space_m: [x, y, z, nx, ny, nz]}: a point of the plane and a normal that is not 0')
+            return {key: plane}
+        if nodes and key == 'surface_near_m':
+            near = check_value(f'{name}.surface_near_m', v, 'floats')
+            if len(near) != 4 or not near[3] > 0:
+                fail('{surface_near_m: [x, y, z, d]}: the surface within d > 0 of the point')
+            return {key: near}
+        if nodes and key == 'node_set' and isinstance(v, str) and v:
+            return value
         if key == 'tag' and isinstance(v, int) and not isinstance(v, bool):
             return value
         if key in ('above_z_m', 'below_z_m'):
@@ -213,8 +240,9 @@ def _select(name, value, number, fail):
             return {key: sphere}
         if key == 'box_m' and isinstance(v, (list, tuple)) and len(v) == 2:
             return {key: [check_value(f'{name}.box_m', c, 'vec3') for c in v]}
-    fail("'all', {tag: N}, {box_m: [[x,y,z],[x,y,z]]}, {sphere_m: [x,y,z,r]}, {above_z_m: z} or "
-         "{below_z_m: z}")
+    fail("'all', {tag: N}, {box_m: [[x,y,z],[x,y,z]]}, {sphere_m: [x,y,z,r]}, {half_space_m: [x,y,z,nx,ny,nz]}, "
+         "{above_z_m: z} or {below_z_m: z}" + (", {surface_near_m: [x,y,z,d]} or {node_set: NAME}" if nodes else
+                                               ' (a volume: the surface and node-set selectors are for supports)'))
 
 
 def apply_schema(name, data, schema):

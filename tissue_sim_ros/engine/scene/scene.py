@@ -29,9 +29,9 @@ from tissue_sim_ros.engine.mesh.selectors import RegionSelectors
 from tissue_sim_ros.engine.mesh.tetmesh import make_mesh
 from tissue_sim_ros.engine.needle.interaction import NeedleTissue, slerp
 from tissue_sim_ros.engine.needle.pose import needle_axis
-from tissue_sim_ros.engine.scene.build import (build_material, build_mesh, build_model, build_simulation,
-                                               check_combinations, check_time_step, fixed_nodes, needle_geometry,
-                                               region_interaction)
+from tissue_sim_ros.engine.scene.build import (build_gravity, build_material, build_mesh, build_model,
+                                               build_simulation, build_supports, check_combinations, check_time_step,
+                                               needle_geometry, point_sets_of, region_interaction)
 from tissue_sim_ros.engine.scene.checks import apply_schema
 from tissue_sim_ros.engine.scene.keys import apply_overrides, set_keys
 from tissue_sim_ros.engine.scene.schema import SCHEMA
@@ -55,26 +55,28 @@ def _element_regions(mesh, selectors):
     return index
 
 
-def surface_gap(mesh, tip, axis):
-    """Distance [m] from ``tip`` along ``axis`` to the rest surface of ``mesh`` (inf: none)."""
+def surface_gap(mesh, tip, axis, displacement=None):
+    """Distance [m] from ``tip`` along ``axis`` to the surface of ``mesh`` at rest, or displaced
+    by ``displacement`` (a settled state) (inf: none)."""
     from tissue_sim_ros.engine.needle.kernels import first_surface_hit
-    hit, t, _, _, _ = first_surface_hit(mesh.rest_positions, np.zeros_like(mesh.rest_positions),
+    moved = np.zeros_like(mesh.rest_positions) if displacement is None else displacement
+    hit, t, _, _, _ = first_surface_hit(mesh.rest_positions, moved,
                                         np.ascontiguousarray(mesh.surface_triangles(), dtype=np.int64),
                                         np.asarray(tip, dtype=float), np.asarray(axis, dtype=float),
                                         0.0, np.inf)
     return float(t) if hit >= 0 else float('inf')
 
 
-def _start_position(mesh, needle):
+def _start_position(mesh, needle, displacement=None):
     """needle.initial_position_m, moved along the axis so that the tip is needle.start_gap_m
-    above the surface when that key is given."""
+    above the surface (settled, with ``displacement``) when that key is given."""
     position = np.asarray(needle['initial_position_m'], dtype=float)
     if needle['start_gap_m'] is None:
         return position
     from tissue_sim_ros.engine.needle.pose import validate_pose
     position, orientation = validate_pose(position, needle['initial_orientation_xyzw'], 'needle.initial_pose')
     axis = needle_axis(orientation)
-    gap = surface_gap(mesh, position + needle['length_m'] * axis, axis)
+    gap = surface_gap(mesh, position + needle['length_m'] * axis, axis, displacement)
     if not np.isfinite(gap):
         raise SceneError(f"needle.start_gap_m = {needle['start_gap_m']!r}: the needle's axis from "
                          f'initial_position_m {position.tolist()} meets no tissue surface')
@@ -104,19 +106,25 @@ class Scene:
         self.mesh = make_mesh(raw_mesh.rest_positions, raw_mesh.tetrahedra, element_region)
         materials = {k: build_material(r) for k, r in enumerate(regions) if np.any(element_region == k)}
         self.model = build_model(self.mesh, materials, s['model'])
-        self.simulation = build_simulation(self.model, s['solver'], fixed_nodes(self.mesh, s['boundary']['fixed']))
+        self.simulation = build_simulation(self.model, s['solver'])
+        build_supports(self.simulation, self.mesh, s['boundary'], point_sets_of(s, self.base_dir))
         check_time_step(self.simulation, s['solver'])
+        #: how the tissue settled under gravity (engine.solver.settle), None without it
+        self.settled = build_gravity(self.simulation, s['solver'],
+                                     repr([s[k] for k in ('mesh', 'regions', 'model', 'boundary')]))
         interactions = [region_interaction(r) for r in regions]
         self.needle_names, self.needles = [], []
         for i, (name, n) in enumerate(needle_sections(s)):
             geometry = needle_geometry(n, f'needles[{i}]' if s['needles'] else 'needle')
             self.needle_names.append(name)
             self.needles.append(NeedleTissue(self.simulation, element_region, interactions, geometry,
-                                             _start_position(self.mesh, n), n['initial_orientation_xyzw'],
+                                             _start_position(self.mesh, n, self.simulation.displacement),
+                                             n['initial_orientation_xyzw'],
                                              selectors=self.selectors,
                                              name=f'needles[{i}]' if s['needles'] else 'needle'))
         self.needle = self.needles[0]
-        self.targets = Targets(self.mesh.rest_positions, self.mesh.tetrahedra, s['targets'])
+        self.targets = Targets(self.mesh.rest_positions, self.mesh.tetrahedra, s['targets'],
+                               element_region=element_region, region_names=[r['name'] for r in s['regions']])
         self._target_time = 0.0
         #: run the substeps of a needle outside, at the outer membrane or inside in compiled
         #: slices (engine.compiled.substeps; False: the Python calls, the same arithmetic)
@@ -249,7 +257,7 @@ class Scene:
     def reset(self):
         """Rest state, needle at its initial pose, time 0."""
         self.simulation.reset()
-        self.simulation.external_forces[:] = 0.0
+        np.copyto(self.simulation.external_forces, self.simulation.body_forces)
         for needle in self.needles:
             needle.reset()
         self._target_time = 0.0
@@ -296,7 +304,8 @@ class Scene:
         """Tip to tissue surface along the axis at the needle's initial pose [m] (rest mesh)."""
         position, orientation = self.initial_needle_pose
         axis = needle_axis(orientation)
-        return surface_gap(self.mesh, position + self.needle.geometry.length_m * axis, axis)
+        return surface_gap(self.mesh, position + self.needle.geometry.length_m * axis, axis,
+                           self.simulation.initial_displacement)
 
     @property
     def initial_needle_pose(self):

@@ -16,6 +16,15 @@ def check_targets(entries, name):
     check(entries, name)
 
 
+def check_springs(entries, name):
+    for i, entry in enumerate(entries):
+        if entry['select'] is None:
+            raise ValueError(f'{name}[{i}].select: required, the surface patch the foundation holds')
+        if entry['normal_n_per_m3'] == 0.0 and entry['tangential_n_per_m3'] == 0.0:
+            raise ValueError(f'{name}[{i}]: normal_n_per_m3 and tangential_n_per_m3 are both 0: the patch holds '
+                             'nothing; give a stiffness per area')
+
+
 # -- the schema: key -> (default, kind, meaning) -----------------------------------------------
 # the kinds are those of .checks; a nested dict is a section, a list of one dict a list of them
 SCHEMA = {
@@ -37,8 +46,11 @@ SCHEMA = {
     'regions': [{
         'name': ('tissue', 'str', 'region name (reported in puncture events)'),
         'select': ('all', 'select', "'all', {below_z_m: z}, {above_z_m: z} (half-spaces under and over the "
-                                   "plane z), {box_m: [[x,y,z], [x,y,z]]}, {sphere_m: [x, y, z, r]} or "
-                                   "{tag: N} (element tag of a mesh file), in rest coordinates [m]; later "
+                                   "plane z), {half_space_m: [x, y, z, nx, ny, nz]} (the side of the plane "
+                                   "through (x, y, z) that the normal n points away from), {box_m: [[x,y,z], "
+                                   "[x,y,z]]}, {sphere_m: [x, y, z, r]} or {tag: N} (element tag of a mesh "
+                                   "file: tissue-sim mesh tags the organ 1, its inclusions 2, 3, ...), in rest "
+                                   "coordinates [m]; later "
                                    "regions override earlier ones. Its surface is the layer boundary the "
                                    "needle meets (where its tip's material point enters); an element's "
                                    "material is its centroid's region"),
@@ -107,7 +119,9 @@ SCHEMA = {
     },
     'targets': ([], MappingList({
         'name': (None, 'str', 'the name planners use (topics, diagnostics, CSV columns); required'),
-        'position_m': (None, 'vec3', 'its position at rest [m], inside the mesh; required'),
+        'position_m': (None, 'vec3', 'its position at rest [m], inside the mesh; this or region'),
+        'region': (None, 'str', "a region's name: the target at the centroid of that region's elements "
+                                '(a tumour tagged by tissue-sim mesh); this or position_m'),
     }, check_targets), 'named points carried by the tissue (a tumour, a fiducial): embedded in the mesh at '
                        'rest, they move with its deformation; [] for none'),
     'needles': ([], 'needles', 'several needles or probes in the same tissue: a list of mappings, each '
@@ -120,8 +134,22 @@ SCHEMA = {
                             'depth_spread_m (engine.scene.variation)'),
     },
     'boundary': {
-        'fixed': (['bottom', 'walls'], 'faces', 'bounding-box faces held fixed: bottom, top, walls, '
-                                                'x_min, x_max, y_min, y_max'),
+        'fixed': (['bottom', 'walls'], 'supports', 'nodes held fixed: bounding-box faces (bottom, top, walls, '
+                                                   'x_min, x_max, y_min, y_max) and selectors: any region select '
+                                                   '(the nodes in its volume or of its tagged elements), '
+                                                   '{surface_near_m: [x, y, z, d]} (the surface nodes within d of '
+                                                   'the point: a ligament) or {node_set: NAME} (the nodes a mesh '
+                                                   "file's point data NAME marks non-zero); the supports must stop "
+                                                   'rigid motion (with the springs), else the scene is refused'),
+        'springs': ([], MappingList({
+            'select': (None, 'support', "the surface patch held: a boundary.fixed selector; the surface "
+                                        'triangles whose three nodes it selects (required)'),
+            'normal_n_per_m3': (0.0, 'float0', 'foundation stiffness along the surface normal, per area '
+                                               '(pressure per displacement) [N/m^3]'),
+            'tangential_n_per_m3': (0.0, 'float0', 'foundation stiffness along the surface, per area [N/m^3]'),
+        }, check_springs), 'elastic foundations (Winkler) holding surface patches, the way neighbouring '
+                           'organs hold one: each surface node takes k A (n n^T normal + (I - n n^T) '
+                           'tangential) of its share A of the patch; [] for none'),
     },
     'solver': {
         'integrator': ('explicit', ('explicit', 'implicit', 'quasi_static'),
@@ -135,6 +163,10 @@ SCHEMA = {
         'time_step_s': (None, 'float+', 'time step [s]; null: time_step_safety x the explicit critical step'),
         'time_step_safety': (0.8, 'float+', 'fraction of the critical step used when time_step_s is null'),
         'damping_per_s': (50.0, 'float0', 'mass-proportional damping rate [1/s]'),
+        'gravity_m_s2': ([0.0, 0.0, 0.0], 'vec3', 'gravitational acceleration in the mesh frame [m/s^2] (e.g. '
+                                                  '[0, 0, -9.81]); the tissue is settled under it (with its '
+                                                  'supports, a static solve, cached per scene) before the needle '
+                                                  'moves, and a reset returns there'),
         'mass_scaling': (1.0, 'scaling', 'factor on node masses for quasi-static runs (>= 1; every run '
                                          'prints its estimated inertia error); auto: the largest whose '
                                          "force NRMSE on the scene's insertion at design_speed_m_s, "
@@ -152,6 +184,10 @@ SCHEMA = {
         'start_gap_m': (None, 'float0', 'tip distance above the tissue surface along the axis at start '
                                         'and reset [m]; null: initial_position_m as given, else that '
                                         'position moved along the axis to this gap'),
+        'planned_travel_m': (None, 'float+', 'the insertion the scene is for: tip travel along the axis from '
+                                             'the start pose [m] (tissue-sim insert\'s default travel; chart, '
+                                             'recommend and the mass-scaling rule score this insertion); null: '
+                                             "the commands' own defaults"),
         'shaft_point_spacing_m': (0.001, 'float+', 'tissue points along the shaft, one per this advance [m]'),
         'max_jump_m': (DEFAULT_MAX_JUMP_M, 'float+', 'largest base or tip move accepted in one advance() call [m]'),
         'flexible': (False, 'bool', 'the shaft as an elastic rod that the tissue and the tip bend (a bevel '
@@ -214,7 +250,8 @@ def _kind_text(kind) -> str:
     return {'float+': '> 0', 'float0': '>= 0', 'int+': 'integer >= 1', 'int0': 'whole number >= 0', 'float': 'number',
             'vec3+': '3 numbers > 0',
             'vec3': '3 numbers', 'vec2': '2 numbers', 'quat': 'x, y, z, w', 'floats': 'numbers',
-            'scaling': ">= 1 or auto", 'faces': 'box faces', 'select': 'a region shape',
+            'scaling': ">= 1 or auto", 'faces': 'box faces',
+            'supports': 'box faces, selectors', 'support': 'a selector', 'select': 'a region shape',
             'needles': 'list of needles'}.get(kind, kind)
 
 

@@ -198,11 +198,12 @@ class ImplicitStep:
         self._diagonal_key = key
 
     def _forces(self, x, v, out, smooth=False):
-        """out = f(x, v), the internal force (elastic + viscous) at displacement x, velocity v;
+        """out = f(x, v), the internal force (elastic + viscous, and the foundations') at displacement x, velocity v;
         ``smooth``: without the non-linearity threshold (every element non-linear)."""
         model = self.sim.model
         model.accumulate_forces(x, v, time_step=None, threshold_squared=0.0 if smooth else None)
         forces.reduce_buffers(*model.force_buffers, out)
+        self.sim.add_support_forces(x, out)
         self.force_evaluations += 1
 
     def _unbalanced(self, x, force, out):
