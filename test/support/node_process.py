@@ -26,6 +26,7 @@ BIN = Path(sys.executable).parent
 NS = 1_000_000_000
 TOPIC_TYPES = {
     '/needle/wrench': 'geometry_msgs/msg/WrenchStamped',
+    '/needle/shape': 'nav_msgs/msg/Path',
     '/tissue/nodes': 'sensor_msgs/msg/PointCloud2',
     '/tissue/surface': 'shape_msgs/msg/Mesh',
     '/tissue/marker': 'visualization_msgs/msg/Marker',

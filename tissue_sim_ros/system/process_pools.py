@@ -58,7 +58,13 @@ def stop_pool(pool) -> None:
         terminate()
         return
     processes = list((getattr(pool, '_processes', None) or {}).values())
+    manager = getattr(pool, '_executor_manager_thread', None)
     pool.shutdown(wait=False, cancel_futures=True)
     for process in processes:
         with contextlib.suppress(OSError, ValueError):     # already gone, or already closed
             process.terminate()
+    # the pool's manager thread notices the terminated workers and closes its wake-up pipe: at
+    # the interpreter's exit concurrent.futures writes to the pipe of a manager still running,
+    # which raced that closing ('Exception ignored ... Bad file descriptor' on a Ctrl-C)
+    if manager is not None:
+        manager.join(timeout=5.0)

@@ -49,7 +49,7 @@ def test_auto_scene_takes_the_rule_and_caches_it(tmp_path, monkeypatch):
     from tissue_sim_ros.analysis.charting.mass_scaling_rule import REFERENCE_SCALING
     monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path))
     solver = {'mass_scaling': 'auto', 'design_speed_m_s': 0.01}
-    region = {'membrane': {'criterion': 'force', 'rupture_force_n': 0.3}}
+    region = {'membrane': {'criterion': 'force', 'rupture_force_n': 0.2}}
     scene = auto_scene(solver=solver, region=region)
     record = scene.auto_choices['solver.mass_scaling']
     within = [p for p in record['probes'] if p['error'] <= record['inertia_error_bound']]
