@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Runs the test suite; creates .venv on first use. Extra arguments go to pytest; a test file or
-# folder among them replaces the default test/ (./run_tests.sh -q test/test_needle.py).
+# folder among them replaces the default test/ (./run_tests.sh -q test/engine/needle/test_tip.py).
 set -euo pipefail
 cd "$(dirname "$0")"
 source scripts/bootstrap.sh

@@ -19,6 +19,9 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*')),
         ('share/' + package_name + '/msg_examples', glob('msg_examples/*')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
+        ('share/' + package_name + '/rviz', glob('rviz/*.rviz')),
+        ('share/' + package_name + '/foxglove', glob('foxglove/*.json')),
         ('share/' + package_name + '/data/okamura2004_bovine_liver', glob('data/okamura2004_bovine_liver/*')),
     ],
     python_requires='>=3.12',    # ROS 2 Jazzy's; warnings' skip_file_prefixes, tarfile's filter
@@ -31,7 +34,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'tissue_sim_node = tissue_sim_ros.ros.node:main',
+            'tissue_sim_node = tissue_sim_ros.cli.node_script:main',
             'tissue-sim = tissue_sim_ros.cli:main',
         ],
     },

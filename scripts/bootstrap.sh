@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Source this file: it finds a working Python 3.12, creates .venv beside the repository root on
 # first use (or when requirements.txt changed), installs the pinned dependencies and the package
-# itself (editable), and leaves VENV_PYTHON pointing at the environment's interpreter.
+# itself (editable), builds the interface packages under interfaces/ into it (tissue_sim_msgs, and
+# tf2_msgs where no tf2_msgs is installed: scripts/build_interfaces.py; again when those files or the
+# pins change), and leaves VENV_PYTHON pointing at the environment's interpreter.
 set -euo pipefail
 repo_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="${TISSUE_SIM_VENV:-$repo_root/.venv}"
@@ -44,6 +46,14 @@ if [ ! -x "$venv/bin/python" ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; 
   "$venv/bin/python" -m pip install --quiet -r "$repo_root/requirements.txt" >&2
   "$venv/bin/python" -m pip install --quiet --no-deps --no-build-isolation -e "$repo_root" >&2
   echo "$want" > "$stamp"
+fi
+interfaces_stamp="$venv/.interfaces.sha256"
+interfaces_want="$(cd "$repo_root" && find interfaces scripts/build_interfaces.py requirements.txt -type f \
+  -print0 | sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)"
+if [ "$(cat "$interfaces_stamp" 2>/dev/null)" != "$interfaces_want" ]; then
+  echo "building the interface packages (interfaces/) into $venv" >&2
+  "$venv/bin/python" "$repo_root/scripts/build_interfaces.py"
+  echo "$interfaces_want" > "$interfaces_stamp"
 fi
 VENV_PYTHON="$venv/bin/python"
 export VENV_PYTHON

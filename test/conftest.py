@@ -1,9 +1,9 @@
-"""Shared fixtures: small meshes, a liver-like material, the TypeScript MCAP reader, the node's
-output subscriptions."""
+"""Shared fixtures: small meshes, a liver-like material, the TypeScript MCAP reader, the node in
+process on a private ROS graph. Shared helpers that are not fixtures are in test/support/."""
+import gc
 import json
 import shutil
 import subprocess
-import time
 
 import numpy as np
 import pytest
@@ -31,22 +31,9 @@ def jittered_block():
     return ts.make_mesh(positions, mesh.tetrahedra)
 
 
-def static_solve(model, constrained_dofs, prescribed_values):
-    """Solve K u = 0 on the free DOFs with u fixed on ``constrained_dofs`` (scipy, independent of the explicit solver)."""
-    import scipy.sparse.linalg
-    stiffness = model.stiffness_matrix().tocsr()
-    n_dofs = stiffness.shape[0]
-    u = np.zeros(n_dofs)
-    u[constrained_dofs] = prescribed_values
-    free = np.setdiff1d(np.arange(n_dofs), constrained_dofs)
-    rhs = -stiffness[free][:, constrained_dofs] @ u[constrained_dofs]
-    u[free] = scipy.sparse.linalg.spsolve(stiffness[free][:, free].tocsc(), rhs)
-    return u.reshape(-1, 3)
-
-
 @pytest.fixture(scope='session')
 def mcap_js(tmp_path_factory):
-    """The TypeScript @mcap/core reader with CRC checks (test_mcap_log._JS), installed once per
+    """The TypeScript @mcap/core reader with CRC checks (support/mcap_js.py), installed once per
     run with npm: run(*paths) -> its JSON verdict per file. Skipped without node/npm/registry."""
     node, npm = shutil.which('node'), shutil.which('npm')
     if not (node and npm):
@@ -59,7 +46,7 @@ def mcap_js(tmp_path_factory):
         pytest.skip('npm install @mcap/core timed out (no registry?)')
     if r.returncode != 0 or not (d / 'node_modules' / '@mcap' / 'core').is_dir():
         pytest.skip(f'npm install @mcap/core failed (no registry?): {r.stderr[-300:]}')
-    from test_mcap_log import _JS
+    from support.mcap_js import _JS
     script = d / 'check.mjs'
     script.write_text(_JS)
 
@@ -71,48 +58,32 @@ def mcap_js(tmp_path_factory):
     return run
 
 
-def subscribe_node_outputs(client, keeper, *, rosout=False):
-    """Subscribe ``client`` to every output of tissue_sim with the QoS the node offers; keeper(key)
-    gives each topic's callback ('wrench', 'nodes', 'surface', 'marker', 'diag', 'targets', 'log')."""
-    from diagnostic_msgs.msg import DiagnosticArray
-    from geometry_msgs.msg import PoseArray, WrenchStamped
-    from rcl_interfaces.msg import Log
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import PointCloud2
-    from shape_msgs.msg import Mesh
-    from visualization_msgs.msg import Marker
-    reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    topics = [('wrench', WrenchStamped, 'needle/wrench', reliable),
-              ('nodes', PointCloud2, 'tissue/nodes', reliable),
-              ('surface', Mesh, 'tissue/surface', latched),
-              ('marker', Marker, 'tissue/marker', reliable),
-              ('diag', DiagnosticArray, '/diagnostics', reliable),
-              ('targets', PoseArray, 'tissue/targets', reliable)]
-    if rosout:
-        topics.append(('log', Log, '/rosout', QoSProfile(depth=1000)))
-    for key, msg_type, topic, qos in topics:
-        client.create_subscription(msg_type, topic, keeper(key), qos)
-    return reliable
+@pytest.fixture
+def _private_ros(monkeypatch):
+    """Localhost discovery on this process's own domain (autouse for everything under test/ros/)."""
+    from support.ros_clients import DOMAIN_ID
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(DOMAIN_ID))
 
 
-def call_service(client, request, timeout):
-    """Call a service from a client whose node another thread spins; the response (asserts it
-    comes within ``timeout`` seconds)."""
-    assert client.wait_for_service(timeout_sec=timeout)
-    future = client.call_async(request)
-    deadline = time.monotonic() + timeout
-    while not future.done():
-        assert time.monotonic() < deadline, 'service call timed out'
-        time.sleep(0.005)
-    return future.result()
+@pytest.fixture
+def harness(_private_ros):
+    """make(scene=None, slow_down=None, **params): the node and a client in this process
+    (support/ros_harness.py), discovered by each other; all closed at the end of the test."""
+    from support.ros_harness import Harness
+    made = []
 
-
-def diag_values(msg):
-    """{status name: (level, message, {key: value})} of a DiagnosticArray."""
-    out = {}
-    for st in msg.status:
-        level = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
-        out[st.name] = (level, st.message, {kv.key: kv.value for kv in st.values})
-    return out
+    def make(scene=None, slow_down=None, **params):
+        h = Harness(scene, slow_down, **params)
+        made.append(h)
+        h.wait_matched()
+        return h
+    # as tissue_sim_node's main does: what exists now stays out of the collector's reach. In a
+    # whole-suite run on a cold numba cache the test process holds the compilers' leftovers, and
+    # full collections stalled the in-process node long enough to miss ticks (47.5 Hz once)
+    gc.collect()
+    gc.freeze()
+    yield make
+    for h in made:
+        h.close()
+    gc.unfreeze()

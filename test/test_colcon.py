@@ -3,8 +3,8 @@
 colcon comes from PyPI with the ROS wheels (requirements.txt). The copy holds the files git
 tracks or would track (not .venv, build outputs or logs), in a temporary workspace
 ``src/tissue_sim_ros``; the build installs there, and the installed entry point and data files
-are used from that install tree, not from this checkout.
-"""
+are used from that install tree, not from this checkout."""
+
 import os
 import shutil
 import subprocess
@@ -13,10 +13,11 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-BIN = Path(sys.executable).parent
-
 pytestmark = pytest.mark.slow  # about 15 s here
+
+from support.paths import ROOT  # noqa: E402
+
+BIN = Path(sys.executable).parent
 
 
 def _sources():
@@ -46,7 +47,9 @@ def test_colcon_build_installs_and_colcon_test_passes(tmp_path):
     share = install / 'share' / 'tissue_sim_ros'
     assert (install / 'share' / 'ament_index' / 'resource_index' / 'packages' /
             'tissue_sim_ros').is_file()
-    for rel in ('package.xml', 'config/tissue_sim.yaml', 'config/liver_sample.yaml'):
+    for rel in ('package.xml', 'config/tissue_sim.yaml', 'config/liver_sample.yaml',
+                'launch/tissue_sim.launch.py',
+                'rviz/tissue_sim.rviz', 'foxglove/tissue_sim.json'):
         assert (share / rel).is_file(), rel
     assert sorted(p.name for p in (share / 'msg_examples').glob('*.yaml')) == \
         sorted(p.name for p in (ROOT / 'msg_examples').glob('*.yaml'))
@@ -67,7 +70,7 @@ def test_colcon_build_installs_and_colcon_test_passes(tmp_path):
     assert helped.returncode == 0 and 'publish_rate_hz' in helped.stdout, helped.stderr
 
     # colcon test runs pytest (extras_require test) on the copy; a fast subset of the suite
-    tested = subprocess.run([str(colcon), 'test', '--pytest-args', 'test/test_conversions.py'],
+    tested = subprocess.run([str(colcon), 'test', '--pytest-args', 'test/ros/messages/test_conversions.py'],
                             cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert tested.returncode == 0, tested.stdout + tested.stderr
     result = subprocess.run([str(colcon), 'test-result', '--all'], cwd=tmp_path, env=env,

@@ -15,8 +15,11 @@ Modules here:
 - :mod:`.insertion`, :mod:`.force_plot`: a straight insertion without ROS (``tissue-sim insert``);
 - :mod:`.predict`: a candidate path's prediction without ROS (``tissue-sim predict``);
 - :mod:`.replay`: a node log through the engine again (``tissue-sim replay``);
+- :mod:`.steering`: a flexible needle's path, its bend and curvature (``tissue-sim bench steering``);
 - :mod:`.synthetic_study`: a load-cell study made by the simulator, for tests and benchmarks;
+- :mod:`.synthetic_curves`: layered force curves from a formula whose every event is known (pre-drops,
+  rounded peaks, partial drops), for the detectors' tests;
 - :mod:`.demo`: the main job (``tissue-sim demo``).
 """
 __all__ = ['calibration', 'charting', 'compare', 'demo', 'force_plot', 'insertion', 'jobs', 'predict',
-           'replay', 'synthetic_study']
+           'replay', 'steering', 'synthetic_curves', 'synthetic_study']

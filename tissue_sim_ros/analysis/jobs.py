@@ -23,7 +23,7 @@ import os
 import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
-from tissue_sim_ros.system.process_pools import stop_pool
+from tissue_sim_ros.system.process_pools import sigint_blocked, start_worker, stop_pool
 
 __all__ = ['default_workers', 'run_jobs', 'run_logged', 'WorkerPool']
 
@@ -35,9 +35,10 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def _one_thread():
+def _start_worker(parent_pid: int):
     """Worker start-up, before numba is imported there: one numba thread per simulation
-    process."""
+    process; Ctrl-C left to the parent, and an end with it (``process_pools.start_worker``)."""
+    start_worker(parent_pid)
     os.environ['NUMBA_NUM_THREADS'] = '1'
 
 
@@ -57,7 +58,8 @@ class WorkerPool:
 
     def __enter__(self):
         if self.workers > 1:      # spawned, not forked: libgomp (numba's OpenMP layer) is not fork-safe
-            self.executor = ProcessPoolExecutor(max_workers=self.workers, initializer=_one_thread,
+            self.executor = ProcessPoolExecutor(max_workers=self.workers, initializer=_start_worker,
+                                                initargs=(os.getpid(),),
                                                 mp_context=multiprocessing.get_context('spawn'))
         return self
 
@@ -91,7 +93,8 @@ def run_jobs(function, jobs, *, workers: int | None = None, scheduler=None, labe
         if scheduler is not None:
             _run_dask(function, jobs, scheduler, done)
         elif pool is not None and pool.executor is not None and len(jobs) > 1:
-            futures = {pool.executor.submit(function, job): index for index, job in enumerate(jobs)}
+            with sigint_blocked():                    # a first submit starts the workers
+                futures = {pool.executor.submit(function, job): index for index, job in enumerate(jobs)}
             for future in as_completed(futures):
                 done(futures[future], future.result())
         elif workers <= 1 or len(jobs) <= 1:
@@ -99,7 +102,8 @@ def run_jobs(function, jobs, *, workers: int | None = None, scheduler=None, labe
                 done(index, function(job))
         else:
             with WorkerPool(min(workers, len(jobs))) as own:
-                futures = {own.executor.submit(function, job): index for index, job in enumerate(jobs)}
+                with sigint_blocked():
+                    futures = {own.executor.submit(function, job): index for index, job in enumerate(jobs)}
                 for future in as_completed(futures):
                     done(futures[future], future.result())
     return results

@@ -1,13 +1,13 @@
-"""``tissue-sim predict``: what a candidate needle path would do, without ROS (issue 18 item 1).
+"""``tissue-sim predict``: what a candidate needle path would do, without ROS.
 
 The same prediction the node answers on ``plan/candidate`` (engine.prediction), from the scene at
 rest: the path is a CSV of the needle base's poses, one per row, with the header
 ``t, x, y, z, qx, qy, qz, qw`` (seconds, metres, a quaternion x, y, z, w; ``t_s``, ``x_m``... and
 any other columns are accepted and ignored), its first pose the scene's initial needle pose
 (``config/candidate_path.csv`` is a 10 s example on the default scene). Writes into ``--out``:
-``prediction.csv`` (one row per pose: time from start, the prediction's columns, the phase),
-``prediction.png`` (force, tip depth and target displacements against time), ``prediction.md``
-and ``prediction.json`` (figures and the speed: wall time and real-time factor; with
+``predict.csv`` (one row per pose: time from start, the prediction's columns, the phase),
+``predict.png`` (force, tip depth and target displacements against time), ``predict.md``
+and ``predict.json`` (figures and the speed: wall time and real-time factor; with
 ``--max-error``, the ladder's rung it ran on and that rung's measured error). The wrench is in
 the needle frame by default, as the node's (``--wrench-frame world`` for the world frame).
 """
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_sim_ros.io.trials.trial import DataError
+from tissue_sim_ros.errors import DataError
 
 __all__ = ['PATH_COLUMNS', 'read_path_csv', 'write_prediction', 'main']
 
@@ -62,8 +62,8 @@ def read_path_csv(path):
 
 
 def write_prediction(prediction, out: Path, *, title: str, wrench_frame: str = 'needle') -> None:
-    """prediction.csv and prediction.png of a Prediction."""
-    with open(out / 'prediction.csv', 'w', newline='') as f:
+    """predict.csv and predict.png of a Prediction."""
+    with open(out / 'predict.csv', 'w', newline='') as f:
         writer = csv.writer(f)
         writer.writerow(['time_from_start_s', *prediction.columns, 'phase'])
         for k, t in enumerate(prediction.time_from_start_s):
@@ -90,7 +90,7 @@ def write_prediction(prediction, out: Path, *, title: str, wrench_frame: str = '
     for ax in axes:
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(out / 'prediction.png', dpi=120)
+    fig.savefig(out / 'predict.png', dpi=120)
     plt.close(fig)
 
 
@@ -129,14 +129,13 @@ def main(scene_file, path_file, out, *, sets=(), wrench_frame='needle', max_erro
     wrench.frame_id) or 'world'. ``max_error`` > 0: on the cheapest degradation-ladder rung whose
     measured error against the scene as configured is within it, as the node's
     ``prediction.max_error`` (the rung and its error in the outputs). Returns the Prediction."""
-    from tissue_sim_ros.engine.driver import SimulationDriver
-    from tissue_sim_ros.engine.prediction import check_path
-    from tissue_sim_ros.engine.scene.scene import Scene
+    from tissue_sim_ros.analysis.charting.auto_keys import load_scene
+    from tissue_sim_ros.engine.prediction import check_path, predict
     stream = sys.stdout if stream is None else stream
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     stamps, positions, orientations = read_path_csv(path_file)
-    scene = Scene.from_file(scene_file, sets=sets)
+    scene = load_scene(scene_file, sets=sets)
     needle = scene.needle
     path = check_path(stamps, positions, orientations, max_jump_m=needle.geometry.max_jump_m,
                       start_pose=scene.needle_pose, length_m=needle.geometry.length_m,
@@ -148,13 +147,13 @@ def main(scene_file, path_file, out, *, sets=(), wrench_frame='needle', max_erro
     if rung is not None:
         print(f"on the ladder's rung '{rung['rung']}' (measured error {rung['rung_error']:.4f} of the "
               f'force range against the scene as configured, within {max_error:g})', file=stream)
-    prediction = SimulationDriver(scene, wrench_frame=wrench_frame).predict(path)
+    prediction = predict(scene, path, wrench_frame=wrench_frame)
     figures = dict(_figures(prediction), **(rung or {}))
     write_prediction(prediction, out, title=f'prediction of {Path(path_file).name}', wrench_frame=wrench_frame)
     summary = {'scene': str(scene_file) if scene_file else 'default (config/liver_sample.yaml)',
                'path': str(path_file), 'sets': list(sets), 'wrench_frame': wrench_frame,
                'tetrahedra': int(scene.mesh.n_elements), 'columns': prediction.columns, **figures}
-    (out / 'prediction.json').write_text(json.dumps(summary, indent=2))
+    (out / 'predict.json').write_text(json.dumps(summary, indent=2))
     lines = [f'# Prediction of {Path(path_file).name}', '',
              f'Scene: {scene_file or "the default liver sample"} ({scene.mesh.n_elements} tetrahedra)'
              + (f', with {", ".join(sets)}' if sets else '') + f'. Force and torque in the {wrench_frame} '
@@ -169,9 +168,9 @@ def main(scene_file, path_file, out, *, sets=(), wrench_frame='needle', max_erro
              f'| answered in | {figures["wall_s"]:.3g} s wall, {figures["real_time_factor"]:.3g}x real time |',
              *([f'| settings | the ladder\'s rung {figures["rung"]} (error {figures["rung_error"]:.4f}) |']
                if 'rung' in figures else []),
-             '', 'Files: prediction.csv (one row per pose), prediction.png, prediction.json.', '']
-    (out / 'prediction.md').write_text('\n'.join(lines))
+             '', 'Files: predict.csv (one row per pose), predict.png, predict.json.', '']
+    (out / 'predict.md').write_text('\n'.join(lines))
     for line in lines[6:-3]:
         print('  ' + line.strip('|').replace(' | ', ': ').strip(), file=stream)
-    print(f'wrote {out / "prediction.csv"}, .png, .md and .json', file=stream)
+    print(f'wrote {out / "predict.csv"}, .png, .md and .json', file=stream)
     return prediction

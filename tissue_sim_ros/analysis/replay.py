@@ -11,13 +11,15 @@ robot's log) is driven by its pose messages the same way.
 
 Everything runs as fast as the engine can (no real-time pacing). Outputs in ``--out DIR``:
 
-- ``replay.mcap``: ``/needle/wrench`` (every tick, the recorded stamps), ``/tissue/nodes`` (at the
-  node's ``recording.nodes_rate_hz``) and ``/diagnostics`` (a summary at 1 Hz), the node's topic
-  names and types, so the two logs overlay in a viewer;
-- ``replay.csv``: per tick, the stamp, the recorded and the replayed wrench;
+- ``replay.mcap``: ``/needle/wrench`` and ``/needle/shape`` (every tick, the recorded stamps),
+  ``/tissue/nodes`` (at the node's ``recording.nodes_rate_hz``) and ``/diagnostics`` (a summary at
+  1 Hz), the node's topic names and types, so the two logs overlay in a viewer;
+- ``replay.csv``: per tick, the stamp, the recorded and the replayed wrench, and the replayed tip
+  (``tip_x_m tip_y_m tip_z_m tip_deflection_m``: where the apex is and its distance from the base
+  axis, a flexible needle's bend);
 - ``replay.png``: recorded and replayed axial force against time;
 - ``replay.json`` / ``replay.md``: the figures (schema: ``mode`` 'exact' or 'motion', ``ticks``,
-  ``max_abs_difference_n``, ``rms_difference_n``, ``simulated_s``, ``wall_s``,
+  ``max_abs_difference_n``, ``rms_difference_n``, ``final_tip_deflection_m``, ``simulated_s``, ``wall_s``,
   ``real_time_factor``, ``scene``, ``log``, ``outputs``).
 """
 from __future__ import annotations
@@ -33,16 +35,13 @@ import numpy as np
 import yaml
 
 from tissue_sim_ros.units import NS_PER_S
+from tissue_sim_ros.errors import ReplayError
 
-__all__ = ['NodeRun', 'ReplayError', 'ReplayResult', 'read_node_run', 'replay', 'main']
+__all__ = ['NodeRun', 'ReplayResult', 'read_node_run', 'replay', 'main']
 
 _WRENCH = 'geometry_msgs/msg/WrenchStamped'
 _TRACE = 'std_msgs/msg/Float64MultiArray'
 _POSE = 'geometry_msgs/msg/PoseStamped'
-
-
-class ReplayError(ValueError):
-    """A log that cannot be replayed; names the log and what is missing."""
 
 
 def _flatten(d: dict, prefix: str = '') -> dict:
@@ -110,6 +109,8 @@ class ReplayResult:
     simulated_s: float = 0.0
     wall_s: float = 0.0
     refused: int = 0
+    tips: np.ndarray = None          # (k, 4) replayed tip x, y, z [m] and its deflection [m]
+    shapes: tuple = None             # (k, p, 3) and (k, p, 4): the needle's shape each tick
 
 
 def _recorded(run: NodeRun):
@@ -136,11 +137,12 @@ def _recorded(run: NodeRun):
 def _node_scene(run: NodeRun, scene_file=None, sets=()):
     """The scene to replay with: the log's own (its keys as the engine used them), or the one
     given, with the ``--set`` overrides; laid out for the node's engine threads."""
+    from tissue_sim_ros.analysis.charting.auto_keys import load_scene
     from tissue_sim_ros.engine.scene.scene import Scene
     from tissue_sim_ros.engine.scene.keys import apply_overrides
     from tissue_sim_ros.ros.parameters import AUTO_THREADS_ELEMENTS
     if scene_file is not None:
-        scene = Scene.from_file(scene_file, sets=sets)
+        scene = load_scene(scene_file, sets=sets)
     else:
         if run.scene_spec is None:
             raise ReplayError(f'{run.path}: the log holds no scene (metadata "scene"); give --scene')
@@ -165,6 +167,7 @@ def _replay_trace(run, scene, stamps, traces, every_cloud):
     replayer = TraceReplayer(driver, DegradationLadder(scene), keep_displacement=every_cloud > 0)
     by_stamp = {t.stamp_ns: t for t in traces}
     wrench, clouds = np.zeros((len(stamps), 6)), {}
+    tips, shapes = _tip_arrays(scene, len(stamps))
     missing = [int(s) for s in stamps if int(s) not in by_stamp]
     if missing:
         raise ReplayError(f'{run.path}: {len(missing)} wrench(es) without an engine trace (first '
@@ -172,29 +175,45 @@ def _replay_trace(run, scene, stamps, traces, every_cloud):
     for k, stamp in enumerate(stamps):
         force, torque, displacement = replayer.apply(by_stamp[int(stamp)])
         wrench[k, :3], wrench[k, 3:] = force, torque
+        _take_tip(scene, k, tips, shapes)
         if every_cloud and k % every_cloud == 0:
             clouds[k] = displacement
-    return wrench, clouds, driver
+    return wrench, clouds, driver, tips, shapes
+
+
+def _tip_arrays(scene, k):
+    """Room for k ticks' tips (k, 4) and shapes ((k, p, 3), (k, p, 4))."""
+    size = scene.needle.shape_size
+    return np.zeros((k, 4)), (np.zeros((k, size, 3)), np.zeros((k, size, 4)))
+
+
+def _take_tip(scene, k, tips, shapes):
+    tips[k, :3], tips[k, 3] = scene.needle.tip, scene.tip_deflection
+    scene.needle.write_shape(shapes[0][k], shapes[1][k])
 
 
 def _motion(traces, poses):
     """(clock ns, positions, orientations) the needle went to: the trace's advances, or the
-    recorded poses when there is no trace; and the tick stamps at which the node was reset."""
+    recorded poses when there is no trace; the tick stamps at which the node was reset; and the
+    needle's placements (registrations) by tick stamp: {stamp: (position, orientation)}."""
+    from tissue_sim_ros.ros.loop.trace import ADVANCE, PLACE, RESET
     if traces:
         rows = [(c, r) for t in traces for c, r in zip(t.clock_ns(), t.rows)
-                if r[0] == 0 and not math.isnan(r[3])]
-        resets = [t.stamp_ns for t in traces if np.any(t.rows[:, 0] == 1)]
+                if r[0] == ADVANCE and not math.isnan(r[3])]
+        resets = [t.stamp_ns for t in traces if np.any(t.rows[:, 0] == RESET)]
+        places = {t.stamp_ns: (r[3:6].copy(),
+                               r[6:10].copy()) for t in traces for r in t.rows if r[0] == PLACE}
         return (np.array([c for c, _ in rows], dtype=np.int64), np.array([r[3:6] for _, r in rows]),
-                np.array([r[6:10] for _, r in rows]), resets)
+                np.array([r[6:10] for _, r in rows]), resets, places)
     good = [p for p in poses if np.all(np.isfinite(p[1])) and np.all(np.isfinite(p[2]))]
     return (np.array([p[0] for p in good], dtype=np.int64), np.array([p[1] for p in good]),
-            np.array([p[2] for p in good]), [])
+            np.array([p[2] for p in good]), [], {})
 
 
 def _replay_motion(run, scene, stamps, traces, poses, every_cloud):
     from tissue_sim_ros.engine.driver import SimulationDriver
     from tissue_sim_ros.engine.needle.pose import slerp
-    clock, positions, orientations, resets = _motion(traces, poses)
+    clock, positions, orientations, resets, places = _motion(traces, poses)
     if len(clock) == 0:
         raise ReplayError(f'{run.path}: no needle motion in the log (no engine trace, no pose on '
                           f'{run.pose_topic or "needle/pose"})')
@@ -203,10 +222,13 @@ def _replay_motion(run, scene, stamps, traces, poses, every_cloud):
     clock, positions, orientations = clock[order], positions[order], orientations[order]
     base = int(clock[0])
     wrench, clouds, refused, previous = np.zeros((len(stamps), 6)), {}, 0, None
+    tips, shapes = _tip_arrays(scene, len(stamps))
     resets = set(resets)
     for k, stamp in enumerate(stamps):
         if int(stamp) in resets:
             driver.reset()
+        if int(stamp) in places:
+            driver.place_needle(*places[int(stamp)])
         t = float(stamp - base)
         i = int(np.clip(np.searchsorted(clock - base, t, side='right') - 1, 0, len(clock) - 1))
         j = min(i + 1, len(clock) - 1)
@@ -219,9 +241,10 @@ def _replay_motion(run, scene, stamps, traces, poses, every_cloud):
         outcome = driver.advance(max(duration, 0.0), position, orientation)
         refused += outcome.refused is not None
         wrench[k, :3], wrench[k, 3:] = driver.force, driver.torque
+        _take_tip(scene, k, tips, shapes)
         if every_cloud and k % every_cloud == 0:
             clouds[k] = scene.displacement.copy()
-    return wrench, clouds, driver, refused
+    return wrench, clouds, driver, refused, tips, shapes
 
 
 def replay(log, scene_file=None, sets=()) -> tuple[ReplayResult, NodeRun, object]:
@@ -236,12 +259,13 @@ def replay(log, scene_file=None, sets=()) -> tuple[ReplayResult, NodeRun, object
     wall0 = time.perf_counter()
     exact = traces and scene_file is None and not sets
     if exact:
-        wrench, clouds, driver = _replay_trace(run, scene, stamps, traces, every_cloud)
+        wrench, clouds, driver, tips, shapes = _replay_trace(run, scene, stamps, traces, every_cloud)
         refused = driver.refusals
     else:
-        wrench, clouds, driver, refused = _replay_motion(run, scene, stamps, traces, poses, every_cloud)
+        wrench, clouds, driver, refused, tips, shapes = _replay_motion(run, scene, stamps, traces, poses,
+                                                                       every_cloud)
     result = ReplayResult('exact' if exact else 'motion', stamps, wrench, recorded, clouds,
-                          driver.simulated_s, time.perf_counter() - wall0, refused)
+                          driver.simulated_s, time.perf_counter() - wall0, refused, tips, shapes)
     return result, run, scene
 
 
@@ -251,24 +275,28 @@ def _write_mcap(path: Path, run: NodeRun, result: ReplayResult, scene) -> None:
 
     from tissue_sim_ros.io.mcap.writer import McapRecorder
     from tissue_sim_ros.ros.messages import conversions as cv
-    from tissue_sim_ros.ros.messages.cdr_bytes import CloudBytes, WrenchBytes
+    from tissue_sim_ros.ros.messages.cdr_bytes import CloudBytes, NeedleShapeBytes, WrenchBytes
     from tissue_sim_ros.ros.messages.topics import DIAGNOSTICS_QOS, NODES_QOS, WRENCH_QOS
     p = run.parameters
     frame_id = p.get('frame_id') or scene.mesh_frame_id
     wrench_frame_id = p.get('wrench.frame_id', 'needle')
     base = run.wrench_topic[:-len('needle/wrench')] if run.wrench_topic.endswith('needle/wrench') else '/'
-    topics = {'wrench': run.wrench_topic, 'nodes': f'{base}tissue/nodes', 'diagnostics': '/diagnostics'}
+    topics = {'wrench': run.wrench_topic, 'shape': f'{base}needle/shape', 'nodes': f'{base}tissue/nodes',
+              'diagnostics': '/diagnostics'}
     with McapRecorder(path, overwrite=True, metadata={'replay_of': str(run.path), 'mode': result.mode,
                                                      'scene_spec': yaml.safe_dump(scene.spec, sort_keys=False)}) as rec:
         rec.add_topic(topics['wrench'], _WRENCH, cv.qos_to_dict(WRENCH_QOS))
+        rec.add_topic(topics['shape'], 'nav_msgs/msg/Path', cv.qos_to_dict(WRENCH_QOS))
         rec.add_topic(topics['nodes'], 'sensor_msgs/msg/PointCloud2', cv.qos_to_dict(NODES_QOS))
         rec.add_topic(topics['diagnostics'], 'diagnostic_msgs/msg/DiagnosticArray', cv.qos_to_dict(DIAGNOSTICS_QOS))
         cloud = CloudBytes(len(scene.rest_positions), frame_id, serialize_message)
         wrench = WrenchBytes(wrench_frame_id, serialize_message)
+        shape = NeedleShapeBytes(result.shapes[0].shape[1], frame_id, serialize_message)
         last_diag = None
         for k, stamp in enumerate(result.stamps_ns):
             stamp = int(stamp)
             rec.write(topics['wrench'], wrench.serialized(result.wrench[k, :3], result.wrench[k, 3:], stamp), stamp)
+            rec.write(topics['shape'], shape.serialized(result.shapes[0][k], result.shapes[1][k], stamp), stamp)
             if k in result.clouds:
                 displacement = result.clouds[k]
                 rec.write(topics['nodes'], cloud.serialized(scene.rest_positions + displacement, displacement, stamp),
@@ -288,6 +316,7 @@ def _summary(result: ReplayResult, run: NodeRun, scene_label: str, outputs: dict
         'max_abs_difference_n': float(np.abs(difference).max()) if difference.size else 0.0,
         'rms_difference_n': float(np.sqrt(np.mean(difference[:, :3] ** 2))) if difference.size else 0.0,
         'refused_poses': int(result.refused),
+        'final_tip_deflection_m': float(result.tips[-1, 3]) if len(result.tips) else 0.0,
         'simulated_s': result.simulated_s, 'wall_s': result.wall_s,
         'real_time_factor': result.simulated_s / result.wall_s if result.wall_s > 0 else math.inf,
         'outputs': outputs,
@@ -298,10 +327,12 @@ def _write_tables(out: Path, result: ReplayResult, summary: dict, axis_label: st
     with open(out / 'replay.csv', 'w', newline='') as f:
         writer = csv.writer(f)
         names = ('force_x_n', 'force_y_n', 'force_z_n', 'torque_x_nm', 'torque_y_nm', 'torque_z_nm')
-        writer.writerow(['stamp_ns', *(f'recorded_{n}' for n in names), *(f'replayed_{n}' for n in names)])
+        tip = ('tip_x_m', 'tip_y_m', 'tip_z_m', 'tip_deflection_m')
+        writer.writerow(['stamp_ns', *(f'recorded_{n}' for n in names), *(f'replayed_{n}' for n in names),
+                         *(f'replayed_{n}' for n in tip)])
         for k, stamp in enumerate(result.stamps_ns):
             writer.writerow([int(stamp), *(f'{v:.9g}' for v in result.recorded[k]),
-                             *(f'{v:.9g}' for v in result.wrench[k])])
+                             *(f'{v:.9g}' for v in result.wrench[k]), *(f'{v:.9g}' for v in result.tips[k])])
     (out / 'replay.json').write_text(json.dumps(summary, indent=2))
     how = ("the engine trace through the log's own scene" if summary['mode'] == 'exact'
            else f"the recorded motion through {summary['scene']}")
@@ -310,6 +341,7 @@ def _write_tables(out: Path, result: ReplayResult, summary: dict, axis_label: st
         f"- mode: {summary['mode']} ({how})\n"
         f"- ticks: {summary['ticks']}; largest difference from the recorded wrench: "
         f"{summary['max_abs_difference_n']:.3g} N (force RMS {summary['rms_difference_n']:.3g} N)\n"
+        f"- the tip's deflection from the base axis at the end: {summary['final_tip_deflection_m'] * 1e3:.3f} mm\n"
         f"- simulated {summary['simulated_s']:.2f} s in {summary['wall_s']:.2f} s: real-time factor "
         f"{summary['real_time_factor']:.2f}\n")
     import matplotlib

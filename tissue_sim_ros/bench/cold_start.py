@@ -1,34 +1,24 @@
 """Cold-start benchmark: wall time from a fresh install (an empty numba cache) to the first step.
 
-    python -m tissue_sim_ros.bench.cold_start [--scene FILE] [--modes parallel one-process warm]
+    tissue-sim bench cold-start [--scene FILE] [--modes parallel one-process warm]
 
 Each mode runs a new Python process that loads a scene (default: the packaged one) and takes one
 step, timed from the process's start as a user sees it:
 
 * parallel: an empty cache, compiling as the package does on a first start (a second process
-  compiles the needle, solver and linear kernels beside the scene's model, engine/compile_cache);
+  compiles the needle, solver and linear kernels beside the scene's model, engine.compiled.cache);
 * one-process: an empty cache, everything compiled in the one process (the second process off);
 * warm: the cache the parallel run filled, as every later start.
 
 It prints the seconds per mode and the compile lines the process printed (the kernels compiled
-in it and their durations). Default scene, 2 cores (AMD EPYC), numba 0.68:
+in it and their durations). Figures: docs/performance.md.
 
-    before issue 13 item 3 (one process)        95.6 s  (196 s while other tests ran: the full
-                                                         model's pass 88 s, the warm-up's geometric
-                                                         pass 65 s, the linear pass 19 s)
-    element pass restructured (forces.py)       46.9 s  (full model's pass 19 s, geometric 13 s)
-    + linear warm-up scene (warm_up.py)         35.0 s  one-process
-    + second process and compile apart          22.2 s  parallel
-    warm cache                                   1.3 s
-
-Ahead-of-time compiled kernels (numba.pycc) were not tried: pycc is pending deprecation, exports
+The kernels are not compiled ahead of time (numba.pycc): pycc is pending deprecation, exports
 module-level functions with one explicit signature each (the element pass is a closure per model),
 needs a C compiler where the package is built, and builds generic x86-64 code by default (without
-AVX2/FMA, or the host features _threading gives numba), so the shipped kernels would run slower
-than the 22 s compile that a first start now costs once.
+AVX2/FMA, or the host features system.numba_threads gives numba), so shipped kernels would run
+slower than the ones a first start compiles once for its host.
 """
-import argparse
-import os
 import subprocess
 import sys
 import tempfile
@@ -83,13 +73,11 @@ def run(scene_file=None, modes=MODES, out=sys.stdout):
     return figures
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split('\n', 1)[0])
-    parser.add_argument('--scene', default=None, help='scene YAML (default: the packaged scene)')
-    parser.add_argument('--modes', nargs='+', choices=MODES, default=list(MODES))
-    args = parser.parse_args(argv)
-    run(args.scene, args.modes)
+def main(*, scene=None, modes=MODES):
+    """``tissue-sim bench cold-start``: run each mode, print the figures."""
+    return run(scene, list(modes))
 
 
 if __name__ == '__main__':
-    main()
+    import sys
+    sys.exit('this benchmark runs as: tissue-sim bench cold-start (tissue-sim bench --help)')

@@ -1,26 +1,27 @@
-"""The mass scaling's estimated inertia error against the error it really adds (issue 17 item 5)::
+"""The mass scaling's estimated inertia error against the error it really adds::
 
-    python -m tissue_sim_ros.bench.inertia [--scene S] [--set KEY=VALUE]...
+    tissue-sim bench inertia [--scene S] [--set KEY=VALUE]...
         [--speed-mm-s 5] [--travel-mm 17] [--scalings 25 100 400 1600] [--jobs N] --out DIR
 
-An insertion like the chart's (from 1 mm above the surface, in at constant speed; 17 mm here,
-where the chart goes 12), once per mass scaling and once without (the reference: the same mesh, model and step rule, only the masses
-differ, so the difference is what the scaling adds). Each scaled run's force NRMSE against the
-reference is set beside the estimate the run printed (engine.inertia_estimate), and the
-reference's first puncture beside the run's. The runs are the chart's jobs (chart.simulate_job,
-in parallel, resumable from DIR/runs.jsonl); DIR gets the chart's outputs for them (chart.csv
-with ``error`` and ``inertia_error_estimate`` per row) and inertia.csv, inertia.png (estimate
-against measured), inertia.md and inertia.json. The reference is the costly run: without mass
-scaling the default scene's viscosity holds the step at 7.6 us, about 4 minutes of one core for
-the 3.4 s of the default task.
+An insertion like the chart's (from 1 mm above the surface, in at constant speed; 17 mm here, where
+the chart goes 12), once per mass scaling and once without (the reference: the same mesh, model and
+step rule, only the masses differ, so the difference is what the scaling adds). Each scaled run's
+force NRMSE against the reference is set beside the estimate the run printed
+(engine.solver.inertia_estimate), and the reference's first puncture beside the run's. The runs are
+the chart's jobs (chart.simulate_job, in parallel, resumable from DIR/runs.jsonl); DIR gets the
+chart's outputs for them (chart.csv with ``error`` and ``inertia_error_estimate`` per row) and
+inertia.csv, inertia.png (estimate against measured), inertia.md and inertia.json. The reference is
+the costly run: without mass scaling the default scene's viscosity holds the step at 7.6 us, about 4
+minutes of one core for the 3.4 s of the default task.
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import sys
 from pathlib import Path
+
+from tissue_sim_ros.errors import InputError
 
 __all__ = ['SCALINGS', 'run_bench', 'main']
 
@@ -29,7 +30,7 @@ SCALINGS = (25.0, 100.0, 400.0, 1600.0)
 
 def _config(scaling: float) -> dict:
     return dict(task='insertion', model='scene', mesh='scene', integrator='explicit', mass_scaling=scaling,
-                reference=scaling == 1.0, overrides=[f'solver.mass_scaling={scaling:g}'])
+                reference=scaling == 1.0, values={'solver.mass_scaling': scaling})
 
 
 def run_bench(scene_file=None, sets=(), *, scalings=SCALINGS, speed=0.005, travel=0.017, out='out',
@@ -119,26 +120,18 @@ def _plot(path: Path, result: dict) -> None:
     plt.close(fig)
 
 
-def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(prog='python -m tissue_sim_ros.bench.inertia',
-                                     description=__doc__.split('\n\n')[0])
-    parser.add_argument('--scene', default=None)
-    parser.add_argument('--set', action='append', default=[])
-    parser.add_argument('--speed-mm-s', type=float, default=5.0)
-    parser.add_argument('--travel-mm', type=float, default=17.0)
-    parser.add_argument('--scalings', type=float, nargs='+', default=list(SCALINGS))
-    parser.add_argument('--jobs', type=int, default=None, help='worker processes (default: the cores)')
-    parser.add_argument('--out', default='out/inertia_bench')
-    args = parser.parse_args(argv)
-    if any(not s > 1.0 for s in args.scalings):
-        parser.error(f'--scalings {args.scalings}: each must be above 1 (1 is the reference, always run)')
-    result = run_bench(args.scene, args.set, scalings=args.scalings, speed=args.speed_mm_s * 1e-3,
-                       travel=args.travel_mm * 1e-3, out=args.out, workers=args.jobs)
-    print((Path(args.out) / 'inertia.md').read_text())
-    print(f'wrote {args.out}/inertia.csv, inertia.png, inertia.md, inertia.json (and the chart\'s outputs)',
+def main(*, scene=None, sets=(), speed_mm_s=5.0, travel_mm=17.0, scalings=SCALINGS, jobs=None,
+         out='out/bench_inertia') -> dict:
+    """``tissue-sim bench inertia``: run the benchmark, print its markdown."""
+    if any(not s > 1.0 for s in scalings):
+        raise InputError(f'--scalings {list(scalings)}: each must be above 1 (1 is the reference, always run)')
+    result = run_bench(scene, sets, scalings=scalings, speed=speed_mm_s * 1e-3, travel=travel_mm * 1e-3,
+                       out=out, workers=jobs)
+    print((Path(out) / 'inertia.md').read_text())
+    print(f'wrote {out}/inertia.csv, inertia.png, inertia.md, inertia.json (and the chart\'s outputs)',
           file=sys.stderr)
     return result
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit('this benchmark runs as: tissue-sim bench inertia (tissue-sim bench --help)')

@@ -16,10 +16,9 @@ Figures (computed from the record by :mod:`~tissue_sim_ros.bench.node_bench_figu
   trace in the log, the first advance that brought the needle to the pose's stamp (to within one
   substep: the engine steps whole substeps and carries the rest), then the first tick that
   published that advance's state or a later one, its publish time minus the receipt; and end to
-  end, pose sent here to that wrench received here. (Before this was read from the trace,
-  node-bench took the first tick after the receipt, as if every pose made it: 6-10 ms low at p99
-  on the default scene, where the node's own figure, diagnostics ``latency_ms_p99``, agreed with
-  the trace's to 0.3 ms.)
+  end, pose sent here to that wrench received here. Read from the trace, not as the first tick
+  after the receipt: not every pose makes it into that tick's state, and that reading would be
+  low. The node's own figure, diagnostics ``latency_ms_p99``, is reported beside it.
 - CPU: the node process's user + system time over the window (/proc), in % of one core, and
   per thread (``thread_cpu_pct``): the engine thread, the tick's thread, the executor (the main
   thread: the pose callbacks, diagnostics, services), the recorder's writer, the DDS threads and
@@ -29,8 +28,8 @@ Figures (computed from the record by :mod:`~tissue_sim_ros.bench.node_bench_figu
   diagnostics; its mean step time, substeps, compute load.
 
 The numbers are figures of this machine at the time of the run (other load shows in them: the
-report gives the load average before the run); the issue's goals are printed beside them, not
-enforced. ``load`` > 0 runs that many busy processes and one listening ROS client (wrench and
+report gives the load average before the run); the goals (``GOALS``) are printed beside them,
+not enforced. ``load`` > 0 runs that many busy processes and one listening ROS client (wrench and
 point cloud) beside the node during the window (:mod:`tissue_sim_ros.bench.background_load`),
 so that a figure under load can be reproduced; ``listen`` runs that client alone (the node builds
 and sends its cloud only for a subscriber, so without one its CPU is the wrench-only case).

@@ -196,10 +196,19 @@ def status_values(message, name_part) -> dict:
     return {}
 
 
+def _number(values: dict, key: str) -> float:
+    """A diagnostics value as a number: NaN where the node did not report it, or reported that
+    it does not exist yet ('none yet')."""
+    try:
+        return float(values[key])
+    except (KeyError, ValueError):
+        return float('nan')
+
+
 def engine_dt_s(diagnostics: list) -> float:
     """The engine's time step [s] from the node's last diagnostics (0 when it did not say)."""
     engine = status_values(diagnostics[-1] if diagnostics else None, 'engine')
-    dt = float(engine.get('engine_dt_s', 'nan'))
+    dt = _number(engine, 'engine_dt_s')
     return dt if dt > 0.0 else 0.0
 
 
@@ -215,24 +224,24 @@ def diagnostic_figures(diagnostics: list, window_start_ns: int | None = None) ->
     before = [m for m in diagnostics if window_start_ns is not None
               and stamp_to_ns(m.header.stamp) <= window_start_ns]
     engine0 = status_values(before[-1] if before else None, 'engine')
-    kernel = float(engine.get('kernel_s_total', 'nan')) - float(engine0.get('kernel_s_total', 'nan'))
+    kernel = _number(engine, 'kernel_s_total') - _number(engine0, 'kernel_s_total')
     span_s = (stamp_to_ns(last.header.stamp) - stamp_to_ns(before[-1].header.stamp)) / 1e9 if before else 0.0
-    advances = ((float(engine.get('advances_total', 'nan')) - float(engine0.get('advances_total', 'nan'))) / span_s
-                if span_s > 0 else float(engine.get('advances_per_s', 'nan')))
+    advances = ((_number(engine, 'advances_total') - _number(engine0, 'advances_total')) / span_s
+                if span_s > 0 else _number(engine, 'advances_per_s'))
     return {
         'missed_ticks': int(engine.get('missed_ticks', -1)),
         'ticks': int(engine.get('ticks', -1)),
-        'budget_use': float(engine.get('budget_use', 'nan')),
-        'lag_s': float(engine.get('lag_s', 'nan')),
-        'dropped_time_s': float(engine.get('dropped_time_s', 'nan')),
+        'budget_use': _number(engine, 'budget_use'),
+        'lag_s': _number(engine, 'lag_s'),
+        'dropped_time_s': _number(engine, 'dropped_time_s'),
         'ladder_level': int(engine.get('ladder_level', -1)),
         'ladder_changes': int(engine.get('ladder_changes', -1)),
         'engine_threads': int(engine.get('engine_threads', -1)),
-        'kernel_share_of_engine': float(engine.get('kernel_share_of_engine', 'nan')),
+        'kernel_share_of_engine': _number(engine, 'kernel_share_of_engine'),
         'advances_per_s': advances,
         'kernel_s_in_window': kernel,
-        'node_latency_ms_p99_own': float(inputs.get('latency_ms_p99', 'nan')),
-        'prediction_real_time_factor': float(predictions.get('real_time_factor_median', 'nan')),
+        'node_latency_ms_p99_own': _number(inputs, 'latency_ms_p99'),
+        'prediction_real_time_factor': _number(predictions, 'real_time_factor_median'),
         'prediction_workers': int(predictions.get('workers', -1)),
         'prediction_workers_state': predictions.get('workers_state', ''),
     }

@@ -1,4 +1,4 @@
-"""A burst of planner requests for ``tissue-sim node-bench --predictions N`` (issue 18 item 1).
+"""A burst of planner requests for ``tissue-sim node-bench --predictions N``.
 
 During the bench's measured window a client sends ``count`` candidate paths on ``plan/candidate``
 at once, each starting from the pose the bench last sent (where the needle is) and going on along

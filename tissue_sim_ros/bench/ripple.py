@@ -1,6 +1,6 @@
-"""How smooth the axial force is after puncture, printed (issue 15 item 3)::
+"""How smooth the axial force is after puncture, printed::
 
-    python -m tissue_sim_ros.bench.ripple [--scene S] [--set KEY=VALUE]... [--speed-mm-s 3]
+    tissue-sim bench ripple [--scene S] [--set KEY=VALUE]... [--speed-mm-s 3]
 
 The needle goes in at constant speed 40 mm from its start (the default scene: through the
 capsule at about 19 mm, then 20 mm of homogeneous liver), sampled every 5 ms. From 3 mm after the
@@ -10,7 +10,6 @@ the travels of the deepest dips. Measured curves are smooth there; the goal is u
 """
 from __future__ import annotations
 
-import argparse
 
 import numpy as np
 
@@ -43,25 +42,21 @@ def measure_ripple(scene, speed_m_s: float = 0.003, travel_m: float = 0.040, tic
             'first_puncture_travel_mm': punctured * 1e3, 'deepest_dips_mm': (dips * 1e3).tolist()}
 
 
-def main(argv=None) -> dict:
+def main(*, scene=None, sets=(), speed_mm_s=3.0) -> dict:
+    """``tissue-sim bench ripple``: measure on one thread, print the figures."""
     import numba
-    from tissue_sim_ros.engine.scene.scene import Scene
-    parser = argparse.ArgumentParser(prog='python -m tissue_sim_ros.bench.ripple',
-                                     description=__doc__.split('\n\n')[0])
-    parser.add_argument('--scene', default=None)
-    parser.add_argument('--set', action='append', default=[])
-    parser.add_argument('--speed-mm-s', type=float, default=3.0)
-    args = parser.parse_args(argv)
+    from tissue_sim_ros.analysis.charting.auto_keys import load_scene
     numba.set_num_threads(1)
-    scene = Scene.from_file(args.scene, sets=args.set)
+    scene = load_scene(scene, sets=sets)
     scene.model.set_threads(1)
-    r = measure_ripple(scene, args.speed_mm_s * 1e-3)
+    r = measure_ripple(scene, speed_mm_s * 1e-3)
     print(f"after the first puncture ({r['first_puncture_travel_mm']:.2f} mm), travel "
-          f"{r['window_mm'][0]:.1f}-{r['window_mm'][1]:.1f} mm at {args.speed_mm_s:g} mm/s: mean axial "
+          f"{r['window_mm'][0]:.1f}-{r['window_mm'][1]:.1f} mm at {speed_mm_s:g} mm/s: mean axial "
           f"force {r['mean_force_n']:.3f} N, ripple {r['ripple_pct']:.2f} % of it (RMS {r['rms_pct']:.2f} %); "
           f"deepest dips at {', '.join(f'{d:.2f}' for d in r['deepest_dips_mm'])} mm (goal: under 3 %)")
     return r
 
 
 if __name__ == '__main__':
-    main()
+    import sys
+    sys.exit('this benchmark runs as: tissue-sim bench ripple (tissue-sim bench --help)')

@@ -1,94 +1,18 @@
-"""tissue-sim: the command line (thin; the work is in engine/ and analysis/)."""
-import argparse
-import math
-import os
+"""``tissue-sim``: the parser, the dispatch, and one line for any refusal (exit status 2).
+
+Thin: each command is a call into the layers below with the options it was given."""
+import signal
 import sys
+import threading
 from pathlib import Path
 
-
-class CommandError(ValueError):
-    """Bad input that only the command line can see (e.g. an unknown name in a list option)."""
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors: the problem and where the usage is, exit status 2."""
-
-    def error(self, message):
-        self.exit(2, f'{self.prog}: error: {message} (usage: {self.prog} --help)\n')
-
-
-def _number(low, *, inclusive=False, high=None, whole=False):
-    """An argparse type: a finite number > ``low`` (>= with ``inclusive``), < ``high``; an int
-    with ``whole``. The refusal names the value and what was expected."""
-    expected = (f'{"a whole" if whole else "a finite"} number {">=" if inclusive else ">"} {low:g}'
-                + ('' if high is None else f' and < {high:g}'))
-
-    def parse(text):
-        try:
-            value = int(text) if whole else float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f'{text!r}: expected {expected}') from None
-        if not (math.isfinite(value) and (value >= low if inclusive else value > low)
-                and (high is None or value < high)):
-            raise argparse.ArgumentTypeError(f'{text!r}: expected {expected}')
-        return value
-    return parse
-
-
-_POSITIVE = _number(0)
-_NON_NEGATIVE = _number(0, inclusive=True)
-
-
-def _add_travel_or_depth(parser, *, default_help):
-    """--travel-mm (tip travel from the start pose) or --depth-mm (depth below the tissue
-    surface): the same two names in every command."""
-    group = parser.add_mutually_exclusive_group()
-    group.add_argument('--travel-mm', type=_POSITIVE, default=None,
-                       help='tip travel from its start pose along the needle axis [mm]')
-    group.add_argument('--depth-mm', type=_NON_NEGATIVE, default=None,
-                       help=f'tip depth below the tissue surface [mm] ({default_help})')
-
-
-def _travel_and_depth(args, *, default_travel_mm=None, default_depth_mm=None):
-    """(travel, depth) in mm, exactly one of them not None (the defaults when neither given)."""
-    if args.travel_mm is None and args.depth_mm is None:
-        return default_travel_mm, default_depth_mm
-    return args.travel_mm, args.depth_mm
-
-
-def _add_scene_sets(parser):
-    parser.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
-                        help='change a scene key (repeatable), as `tissue-sim scene-keys` names '
-                             'them; a region by index or name: regions[0].young_modulus_pa=20000, '
-                             'regions[liver].membrane.rupture_force_n=2.1')
-
-
-def _add_max_depth(parser):
-    parser.add_argument('--max-depth-mm', type=_POSITIVE, default=None,
-                        help='use each trial up to this travel since its contact [mm] (the first '
-                             'part of the insertion; default: the whole trial)')
-
-
-def _input_file(text):
-    """An argparse type: a file that exists (not a directory)."""
-    path = Path(text)
-    if not path.exists():
-        raise argparse.ArgumentTypeError(f'{text!r}: no such file')
-    if not path.is_file():
-        raise argparse.ArgumentTypeError(f'{text!r}: not a file (a directory?); expected a scene YAML file')
-    return text
-
-
-def _output_dir(text):
-    """An argparse type: a directory that exists or can be made, and can be written to."""
-    path = Path(text).absolute()
-    existing = next(p for p in (path, *path.parents) if p.exists())
-    where = repr(text) if existing == path else f'{text!r}: {existing}'
-    if not existing.is_dir():
-        raise argparse.ArgumentTypeError(f'{where} is a file; expected a directory')
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise argparse.ArgumentTypeError(f'{where} is not writable')
-    return text
+from tissue_sim_ros.cli.arguments import (NON_NEGATIVE, POSITIVE, Parser, add_max_depth, add_pool_and_out,
+                                          add_scene, add_travel_or_depth, depth_below_surface, input_file,
+                                          number, output_dir, travel_and_depth)
+from tissue_sim_ros.cli.bench_commands import add_bench_commands
+from tissue_sim_ros.cli.mesh_commands import add_mesh_commands
+from tissue_sim_ros.cli.node_commands import add_node_commands
+from tissue_sim_ros.errors import CommandLineError, SimulationDiverged, TissueSimError
 
 
 def _compress(args):
@@ -108,52 +32,27 @@ def _compress(args):
     print(f'wrote {out / "compression.png"}')
 
 
-def _bench(args):
-    from tissue_sim_ros.bench import speed as bench
-    unknown = [m for m in args.models or () if m not in bench.MODELS]
-    if unknown:
-        raise CommandError(f'--models {" ".join(unknown)}: unknown; expected some of '
-                           f'{", ".join(bench.MODELS)}')
-    bench.run(sizes=args.sizes, models=args.models, precisions=args.precision)
-
-
-def _depth_below_surface(args, start_height_mm, default_depth_mm, scene_file=None):
-    """--depth-mm, or --travel-mm less the tip's start height above the surface."""
-    travel, depth = _travel_and_depth(args, default_depth_mm=default_depth_mm)
-    if depth is not None:
-        return depth
-    if travel is None:
-        raise CommandError('one of --travel-mm and --depth-mm is required')
-    if start_height_mm is None:
-        from tissue_sim_ros.ros.clients.drive import scene_start
-        start_height_mm = scene_start(scene_file).gap_m * 1e3
-    if travel < start_height_mm:
-        raise CommandError(f'--travel-mm {travel:g}: less than the tip\'s start height above the '
-                           f'tissue ({start_height_mm:.3g} mm); the needle would not reach it')
-    return travel - start_height_mm
-
-
 def _insert(args):
-    from tissue_sim_ros.analysis.insertion import main
-    travel, depth = _travel_and_depth(args, default_travel_mm=35.0)
+    from tissue_sim_ros.analysis.insert import main
+    travel, depth = travel_and_depth(args)       # neither: the scene's planned travel, else 35 mm
     main(args.scene, args.speed_mm_s, args.out, travel_mm=travel, depth_mm=depth, hold_s=args.hold_s,
          sets=args.set)
 
 
 def _demo(args):
     from tissue_sim_ros.analysis.demo import run
-    run(args.out, args.speed_mm_s, _depth_below_surface(args, None, 15.0))
+    run(args.out, args.speed_mm_s, depth_below_surface(args, None, 15.0))
 
 
 def _scene_keys(args):
-    from tissue_sim_ros.engine.scene.scene import describe_keys
-    print('\n'.join(describe_keys()))
+    from tissue_sim_ros.engine.scene.schema import describe_keys, keys_markdown
+    print(keys_markdown() if args.markdown else '\n'.join(describe_keys()), end='' if args.markdown else '\n')
 
 
 def _compare(args):
     from tissue_sim_ros.analysis.compare.compare import main
     if bool(args.data_spec) == bool(args.files):
-        raise CommandError('give --data-spec SPEC.yaml or data files (with column options), not both')
+        raise CommandLineError('give --data-spec SPEC.yaml or data files (with column options), not both')
     options = {'time.column': _column(args.time_column), 'time.unit': args.time_unit,
                'time.rate_hz': args.rate_hz, 'force.column': _column(args.force_column),
                'force.columns': None if args.force_columns is None else [_column(c) for c in args.force_columns],
@@ -167,26 +66,36 @@ def _compare(args):
                'file_name.pattern': args.file_pattern}
     main(data_spec=args.data_spec, files=args.files, options=options, scene_file=args.scene,
          sets=args.set, align=args.align, gap_mm=args.start_gap_mm, max_depth_mm=args.max_depth_mm,
-         per_trial=args.per_trial,
+         per_trial=args.per_trial, simulated_repeats=args.simulated_repeats,
          tick_ms=args.tick_ms, workers=args.jobs, scheduler=args.scheduler, out=args.out)
+
+
+def _concrete(args):
+    """(scene file, sets) the studies below reload in their workers: the scene's auto keys
+    chosen first, into DIR/scene.yaml, when it has any."""
+    from tissue_sim_ros.analysis.charting.auto_keys import concrete_scene_file
+    return concrete_scene_file(args.scene, args.set, args.out)
 
 
 def _chart(args):
     from tissue_sim_ros.analysis.charting.chart import main
-    return main(scene_file=args.scene, sets=args.set, quick=args.quick, speed_mm_s=args.speed_mm_s,
+    scene_file, sets = _concrete(args)
+    return main(scene_file=scene_file, sets=sets, quick=args.quick, speed_mm_s=args.speed_mm_s,
                 travel_mm=args.travel_mm, out=args.out, workers=args.jobs, scheduler=args.scheduler)
 
 
 def _recommend(args):
     from tissue_sim_ros.analysis.charting.recommend import main
-    return main(scene_file=args.scene, sets=args.set, tolerance=args.tolerance, rate_hz=args.rate_hz,
+    scene_file, sets = _concrete(args)
+    return main(scene_file=scene_file, sets=sets, tolerance=args.tolerance, rate_hz=args.rate_hz,
                 quick=args.quick, speed_mm_s=args.speed_mm_s, travel_mm=args.travel_mm, out=args.out,
                 workers=args.jobs, scheduler=args.scheduler)
 
 
 def _stability(args):
     from tissue_sim_ros.analysis.charting.stability import main
-    return main(scene_file=args.scene, sets=args.set, quick=args.quick, speed_mm_s=args.speed_mm_s, out=args.out,
+    scene_file, sets = _concrete(args)
+    return main(scene_file=scene_file, sets=sets, quick=args.quick, speed_mm_s=args.speed_mm_s, out=args.out,
                 workers=args.jobs, scheduler=args.scheduler)
 
 
@@ -195,7 +104,7 @@ def _calibrate(args):
     try:
         parse_phase_weights(args.phase_weight)
     except ValueError as exc:
-        raise CommandError(str(exc)) from None
+        raise CommandLineError(str(exc)) from None
     main(data_spec=args.data_spec, fits=args.fit, validate_spec=args.validate_spec,
          leave_one_speed_out=args.leave_one_speed_out, scene_file=args.scene,
          sets=args.set, coarse_sets=args.coarse_set, align=args.align, gap_mm=args.start_gap_mm,
@@ -204,6 +113,23 @@ def _calibrate(args):
          global_search=args.global_search, max_evaluations=args.max_evaluations,
          refit_steps=args.refit_steps, fine_steps=args.fine_steps, workers=args.jobs,
          scheduler=args.scheduler, out=args.out)
+
+
+def _propose(args):
+    from tissue_sim_ros.analysis.calibration.propose import main
+    main(data_spec=args.data_spec, scene_file=args.scene, sets=args.set, out=args.out, refine_runs=args.refine_runs,
+         align=args.align, max_depth_mm=args.max_depth_mm, tick_ms=args.tick_ms, workers=args.jobs,
+         scheduler=args.scheduler)
+
+
+def _data_keys(args):
+    from tissue_sim_ros.io.trials.data_spec_keys import data_keys_markdown, describe_data_keys
+    print(data_keys_markdown() if args.markdown else '\n'.join(describe_data_keys()), end='' if args.markdown else '\n')
+
+
+def _inspect(args):
+    from tissue_sim_ros.analysis.compare.inspect_data import main
+    main(data_spec=args.data_spec, out=args.out)
 
 
 def _column(text):
@@ -224,7 +150,8 @@ def _replay(args):
 
 
 def _recover(args):
-    from tissue_sim_ros.io.mcap.recovery import RecoverError, recover_log
+    from tissue_sim_ros.io.mcap.recovery import recover_log
+    from tissue_sim_ros.errors import RecoverError
     try:
         _, line = recover_log(args.log, args.out)
     except RecoverError as exc:
@@ -235,42 +162,31 @@ def _recover(args):
 
 def build_parser():
     from tissue_sim_ros import __version__
-    parser = _Parser(prog='tissue-sim', description='Real-time tensor-mass soft-tissue simulation.')
+    parser = Parser(prog='tissue-sim', description='Real-time tensor-mass soft-tissue simulation.')
     parser.add_argument('--version', action='version', version=f'tissue-sim {__version__}')
     commands = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
     compress = commands.add_parser('compress', help='headless plate compression of a liver-like block, with a plot')
-    compress.add_argument('--out', type=_output_dir, default='out', help='output directory (default: out)')
-    compress.add_argument('--strain', type=_number(0, high=1), default=0.10,
+    compress.add_argument('--out', type=output_dir, default='out', help='output directory (default: out)')
+    compress.add_argument('--strain', type=number(0, high=1), default=0.10,
                           help='final nominal strain (default 0.10)')
-    compress.add_argument('--speed-mm-s', type=_POSITIVE, default=10.0, help='plate speed [mm/s] (default 10)')
+    compress.add_argument('--speed-mm-s', type=POSITIVE, default=10.0, help='plate speed [mm/s] (default 10)')
     compress.set_defaults(run=_compress)
-    bench = commands.add_parser('bench', help='print force/step timings and tet-steps/s per mesh size')
-    bench.add_argument('--sizes', nargs='+', choices=['1e3', '1e4', '1e5', '5e5'], default=None,
-                       help='mesh sizes to run (default: all)')
-    bench.add_argument('--models', nargs='+', default=None, metavar='MODEL',
-                       help='models to run (default: all): linear, linear+visc, physical, physical+visc, '
-                            'geometric, geometric+visc, full, full+visc, full+thr0.02')
-    bench.add_argument('--precision', nargs='+', choices=['float64', 'float32'], default=['float64'],
-                       help="the element pass's constants and arithmetic (default float64); two "
-                            "(--precision float64 float32) are timed paired, in one process")
-    bench.set_defaults(run=_bench)
     insert = commands.add_parser('insert', help='simulate a straight needle insertion and retraction (no ROS)')
-    insert.add_argument('--scene', type=_input_file, default=None,
-                        help='scene YAML (default: the packaged liver sample)')
-    insert.add_argument('--speed-mm-s', type=_POSITIVE, default=3.0, help='needle speed [mm/s] (default 3)')
-    _add_travel_or_depth(insert, default_help='default: --travel-mm 35; the default scene starts '
-                                              '9 mm above the tissue')
-    insert.add_argument('--hold-s', type=_NON_NEGATIVE, default=0.0,
+    add_scene(insert)
+    insert.add_argument('--speed-mm-s', type=POSITIVE, default=3.0, help='needle speed [mm/s] (default 3)')
+    add_travel_or_depth(insert, default_help="default: the scene's needle.planned_travel_m, else --travel-mm 35; "
+                                              'the default scene starts 9 mm above the tissue')
+    insert.add_argument('--hold-s', type=NON_NEGATIVE, default=0.0,
                         help='pause at the deepest point before retracting [s] (default 0)')
-    _add_scene_sets(insert)
-    insert.add_argument('--out', type=_output_dir, default='out', help='output directory for insertion.csv and .png (default: out)')
+    insert.add_argument('--out', type=output_dir, default='out', help='output directory for insert.csv, .png, .md and .json (default: out)')
     insert.set_defaults(run=_insert)
     demo = commands.add_parser('demo', help='the main job: node + scripted insertion + MCAP read back, summary and plot')
-    demo.add_argument('--out', type=_output_dir, default='out', help='output directory (default: out)')
-    demo.add_argument('--speed-mm-s', type=_POSITIVE, default=5.0, help='needle speed [mm/s] (default 5)')
-    _add_travel_or_depth(demo, default_help='default 15')
+    demo.add_argument('--out', type=output_dir, default='out', help='output directory (default: out)')
+    demo.add_argument('--speed-mm-s', type=POSITIVE, default=5.0, help='needle speed [mm/s] (default 5)')
+    add_travel_or_depth(demo, default_help='default 15')
     demo.set_defaults(run=_demo)
     keys = commands.add_parser('scene-keys', help='list every scene-file key with its default and meaning')
+    keys.add_argument('--markdown', action='store_true', help='as the tables of docs/scenes.md')
     keys.set_defaults(run=_scene_keys)
     recover = commands.add_parser('recover', help='repair an MCAP log cut short (a hard kill): keep '
                                   'every intact message, print what was kept and lost')
@@ -283,25 +199,28 @@ def build_parser():
                                   'report how far the model is from the data, beside the data\'s spread')
     compare.add_argument('files', nargs='*', metavar='FILE', help='data files (CSV/TSV/text or MCAP) '
                          'read with the column options below; or give --data-spec')
-    compare.add_argument('--data-spec', type=_input_file, default=None, metavar='SPEC.yaml',
-                         help='a data description of the whole study (README: compare with your '
+    compare.add_argument('--data-spec', type=input_file, default=None, metavar='SPEC.yaml',
+                         help='a data description of the whole study (docs/data.md: describing your '
                               'load-cell data)')
-    compare.add_argument('--scene', type=_input_file, default=None, help='scene YAML (default: the packaged one)')
-    _add_scene_sets(compare)
+    add_scene(compare)
     compare.add_argument('--align', choices=['contact', 'xcorr', 'depth'], default='contact',
                          help='contact: same time since contact; xcorr: then the lag of best '
                               'correlation (<= 0.5 s); depth: force against depth, insertion only')
-    compare.add_argument('--start-gap-mm', type=_NON_NEGATIVE, default=None,
+    compare.add_argument('--start-gap-mm', type=NON_NEGATIVE, default=None,
                          help="the data's travel at contact [mm] (default: found in the force)")
-    _add_max_depth(compare)
+    add_max_depth(compare)
     compare.add_argument('--per-trial', action='store_true',
                          help="simulate every trial's own motion (default: one simulation per speed)")
-    compare.add_argument('--tick-ms', type=_POSITIVE, default=10.0, help='simulation sampling [ms] (default 10)')
-    _add_pool_and_out(compare, 'out/compare')
+    compare.add_argument('--tick-ms', type=POSITIVE, default=10.0, help='simulation sampling [ms] (default 10)')
+    compare.add_argument('--simulated-repeats', type=number(0, inclusive=True, whole=True), default=0,
+                         help="with a scene that states its spread (regions[].membrane.rupture_force_spread_n, "
+                              "regions[].depth_spread_m): simulate each speed this many times more, with "
+                              "variation.seed 1..N, and set their punctures' spread beside the repeats' (default 0)")
+    add_pool_and_out(compare, 'out/compare')
     columns = compare.add_argument_group('columns of the data files (without --data-spec)')
     columns.add_argument('--time-column', default=None, help='time column: header name or 0-based index')
     columns.add_argument('--time-unit', default=None, help='s, ms, us, ns (default s)')
-    columns.add_argument('--rate-hz', type=_POSITIVE, default=None, help='sample rate when there is no time column')
+    columns.add_argument('--rate-hz', type=POSITIVE, default=None, help='sample rate when there is no time column')
     columns.add_argument('--force-column', default=None, help='the axial force column')
     columns.add_argument('--force-columns', nargs=3, default=None, metavar=('FX', 'FY', 'FZ'),
                          help='three force columns, reduced by --reduce')
@@ -314,19 +233,19 @@ def build_parser():
     columns.add_argument('--position-column', default=None, help='needle travel column (optional)')
     columns.add_argument('--position-unit', default=None, help='m, mm, um, cm, in (default m)')
     columns.add_argument('--position-sign', type=int, choices=[1, -1], default=1)
-    columns.add_argument('--speed-mm-s', type=_POSITIVE, default=None, help='without a position: stage speed')
-    columns.add_argument('--motion-travel-mm', type=_POSITIVE, default=None, help='without a position: stage travel')
-    columns.add_argument('--start-s', type=_NON_NEGATIVE, default=None, help='without a position: stage start time')
-    columns.add_argument('--hold-s', type=_NON_NEGATIVE, default=None, help='without a position: pause at depth')
+    columns.add_argument('--speed-mm-s', type=POSITIVE, default=None, help='without a position: stage speed')
+    columns.add_argument('--motion-travel-mm', type=POSITIVE, default=None, help='without a position: stage travel')
+    columns.add_argument('--start-s', type=NON_NEGATIVE, default=None, help='without a position: stage start time')
+    columns.add_argument('--hold-s', type=NON_NEGATIVE, default=None, help='without a position: pause at depth')
     columns.add_argument('--retract', action='store_true', help='without a position: the stage came back')
     columns.add_argument('--file-pattern', default=None,
                          help='a regular expression with named groups speed and repeat, searched in the file names')
     compare.set_defaults(run=_compare)
     calibrate = commands.add_parser('calibrate', help='fit scene keys to load-cell trials (several speeds '
                                     'at once), cross-validated on held-out speeds')
-    calibrate.add_argument('--data-spec', type=_input_file, required=True, metavar='FIT.yaml',
+    calibrate.add_argument('--data-spec', type=input_file, required=True, metavar='FIT.yaml',
                            help='the data description of the trials to fit')
-    calibrate.add_argument('--validate-spec', type=_input_file, default=None, metavar='HELD_OUT.yaml',
+    calibrate.add_argument('--validate-spec', type=input_file, default=None, metavar='HELD_OUT.yaml',
                            help='trials to predict, not fitted (e.g. another speed)')
     calibrate.add_argument('--leave-one-speed-out', action='store_true',
                            help='cross-validate: first calibrate once per speed without it and predict it '
@@ -334,95 +253,104 @@ def build_parser():
     calibrate.add_argument('--fit', action='append', default=[], required=True, metavar='KEY=LOW:HIGH[:log]',
                            help='a scene key to fit and its bounds (repeatable), e.g. '
                                 'regions[0].young_modulus_pa=5000:50000:log')
-    calibrate.add_argument('--scene', type=_input_file, default=None, help='starting scene YAML (default: the packaged one)')
-    _add_scene_sets(calibrate)
+    add_scene(calibrate, help_text='starting scene YAML (default: the packaged one)')
     calibrate.add_argument('--coarse-set', action='append', default=[], metavar='KEY=VALUE',
                            help='search on a cheaper scene (e.g. mesh.fine_size_m=0.003), then finish on '
                                 'the scene as asked (repeatable)')
     calibrate.add_argument('--align', choices=['contact', 'xcorr', 'depth'], default='contact',
                            help="how simulation and data are put side by side (compare's --align)")
-    calibrate.add_argument('--start-gap-mm', type=_NON_NEGATIVE, default=None,
+    calibrate.add_argument('--start-gap-mm', type=NON_NEGATIVE, default=None,
                            help='travel from the start to contact, when known (default: from the force)')
-    _add_max_depth(calibrate)
-    calibrate.add_argument('--tick-ms', type=_POSITIVE, default=10.0, help='simulation sampling [ms] (default 10)')
+    add_max_depth(calibrate)
+    calibrate.add_argument('--tick-ms', type=POSITIVE, default=10.0, help='simulation sampling [ms] (default 10)')
     calibrate.add_argument('--phase-weight', action='append', default=[], metavar='PHASE=W',
                            help='weight of a phase in the objective (approach, loading, inserted, hold, '
                                 'retraction; default 1 each)')
-    calibrate.add_argument('--inertia-bound', type=_POSITIVE, default=0.02,
+    calibrate.add_argument('--inertia-bound', type=POSITIVE, default=0.02,
                            help="the mass scaling's inertia error allowed, as a fraction of the force "
                                 'range (default 0.02)')
     calibrate.add_argument('--global', dest='global_search', nargs='?', const='de', default=False,
                            choices=['de', 'optuna'],
                            help='start with a global search for hard cases: de (differential evolution, the '
                                 'default) or optuna (its TPE sampler; needs optuna installed)')
-    calibrate.add_argument('--max-evaluations', type=_number(1, inclusive=True, whole=True), default=150,
+    calibrate.add_argument('--max-evaluations', type=number(1, inclusive=True, whole=True), default=150,
                            help='parameter vectors the search may evaluate (each: one simulation per '
                                 'speed; default 150); then the best so far is the result')
-    calibrate.add_argument('--refit-steps', type=_number(0, inclusive=True, whole=True), default=3,
+    calibrate.add_argument('--refit-steps', type=number(0, inclusive=True, whole=True), default=3,
                            help='with --coarse-set: Gauss-Newton steps of the loading keys\' re-fit on the '
                                 'scene as asked, on the loading (its simulations stop at the first puncture; '
                                 'default 3; 0: none)')
-    calibrate.add_argument('--fine-steps', type=_number(0, inclusive=True, whole=True), default=3,
+    calibrate.add_argument('--fine-steps', type=number(0, inclusive=True, whole=True), default=3,
                            help="with --coarse-set: then Gauss-Newton steps on the scene as asked from its "
                                 'own Jacobian where they start (one evaluation per key, which also gives the '
                                 "standard errors), updated by Broyden's rule, one evaluation each (default 3; 0: "
                                 "none, standard errors from that scene's Jacobian at the re-fitted point)")
-    _add_pool_and_out(calibrate, 'out/calibrate')
+    add_pool_and_out(calibrate, 'out/calibrate')
     calibrate.set_defaults(run=_calibrate)
+    propose = commands.add_parser('propose', help='a layered scene proposed from load-cell data: the layers the '
+                                  'repeats share, starting values from the curves, refined by a few simulations; '
+                                  'the start calibrate takes')
+    propose.add_argument('--data-spec', type=input_file, required=True, metavar='SPEC.yaml',
+                         help='the data description of the study (docs/data.md)')
+    add_scene(propose, help_text="base scene: its mesh, model, solver and needle (default: the packaged one)")
+    propose.add_argument('--refine-runs', type=number(0, inclusive=True, whole=True), default=3,
+                         help='simulations that refine the starting values, each value moved by what its feature '
+                              'misses (default 3; 0: the values read from the data)')
+    propose.add_argument('--align', choices=['contact', 'xcorr', 'depth'], default='contact',
+                         help="how simulation and data are put side by side (compare's --align)")
+    add_max_depth(propose)
+    propose.add_argument('--tick-ms', type=POSITIVE, default=10.0, help='simulation sampling [ms] (default 10)')
+    add_pool_and_out(propose, 'out/propose')
+    propose.set_defaults(run=_propose)
+    data_keys = commands.add_parser('data-keys', help='list every key of a data description with its default '
+                                    'and meaning')
+    data_keys.add_argument('--markdown', action='store_true', help="as the table of docs/data.md")
+    data_keys.set_defaults(run=_data_keys)
+    inspect = commands.add_parser('inspect', help='what a data description reads: trials, speeds, units, ranges, '
+                                  'contact, punctures and layers, without a simulation')
+    inspect.add_argument('--data-spec', type=input_file, required=True, metavar='SPEC.yaml',
+                         help='the data description of the study (docs/data.md)')
+    inspect.add_argument('--out', type=output_dir, default='out/inspect', help='output directory (default out/inspect)')
+    inspect.set_defaults(run=_inspect)
     replay = commands.add_parser('replay', help='run a recorded node log through the engine again: '
                                  'the same wrenches (exact), or the same motion through --scene/--set')
-    replay.add_argument('log', type=_input_file, metavar='LOG.mcap', help='a log the node recorded (or '
+    replay.add_argument('log', type=input_file, metavar='LOG.mcap', help='a log the node recorded (or '
                         'any rosbag2 MCAP with needle/wrench and needle/pose)')
-    replay.add_argument('--out', type=_output_dir, default='out/replay',
+    replay.add_argument('--out', type=output_dir, default='out/replay',
                         help='output directory: replay.mcap, .csv, .png, .json, .md (default out/replay)')
-    replay.add_argument('--scene', type=_input_file, default=None,
-                        help="another scene for the same motion (default: the log's own scene)")
-    _add_scene_sets(replay)
+    add_scene(replay, help_text="another scene for the same motion (default: the log's own scene)")
     replay.set_defaults(run=_replay)
     predict = commands.add_parser('predict', help='what a candidate needle path would do (force, tip '
                                   'depth, target displacements) from the scene at rest, as the node '
                                   'answers on plan/candidate')
-    predict.add_argument('--scene', type=_input_file, default=None,
-                         help='scene YAML (default: the packaged liver sample)')
-    predict.add_argument('--path', type=_input_file, required=True,
+    add_scene(predict)
+    predict.add_argument('--path', type=input_file, required=True,
                          help='CSV of the needle base poses: t, x, y, z, qx, qy, qz, qw (s, m; the first '
                               "pose the scene's initial one; example: config/candidate_path.csv)")
-    _add_scene_sets(predict)
     predict.add_argument('--wrench-frame', choices=['needle', 'world'], default='needle',
                          help="the force and torque's frame (default needle, as the node's wrench.frame_id)")
-    predict.add_argument('--max-error', type=_NON_NEGATIVE, default=0.0,
+    predict.add_argument('--max-error', type=NON_NEGATIVE, default=0.0,
                          help="run on the cheapest degradation-ladder rung whose measured error (NRMSE of "
                               'the axial force against the scene as configured) is within this, as the '
                               "node's prediction.max_error (default 0: as configured)")
-    predict.add_argument('--out', type=_output_dir, default='out/predict',
-                         help='output directory for prediction.csv, .png, .md, .json (default: out/predict)')
+    predict.add_argument('--out', type=output_dir, default='out/predict',
+                         help='output directory for predict.csv, .png, .md, .json (default: out/predict)')
     predict.set_defaults(run=_predict)
     _add_model_studies(commands)
-    from tissue_sim_ros.cli.node_commands import add_node_commands
+    add_bench_commands(commands)
     add_node_commands(commands)
+    add_mesh_commands(commands)
     return parser
-
-
-def _add_pool_and_out(parser, out_default, extra_out_help=''):
-    """--jobs, --scheduler and a resumable --out: a study's process pool or Dask cluster."""
-    parser.add_argument('--jobs', type=_number(1, inclusive=True, whole=True), default=None,
-                        help='worker processes (default: every core this process may use)')
-    parser.add_argument('--scheduler', default=None, metavar='ADDRESS',
-                        help='run the simulations on a Dask distributed cluster (tcp://host:8786)')
-    parser.add_argument('--out', type=_output_dir, default=out_default,
-                        help=f'output directory (default {out_default}{extra_out_help}); an interrupted run '
-                             'resumes there')
 
 
 def _add_model_studies(commands):
     """chart, recommend and stability: studies of the models and methods on a scene."""
     def study(name, help_text, quick_help, run, out_default, extra_out_help=''):
         parser = commands.add_parser(name, help=help_text)
-        parser.add_argument('--scene', type=_input_file, default=None, help='scene YAML (default: the packaged one)')
-        _add_scene_sets(parser)
+        add_scene(parser)
         parser.add_argument('--quick', action='store_true', help=quick_help)
-        parser.add_argument('--speed-mm-s', type=_POSITIVE, default=5.0, help='needle speed [mm/s] (default 5)')
-        _add_pool_and_out(parser, out_default, extra_out_help)
+        parser.add_argument('--speed-mm-s', type=POSITIVE, default=5.0, help='needle speed [mm/s] (default 5)')
+        add_pool_and_out(parser, out_default, extra_out_help)
         parser.set_defaults(run=run)
         return parser
 
@@ -430,42 +358,25 @@ def _add_model_studies(commands):
                   "scene's insertion and a plate compression, with the Pareto front",
                   "three mesh levels, the reference on the scene's mesh (under 5 minutes on 2 cores)",
                   _chart, 'out/chart')
-    chart.add_argument('--travel-mm', type=_POSITIVE, default=12.0,
-                       help='tip travel from 1 mm above the surface [mm] (default 12: past the default '
+    chart.add_argument('--travel-mm', type=POSITIVE, default=None,
+                       help="tip travel from 1 mm above the surface [mm] (default: the scene's "
+                            'needle.planned_travel_m from its start pose, else 12: past the default '
                             "scene's capsule puncture)")
     recommend = study('recommend', 'the cheapest model, mesh, step and integrator within a force error '
                       'tolerance that keeps real time (runs the chart)', "the chart's quick preset", _recommend,
                       'out/recommend', '; the chart in its chart/')
-    recommend.add_argument('--tolerance', type=_POSITIVE, default=0.05,
+    recommend.add_argument('--tolerance', type=POSITIVE, default=0.05,
                            help="the force NRMSE allowed against the chart's reference (default 0.05)")
-    recommend.add_argument('--rate-hz', type=_POSITIVE, default=50.0, help="the node's tick rate (default 50)")
-    recommend.add_argument('--travel-mm', type=_POSITIVE, default=12.0, help='tip travel [mm] (default 12)')
+    recommend.add_argument('--rate-hz', type=POSITIVE, default=50.0, help="the node's tick rate (default 50)")
+    recommend.add_argument('--travel-mm', type=POSITIVE, default=None,
+                           help="tip travel [mm] (default: the scene's planned travel, else 12)")
     study('stability', "each model's and integrator's largest stable time step against the estimate, and "
           'induced failures (caught or survived)', 'the coarse mesh and shorter searches (under 5 minutes on '
           '2 cores)', _stability, 'out/stability')
 
 
-def _input_errors():
-    """The exception types that mean bad input or a run that cannot go on, not a bug: each
-    becomes one error line."""
-    from tissue_sim_ros.engine.model.material import MaterialError
-    from tissue_sim_ros.engine.mesh.tetmesh import MeshError
-    from tissue_sim_ros.engine.needle.interaction import NeedleInputError
-    from tissue_sim_ros.engine.scene.scene import SceneError
-    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
-    from tissue_sim_ros.ros.clients.node_process import NodeProcessError
-    from tissue_sim_ros.analysis.replay import ReplayError
-    from tissue_sim_ros.io.mcap.reader import TruncatedLogError
-    from tissue_sim_ros.io.trials.data_spec_keys import DataSpecError
-    from tissue_sim_ros.io.trials.trial import DataError
-    return (SceneError, MeshError, MaterialError, NeedleInputError, SimulationDiverged,
-            NodeProcessError, CommandError, ReplayError, TruncatedLogError, DataError, DataSpecError,
-            OSError)
-
-
 def _describe(exc):
     """One line for an error: an OSError names its file; other messages fold onto one line."""
-    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
     if isinstance(exc, OSError) and exc.filename is not None:
         text = f'{exc.filename}: {exc.strerror or exc}'
     else:
@@ -476,16 +387,34 @@ def _describe(exc):
     return ' '.join(text.split())
 
 
+class _Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that the command ends as from Ctrl-C: its worker
+    processes stopped, its outputs closed (a resumable study resumes)."""
+
+
+def _on_sigterm(signum, frame):
+    raise _Terminated
+
+
 def main(argv=None):
     """Run a command; bad input (a scene, a mesh, a file, a value), a diverged simulation or a
-    node that would not start is one error line naming it (exit status 2), not a traceback."""
+    node that would not start is one error line naming it (exit status 2), not a traceback;
+    Ctrl-C and SIGTERM end it cleanly (130, 143)."""
     args = build_parser().parse_args(argv)
+    previous = signal.signal(signal.SIGTERM, _on_sigterm) if threading.current_thread() is threading.main_thread() \
+        else None
     try:
         args.run(args)
     except KeyboardInterrupt:
         print(f'tissue-sim {args.command}: interrupted', file=sys.stderr)
         return 130
-    except _input_errors() as exc:
+    except _Terminated:
+        print(f'tissue-sim {args.command}: terminated', file=sys.stderr)
+        return 128 + signal.SIGTERM
+    except (TissueSimError, OSError) as exc:
         print(f'tissue-sim {args.command}: error: {_describe(exc)}', file=sys.stderr)
         return 2
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return 0

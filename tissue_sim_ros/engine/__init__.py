@@ -11,6 +11,7 @@ Sub-packages, bottom up:
 
 Modules here, above them all:
 
+- :mod:`~tissue_sim_ros.engine.warm_up`: the needle's kernels compiled once per process;
 - :mod:`~tissue_sim_ros.engine.driver`: the one driver every caller advances (health policy);
 - :mod:`~tissue_sim_ros.engine.prediction`: a candidate path simulated from a copy of the state;
 - :mod:`~tissue_sim_ros.engine.ladder`, :mod:`~tissue_sim_ros.engine.ladder_probe`: cheaper
@@ -31,4 +32,4 @@ if 'numba' in sys.modules:
     _numba_config.reload_config()
 
 __all__ = ['compiled', 'driver', 'ladder', 'ladder_probe', 'mesh', 'model', 'needle', 'prediction',
-           'scene', 'solver']
+           'scene', 'solver', 'warm_up']

@@ -7,7 +7,7 @@ checks its health itself. The driver owns:
 - the simulated clock: the scene's running target time (``Scene.advance`` steps whole substeps
   toward it, so successive calls add up); ``simulated_s`` counts the time advanced since start,
   resets included, for real-time factors;
-- the needle pose in: a pose the engine refuses (``NeedleInputError``: a jump over the limit, a
+- the needle pose in: a pose the engine refuses (``PoseError``: a jump over the limit, a
   pose inside the tissue at start) holds the needle where it is for that advance, counted;
 - the finiteness and divergence policy: after every advance the reaction wrench must be finite
   and every displacement must fit a float32 (the node's point cloud), else the advance counts as
@@ -33,8 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from tissue_sim_ros.engine.solver.inertia_estimate import InertiaEstimate
-from tissue_sim_ros.engine.needle.interaction import NeedleInputError
-from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+from tissue_sim_ros.engine.warm_up import warm_up
+from tissue_sim_ros.errors import PoseError, SimulationDiverged
 
 __all__ = ['ON_DIVERGENCE', 'AdvanceOutcome', 'SimulationDriver', 'Samples']
 
@@ -48,7 +48,7 @@ class AdvanceOutcome:
     needle was held instead), the divergence (handled by the policy). Callers log from it."""
 
     substeps: int = 0
-    refused: NeedleInputError | None = None
+    refused: PoseError | None = None
     diverged: SimulationDiverged | None = None
 
 
@@ -63,6 +63,8 @@ class Samples:
     tip_depth: np.ndarray   # (k,) m below the entry point, 0 outside
     phase: list             # (k,) str
     substeps: int
+    tip: np.ndarray = None              # (k, 3) m, the tip's apex, world frame
+    tip_deflection: np.ndarray = None   # (k,) m, the tip's distance from the base frame's axis
 
 
 class SimulationDriver:
@@ -73,6 +75,8 @@ class SimulationDriver:
             raise ValueError(f"wrench_frame = {wrench_frame!r}: expected 'world' or 'needle'")
         if on_divergence not in ON_DIVERGENCE:
             raise ValueError(f'on_divergence = {on_divergence!r}: expected one of {ON_DIVERGENCE}')
+        # the needles' kernels compiled before the first advance
+        warm_up(flexible=any(n.rod is not None for n in scene.needles))
         self.scene = scene
         self.wrench_frame = wrench_frame
         self.on_divergence = on_divergence
@@ -140,7 +144,7 @@ class SimulationDriver:
         try:
             try:
                 outcome.substeps = scene.advance(duration, position, orientation, deadline, max_steps, others)
-            except NeedleInputError as exc:
+            except PoseError as exc:
                 self.refusals += 1
                 outcome.refused = exc
                 hold_position, hold_orientation = scene.needle_pose
@@ -158,7 +162,7 @@ class SimulationDriver:
         """Follow a pose schedule: from the current pose, to ``positions[k]`` (orientation
         ``orientations[k]``, default the current one) at simulated time ``times[k]`` (from now,
         increasing), sampling the wrench at each. ``progress(k, driver)``: called after waypoint
-        k (None: quiet). A refused pose raises NeedleInputError: a schedule is the caller's."""
+        k (None: quiet). A refused pose raises PoseError: a schedule is the caller's."""
         times = np.asarray(times, dtype=np.float64)
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         if times.ndim != 1 or times.size != positions.shape[0] or times.size == 0:
@@ -172,6 +176,7 @@ class SimulationDriver:
         k = times.size
         force, torque = np.empty((k, 3)), np.empty((k, 3))
         when, depth, phase = np.empty(k), np.empty(k), []
+        tip, deflection = np.empty((k, 3)), np.empty(k)
         substeps, previous = 0, 0.0
         for i in range(k):
             outcome = self.advance(times[i] - previous, positions[i], orientations[i])
@@ -181,10 +186,11 @@ class SimulationDriver:
                 raise outcome.refused
             force[i], torque[i] = self.force, self.torque
             when[i], depth[i] = self.scene.time, self.scene.tip_depth
+            tip[i], deflection[i] = self.scene.needle.tip, self.scene.tip_deflection
             phase.append(str(self.scene.phase))
             if progress is not None:
                 progress(i, self)
-        return Samples(when, force, torque, depth, phase, substeps)
+        return Samples(when, force, torque, depth, phase, substeps, tip, deflection)
 
     def take_state(self) -> None:
         """Take the wrench of the scene's state as it is (after an advance, or of a scene copied
@@ -220,6 +226,14 @@ class SimulationDriver:
         rest state's (zeros if that is not finite: never a NaN out of a reset)."""
         self.scene.reset()
         self.held = False
+        self._take_finite_wrenches()
+        self.inertia.reset()
+        self._update_inertia(0.0)
+
+    def place_needle(self, position, orientation) -> None:
+        """The first needle starts at this pose from now on (``Scene.place_needle``; PoseError when
+        it touches the tissue or the pose lies inside it); its wrench is then the state's."""
+        self.scene.place_needle(position, orientation)
         self._take_finite_wrenches()
         self.inertia.reset()
         self._update_inertia(0.0)
@@ -261,13 +275,6 @@ class SimulationDriver:
     @property
     def needle_pose(self):
         return self.scene.needle_pose
-
-    def predict(self, path):
-        """What a candidate path (engine.prediction.CandidatePath, from engine.prediction.check_path)
-        would do from the state now: engine.prediction.predict on a copy, in this driver's wrench
-        frame; the driver and its scene are left as they are."""
-        from tissue_sim_ros.engine.prediction import predict
-        return predict(self.scene, path, wrench_frame=self.wrench_frame)
 
     def real_time_factor(self, wall_s: float) -> float:
         return self.simulated_s / wall_s if wall_s > 0 else math.inf

@@ -11,16 +11,16 @@ element-pass variant would compile for about 20 s in the middle of a run):
   simulated second (the critical step grows as the square root of the masses). The damping force
   stays the scene's (Simulation.rescale_masses), so at millimetres per second little changes. A
   mass rung whose time step would pass ``MAX_RUNG_TIME_STEP_S`` is not offered: on a coarse test
-  box (6 x 6 x 4 cells, 8.9 ms as configured) a 2.6 s descent at 4 mm/s gave the same force
+  box (6 x 6 x 4 cells, 8.9 ms as configured) a 2.6 s descent at 4 mm/s gives the same force
   whatever the clock's offset within a step at 8.9 ms, but at 17.8 ms (x4) and 35.6 ms (x16) the
-  capsule broke at first contact for some offsets (-3 to -5 N, +9 N), with the damping kept or
-  scaled along alike. The default scene's x16 step is 4.9 ms.
+  capsule breaks at first contact for some offsets, whether the damping is kept or scaled along.
+  The default scene's x16 step is 4.9 ms.
 
 The order is by error for what they save, measured with the probe below on the default scene
 (each level's error against level 0): threshold 0.1 0.0057, mass x4 0.0061, x16 0.0128 (a
 quarter of the substeps for about 1 %), then threshold 0.5 0.119 (most of the law's stiffening
-gone). With the masses' damping scaled along, as it was, the mass rungs came after both
-thresholds and the levels cost 0.0057, 0.109, 0.194 and 0.424.
+gone). The mass rungs' errors are this small because they keep the damping force: scaled with
+the masses, the damping would put them after both thresholds.
 
 The error the ladder predicts for a level is measured, not guessed: the axial force of a standard
 indentation run at that level against level 0 (:mod:`~tissue_sim_ros.engine.ladder_probe`),

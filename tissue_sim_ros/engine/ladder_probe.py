@@ -59,7 +59,7 @@ def probe_errors(scene, ladder) -> list[float]:
     """Each level's NRMSE against level 0 over the probe (see the module docstring). Runs on
     ``scene`` (a scene of its own: it is reset and left at level 0 and rest)."""
     from tissue_sim_ros.engine.driver import SimulationDriver
-    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+    from tissue_sim_ros.errors import SimulationDiverged
     driver = SimulationDriver(scene, on_divergence='raise')
     gap = _surface_gap(scene)
     if not np.isfinite(gap):

@@ -1,4 +1,4 @@
-"""What a candidate needle path would do, simulated from a copy of the current state (issue 18).
+"""What a candidate needle path would do, simulated from a copy of the current state.
 
 A planner asks before it commits the robot: from the tissue and needle as they are now
 (deformation, velocity, contact, punctured layers, cut elements: the whole scene), follow these
@@ -31,16 +31,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tissue_sim_ros.engine.needle.pose import NeedleInputError, pose_jump, validate_pose
+from tissue_sim_ros.engine.needle.pose import pose_jump, validate_pose
+from tissue_sim_ros.errors import PoseError
 
 __all__ = ['WRENCH_COLUMNS', 'DEFAULT_MAX_DURATION_S', 'CandidatePath', 'Prediction',
            'prediction_columns', 'check_path', 'scene_snapshot', 'scene_from_snapshot', 'predict',
            'predict_snapshot', 'write_snapshot', 'read_snapshot']
 
-#: The columns every prediction has, in the wrench's frame: force [N], torque [N m] about the
-#: needle base, the tip's depth below the entry point [m].
+#: The columns every prediction has: force [N] and torque [N m] about the needle base, in the
+#: wrench's frame; the tip's depth below the entry point [m]; where the tip is [m] (world frame)
+#: and its distance from the base frame's axis [m] (a flexible needle's bend; 0 for a rigid one).
 WRENCH_COLUMNS = ('force_x_n', 'force_y_n', 'force_z_n', 'torque_x_nm', 'torque_y_nm',
-                  'torque_z_nm', 'tip_depth_m')
+                  'torque_z_nm', 'tip_depth_m', 'tip_x_m', 'tip_y_m', 'tip_z_m', 'tip_deflection_m')
 #: Longest path accepted by default [s of simulated time].
 DEFAULT_MAX_DURATION_S = 60.0
 
@@ -73,31 +75,31 @@ class CandidatePath:
 def check_path(stamps_s, positions, orientations, *, max_jump_m: float,
                max_duration_s: float = DEFAULT_MAX_DURATION_S, start_pose=None,
                length_m: float = 0.0, field_name: str = 'path') -> CandidatePath:
-    """A :class:`CandidatePath` from stamps [s] (any origin) and poses, or NeedleInputError naming
+    """A :class:`CandidatePath` from stamps [s] (any origin) and poses, or PoseError naming
     the pose and its value. ``start_pose``: (position, orientation) of the needle now, which the
     first pose must be within ``max_jump_m`` of; ``length_m``: the needle's length, so the tip's
     move counts toward a jump as it does in the engine."""
     stamps = np.asarray(stamps_s, dtype=np.float64).reshape(-1)
     k = stamps.size
     if k == 0:
-        raise NeedleInputError(f'{field_name}.poses', [], 'no poses; a path needs at least one')
+        raise PoseError(f'{field_name}.poses', [], 'no poses; a path needs at least one')
     try:
         positions = np.asarray(positions, dtype=np.float64).reshape(k, 3)
         orientations = np.asarray(orientations, dtype=np.float64).reshape(k, 4)
     except ValueError:
-        raise NeedleInputError(f'{field_name}.poses', (np.shape(positions), np.shape(orientations)),
+        raise PoseError(f'{field_name}.poses', (np.shape(positions), np.shape(orientations)),
                                f'expected {k} positions (x, y, z) and {k} quaternions, one per stamp') from None
     unit = np.empty_like(orientations)
     for i in range(k):
         if not math.isfinite(stamps[i]):
-            raise NeedleInputError(f'{field_name}.poses[{i}].header.stamp', float(stamps[i]), 'expected a finite time')
+            raise PoseError(f'{field_name}.poses[{i}].header.stamp', float(stamps[i]), 'expected a finite time')
         if i and not stamps[i] > stamps[i - 1]:
-            raise NeedleInputError(f'{field_name}.poses[{i}].header.stamp', float(stamps[i]),
+            raise PoseError(f'{field_name}.poses[{i}].header.stamp', float(stamps[i]),
                                    f'not after poses[{i - 1}] ({stamps[i - 1]:.9g} s): stamps must increase')
         positions[i], unit[i] = validate_pose(positions[i], orientations[i], f'{field_name}.poses[{i}].pose')
     duration = float(stamps[-1] - stamps[0])
     if duration > max_duration_s:
-        raise NeedleInputError(f'{field_name}.poses[{k - 1}].header.stamp', float(stamps[-1]),
+        raise PoseError(f'{field_name}.poses[{k - 1}].header.stamp', float(stamps[-1]),
                                f'the path lasts {duration:.6g} s, more than the limit {max_duration_s:g} s')
     previous = start_pose
     for i in range(k):
@@ -105,7 +107,7 @@ def check_path(stamps_s, positions, orientations, *, max_jump_m: float,
             jump = pose_jump(previous[0], previous[1], positions[i], unit[i], length_m)
             if jump.exceeds(max_jump_m):
                 came_from = f'poses[{i - 1}]' if i else "the needle's current pose"
-                raise NeedleInputError(f'{field_name}.poses[{i}].pose.position', positions[i].tolist(),
+                raise PoseError(f'{field_name}.poses[{i}].pose.position', positions[i].tolist(),
                                        f'{jump.distance_m * 1e3:.4g} mm from {came_from}, more than the '
                                        f'jump limit {max_jump_m * 1e3:.4g} mm')
         previous = positions[i], unit[i]
@@ -176,15 +178,19 @@ def read_snapshot(path):
     return pickle.loads(parts[0], buffers=[bytearray(p) for p in parts[1:]])
 
 
-def predict(scene, path: CandidatePath, *, wrench_frame: str = 'world', copy: bool = True) -> Prediction:
+def predict(scene, path: CandidatePath, *, wrench_frame: str = 'world', copy: bool = True,
+            on_row=None) -> Prediction:
     """Follow ``path`` from the scene's current state and return the :class:`Prediction`.
 
     ``copy`` (default): the scene is copied first and left as it was; False runs on ``scene``
-    itself (a worker's own copy). Time asked of the scene but not yet stepped is kept up to one
+    itself (a worker's own copy). ``on_row(k, row)``: called with each row as soon as it is
+    computed (a caller streaming partial results); an exception it raises stops the prediction
+    and reaches the caller (how a caller cancels). Time asked of the scene but not yet stepped is kept up
+    to one
     step (the fraction the live scene carries into its next call, so the prediction steps on the
     live schedule) and dropped beyond it (the lag of an engine that ran late: the path starts
     from the state as it is). Raises SimulationDiverged
-    or NeedleInputError (a pose the engine refuses on the way)."""
+    or PoseError (a pose the engine refuses on the way)."""
     from tissue_sim_ros.engine.driver import SimulationDriver
     wall0 = time.perf_counter()
     if copy:
@@ -202,10 +208,13 @@ def predict(scene, path: CandidatePath, *, wrench_frame: str = 'world', copy: bo
     def sample(k, drv):
         values[k, 0:3], values[k, 3:6] = drv.force, drv.torque
         values[k, 6] = scene.tip_depth
+        values[k, 7:10], values[k, 10] = scene.needle.tip, scene.tip_deflection
         if names:
             values[k, w:t] = np.linalg.norm(scene.target_positions() - rest, axis=1)
         values[k, t:] = np.hstack([drv.forces[1:], drv.torques[1:]]).ravel()
         phases.append(str(scene.phase))
+        if on_row is not None:
+            on_row(k, values[k])
 
     sample(0, driver)
     substeps = 0
@@ -218,12 +227,13 @@ def predict(scene, path: CandidatePath, *, wrench_frame: str = 'world', copy: bo
 
 def predict_snapshot(snapshot, path: CandidatePath, wrench_frame: str = 'world', *,
                      threads: int = 1, threshold: float | None = None,
-                     mass_scaling: float | None = None) -> Prediction:
+                     mass_scaling: float | None = None, on_row=None) -> Prediction:
     """:func:`predict` on a scene from a snapshot: :func:`scene_snapshot`'s bytes, or the file
     :func:`write_snapshot` wrote (a path): a worker process's entry. The element pass runs on
     ``threads`` numba threads;
     ``threshold`` and ``mass_scaling`` (None: as the snapshot has them) are a degradation-ladder
-    rung's settings (engine.degradation_ladder), for a prediction cheaper than the live scene."""
+    rung's settings (engine.ladder), for a prediction cheaper than the live scene; ``on_row``: as
+    :func:`predict`'s."""
     import numba
     scene = scene_from_snapshot(snapshot) if isinstance(snapshot, bytes) else read_snapshot(snapshot)
     numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
@@ -232,4 +242,4 @@ def predict_snapshot(snapshot, path: CandidatePath, wrench_frame: str = 'world',
         scene.model.set_nonlinearity_threshold(threshold)
     if mass_scaling is not None and mass_scaling != scene.simulation.mass_scaling:
         scene.simulation.rescale_masses(mass_scaling)
-    return predict(scene, path, wrench_frame=wrench_frame, copy=False)
+    return predict(scene, path, wrench_frame=wrench_frame, copy=False, on_row=on_row)

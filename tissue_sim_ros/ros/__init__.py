@@ -13,8 +13,13 @@ Modules here:
 - :mod:`.parameters`, :mod:`.parameter_declaration`: every node parameter and its checks;
   declaring them with rclpy;
 - :mod:`.diagnostics`, :mod:`.recording`, :mod:`.targets`, :mod:`.predictions`: what the node
-  reports, records, tracks and predicts;
+  reports, records, tracks and predicts; :mod:`.prediction_action`: predictions as an action;
+- :mod:`.tf_out`, :mod:`.tf_in`: the frames the node broadcasts on TF, and what it reads from TF
+  (the robot's frames; the maths and the buffer are in :mod:`.loop.transforms`);
+- :mod:`.registration`: the tissue's pose in the robot's frame and the needle's start;
+- :mod:`.readiness`: ``~/ready``; :mod:`.services`: the node's services;
 - :mod:`.node`, :mod:`.node_main`: the node itself and its process.
 """
 __all__ = ['clients', 'diagnostics', 'loop', 'messages', 'node', 'node_main', 'parameter_declaration',
-           'parameters', 'predictions', 'recording', 'targets']
+           'parameters', 'prediction_action', 'predictions', 'readiness', 'recording', 'registration',
+           'services', 'targets', 'tf_in', 'tf_out']

@@ -4,7 +4,9 @@ Three statuses: ``<node>: engine`` (state, tick timing, real-time factor, lag, b
 the degradation ladder, the engine's cost and the kernel's share of it, divergences, the
 needle's phase), ``<node>: input`` (poses received, accepted, each bad-input kind counted,
 latency) and, when recording, ``<node>: recording``. Rates and maxima are over the window since
-the previous diagnostics message; percentiles over the last ten seconds of ticks.
+the previous diagnostics message; percentiles over the last ten seconds of ticks. A value that
+does not exist yet (a latency before the first pose, a rate before a window has passed) reads
+``none yet``: tools parsing diagnostics never meet NaN.
 """
 from __future__ import annotations
 
@@ -16,7 +18,12 @@ import numpy as np
 
 from tissue_sim_ros.units import NS_PER_S
 
-__all__ = ['Ring', 'NodeStats', 'diagnostics_statuses']
+__all__ = ['NONE_YET', 'Ring', 'NodeStats', 'diagnostics_statuses']
+
+#: the value of a figure that does not exist yet
+NONE_YET = 'none yet'
+#: how long the input status warns of a delivery stall [s]
+STALL_WARNING_S = 10.0
 
 
 class Ring:
@@ -33,9 +40,10 @@ class Ring:
     def array(self) -> np.ndarray:
         return self.values[:min(self.count, self.values.size)]
 
-    def percentile(self, q: float) -> float:
+    def percentile(self, q: float) -> float | None:
+        """The ``q``-th percentile of what the ring holds; None while it holds nothing."""
         a = self.array()
-        return float(np.percentile(a, q)) if a.size else float('nan')
+        return float(np.percentile(a, q)) if a.size else None
 
 
 class NodeStats:
@@ -89,13 +97,19 @@ class NodeStats:
 
 
 def diagnostics_statuses(name: str, now_ns: int, *, stats: NodeStats, engine, pose_input,
-                         ticks: int, recorder=None, needle_names=('needle',), other_inputs=()) -> list:
+                         ticks: int, recorder=None, needle_names=('needle',), other_inputs=(),
+                         ready: str = 'ready', source: str = 'needle/pose') -> list:
     """The DiagnosticStatus tuples (name, level, message, values) of this moment. With several
     needles (``needle_names``; ``other_inputs``: (name, PoseInput) of all but the first) each
-    needle's input has a status ``input <name>`` (the others' bad poses counted since start)."""
+    needle's input has a status ``input <name>`` (the others' bad poses counted since start).
+    ``ready``: the node's readiness (:mod:`~tissue_sim_ros.ros.readiness`); ``source``: where the
+    first needle's poses come from."""
     first = f' {needle_names[0]}' if len(needle_names) > 1 else ''
-    return [_engine_status(name, now_ns, stats, engine, ticks),
-            _input_status(name, now_ns, stats, pose_input, first)] + \
+    engine_status = _engine_status(name, now_ns, stats, engine, ticks)
+    engine_status[3]['ready'] = ready
+    input_status = _input_status(name, now_ns, stats, pose_input, first)
+    input_status[3]['source'] = source
+    return [engine_status, input_status] + \
         [_input_status(name, now_ns, stats, other, f' {needle}', 0) for needle, other in other_inputs] + \
         ([] if recorder is None else [_recording_status(name, recorder)])
 
@@ -106,7 +120,7 @@ def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
     wall = max(time.perf_counter() - w['wall0'], 1e-9)
     # engine time per node-clock time (with use_sim_time, per simulated /clock time)
     clock = wall if w['clock0'] is None else (now_ns - w['clock0']) / NS_PER_S
-    rtf = (engine.stepped_s - w['stepped0']) / clock if clock > 0 else float('nan')
+    rtf = (engine.stepped_s - w['stepped0']) / clock if clock > 0 else NONE_YET
     busy = pacing.busy_s - w['busy0']
     busy_cpu = engine.busy_cpu_s - w['cpu0']
     kernel = scene.simulation.kernel_s - w['kernel0']
@@ -131,7 +145,7 @@ def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
         'ticks': ticks,
         'tick_period_s': stats.period_s,
         'tick_period_deviation_ms_p99': float(np.percentile(deviation, 99)) * 1e3,
-        'publish_work_ms_p99': stats.rings['publish_work_s'].percentile(99) * 1e3,
+        'publish_work_ms_p99': _ms(stats.rings['publish_work_s'].percentile(99)),
         'missed_ticks': stats.missed_ticks,
         'missed_ticks_for_input': stats.missed_for_input,
         'tick_errors': stats.tick_errors,
@@ -140,14 +154,14 @@ def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
         'max_lag_s': pacing.max_lag_s,
         'dropped_time_s': driver.dropped_s,
         'skipped_time_s': pacing.skipped_s,
-        'budget_use': float('nan') if pacing.demand is None else pacing.demand,
+        'budget_use': NONE_YET if pacing.demand is None else pacing.demand,
         'budget_ms_per_tick': pacing.budget_s * 1e3,
         'budget_windows_spent_behind': pacing.windows_spent,
         'engine_busy_fraction': busy / wall,
         'advances_per_s': (engine.advances - w['advances0']) / wall,
         'advances_total': engine.advances,
         'waits_for_poses': engine.coalesced,
-        'kernel_share_of_engine': kernel / busy_cpu if busy_cpu > 0 else float('nan'),
+        'kernel_share_of_engine': kernel / busy_cpu if busy_cpu > 0 else NONE_YET,
         'engine_busy_s_total': pacing.busy_s,
         'engine_cpu_s_total': engine.busy_cpu_s,
         'kernel_s_total': scene.simulation.kernel_s,
@@ -162,6 +176,10 @@ def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
         'stability': 'held after divergence' if driver.held else 'stable',
         'phase': str(scene.phase),
         'tip_depth_m': float(scene.tip_depth),
+        'tip_x_m': float(scene.needle.tip[0]),
+        'tip_y_m': float(scene.needle.tip[1]),
+        'tip_z_m': float(scene.needle.tip[2]),
+        'tip_deflection_m': float(scene.tip_deflection),
         'topology_version': int(scene.topology_version),
         'punctures': len(scene.puncture_events),
     }
@@ -173,18 +191,30 @@ def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
     return f'{name}: engine', level, state, values
 
 
+def _ms(seconds: float | None):
+    return NONE_YET if seconds is None else seconds * 1e3
+
+
 def _input_status(name, now_ns, stats, pose_input, needle='', bad0=None) -> tuple:
     age = pose_input.age_s(now_ns)
     stale = pose_input.stale(now_ns)
     bad_new = pose_input.bad_total - (stats.window['bad0'] if bad0 is None else bad0)
     wall = max(time.perf_counter() - stats.window['wall0'], 1e-9)
     values = {'poses_received': pose_input.received, 'poses_accepted': pose_input.accepted,
-              'last_pose_age_s': 'none yet' if age is None else age, 'stale': stale,
-              'latency_ms_p50': stats.rings['latency_s'].percentile(50) * 1e3,
-              'latency_ms_p99': stats.rings['latency_s'].percentile(99) * 1e3,
-              'input_work_ms_per_tick_max': float(stats.rings['input_s'].array().max(initial=0.0)) * 1e3}
+              'last_pose_age_s': NONE_YET if age is None else age, 'stale': stale,
+              'latency_ms_p50': _ms(stats.rings['latency_s'].percentile(50)),
+              'latency_ms_p99': _ms(stats.rings['latency_s'].percentile(99)),
+              'input_work_ms_per_tick_max': float(stats.rings['input_s'].array().max(initial=0.0)) * 1e3,
+              'delivery_stalls': pose_input.delivery_stalls,
+              'delivery_stall_max_s': pose_input.delivery_stall_max_s if pose_input.delivery_stalls else NONE_YET}
     values.update({f'bad_input.{k}': v for k, v in pose_input.counts.items()})
-    if bad_new:
+    stalled = pose_input.last_stall_ns
+    if stalled is not None and now_ns - stalled < STALL_WARNING_S * NS_PER_S:
+        level, message = 'WARN', (f'a delivery stall {(now_ns - stalled) / NS_PER_S:.3g} s ago: poses arrived up '
+                                  f'to {pose_input.delivery_stall_max_s:.3g} s after their stamps in a late burst '
+                                  '(held up on the way; an empty payload on the topic does this to a reliable '
+                                  'subscription: input.reliability best_effort is not held up)')
+    elif bad_new:
         level, message = 'WARN', f'{bad_new} bad poses in the last {wall:.3g} s'
     elif stale:
         level, message = 'WARN', f'no pose for {age:.3g} s: holding the last one'

@@ -7,35 +7,22 @@
 
 Node ``tissue_sim``; its topics, their types and QoS: :mod:`tissue_sim_ros.ros.messages.topics`.
 
-Predictions: a candidate path on ``plan/candidate`` is simulated from a copy of the current state
-by worker processes, off the live loop, and answered on ``plan/prediction``
-(:mod:`~tissue_sim_ros.ros.predictions`).
+Predictions: ``plan/candidate`` -> ``plan/prediction`` and the action ``~/predict_path``
+(:mod:`~.predictions`, :mod:`~.prediction_action`). Services: :mod:`~.services`. TF out and in,
+registration, readiness (``~/ready``): :mod:`~.tf_out`, :mod:`~.tf_in`, :mod:`~.registration`,
+:mod:`~.readiness`.
 
-Services: ``~/reset`` (std_srvs/srv/Trigger) puts the tissue at rest and the needle at its
-initial pose; ``~/pause`` (std_srvs/srv/SetBool) freezes (true) or resumes (false) the
-simulation; while paused the node keeps publishing the frozen state.
+Timing (:mod:`~tissue_sim_ros.ros.loop.engine_thread`, :mod:`~tissue_sim_ros.ros.loop.tick_thread`): the
+engine advances on its own thread toward the newest pose within a budget of each tick; the tick
+publishes the latest state every period and never waits for the physics (with ``use_sim_time`` it
+is lock-step); lag is bounded (``engine.max_lag_s``), the degradation ladder steps down and up, and
+a divergence is logged at ERROR and reset or held by ``on_divergence``.
 
-Timing: the engine runs on its own thread (:mod:`~tissue_sim_ros.ros.loop.engine_thread`), advancing
-toward the newest pose within a budget of each tick period (``engine.budget_fraction``). The
-tick (:mod:`~tissue_sim_ros.ros.loop.tick_thread`: its own thread on the monotonic clock, started by
-the executor's first spin; with ``use_sim_time`` a timer on the node clock) publishes the latest
-state every period, whatever the engine's progress: the tick never waits for the physics. When
-the engine cannot keep real time its lag is reported and bounded (``engine.max_lag_s``; the
-excess is dropped), and the degradation ladder (``engine.ladder``) steps down and back up. With
-``use_sim_time`` the node is lock-step: each tick waits until the engine reached it. A divergence
-(``SimulationDiverged`` or a non-finite state) is logged at ERROR and, by ``on_divergence``, reset
-to rest or held until ``~/reset`` (the last finite wrench republished).
-
-Bad input never stops the node and never reaches a topic as NaN: see ``BAD_INPUT_KINDS`` in
-:mod:`~tissue_sim_ros.ros.loop.pose_input`, plus ``malformed`` (a payload that does not decode as a
-PoseStamped); each kind logged once and counted in diagnostics. Input work is bounded: received
-poses are queued as bytes and the engine decodes at most ``MAX_POSES_PER_CYCLE`` of the newest
-per cycle (the rest counted as backlog), so no rate of input can hold up a tick.
-
-The mesh state (``tissue/nodes``, 70 kB a tick on the default scene) is built and published
-only while the topic has a subscriber (counted by the publisher's matched events, and once a
-second with the diagnostics) and, at its own rate, for the log. ``use_sim_time`` is read at
-start; a change at run time is refused.
+Bad input never stops the node and never reaches a topic as NaN (``BAD_INPUT_KINDS`` in
+:mod:`~tissue_sim_ros.ros.loop.pose_input`, each logged once and counted in diagnostics); received
+poses are queued as bytes and decoded a bounded number per engine cycle, so no rate of input can
+hold up a tick. ``tissue/nodes`` is built only while it has a subscriber, and at its own rate for
+the log. ``use_sim_time`` is read at start; a change at run time is refused.
 
 Recording: see :mod:`~tissue_sim_ros.ros.recording`. The file is closed with its summary on a
 normal exit, SIGINT and SIGTERM; after SIGKILL only the last chunk is lost.
@@ -49,7 +36,6 @@ import time
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, PoseStamped, WrenchStamped
-from nav_msgs.msg import Path
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.event_handler import PublisherEventCallbacks, UnsupportedEventTypeError
 from rclpy.parameter import Parameter
@@ -57,8 +43,8 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
-from std_srvs.srv import SetBool, Trigger
-from trajectory_msgs.msg import JointTrajectory
+from std_msgs.msg import Bool
+from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker
 
 from tissue_sim_ros.engine.ladder import DegradationLadder
@@ -68,29 +54,29 @@ from tissue_sim_ros.ros.messages import conversions as cv
 from tissue_sim_ros.ros.loop.engine_thread import EngineLoop
 from tissue_sim_ros.ros.messages.cdr_bytes import CloudBytes, SurfaceMarkerBytes, TraceBytes, WrenchBytes
 from tissue_sim_ros.ros.diagnostics import NodeStats, diagnostics_statuses
-from tissue_sim_ros.ros.predictions import PredictionService
+from tissue_sim_ros.ros.prediction_action import start_predictions
+from tissue_sim_ros.ros.readiness import Readiness
+from tissue_sim_ros.ros.registration import Registration
+from tissue_sim_ros.ros.services import NodeServices
+from tissue_sim_ros.ros.messages.needle_shape import NeedleShapes
 from tissue_sim_ros.ros.targets import targets_msg, targets_status
+from tissue_sim_ros.ros.tf_in import TfInput, transforms_of
+from tissue_sim_ros.ros.tf_out import TfFrames, needle_frames
 from tissue_sim_ros.ros.recording import (every_kth_tick, node_log_topics, open_node_log,
                                                record_service_call)
 from tissue_sim_ros.ros.parameter_declaration import declare_parameters
-from tissue_sim_ros.ros.parameters import (NODE_NAME, PARAMETERS, ConfigError, NodeConfig,
-                                           help_text as _help_text, load_scene, make_config)
+from tissue_sim_ros.ros.parameters import (NODE_NAME, PARAMETERS, NodeConfig, help_text as _help_text,
+                                           load_scene, make_config)
+from tissue_sim_ros.errors import ConfigError
 from tissue_sim_ros.ros.loop.pose_input import PoseInput
 from tissue_sim_ros.ros.messages.pose_cdr import decode_pose
 from tissue_sim_ros.ros.loop.tick_thread import TickThread
-from tissue_sim_ros.ros.messages.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODES_QOS, PLAN_QOS,
-                                       SURFACE_QOS, WRENCH_QOS, pose_qos)
+from tissue_sim_ros.ros.messages.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODES_QOS, READY_QOS,
+                                                SURFACE_QOS, TF_QOS, TF_STATIC_QOS, WRENCH_QOS, needle_topics,
+                                                pose_qos)
 from tissue_sim_ros.units import NS_PER_S
 
 __all__ = ['NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'TissueSimNode', 'main']
-
-
-def needle_topics(names) -> list[tuple[str, str]]:
-    """(pose topic, wrench topic) per needle: needle/pose and needle/wrench for a scene with one
-    needle, needle/<name>/pose and needle/<name>/wrench for each of several."""
-    if len(names) == 1:
-        return [('needle/pose', 'needle/wrench')]
-    return [(f'needle/{name}/pose', f'needle/{name}/wrench') for name in names]
 
 
 def help_text() -> str:
@@ -105,26 +91,29 @@ class TissueSimNode(Node):
     Raises ConfigError (a parameter refused, or the scene file not loaded) from the constructor.
     """
 
-    def __init__(self, *, scene=None, node_name: str = NODE_NAME, slow_down=None, **node_kwargs):
+    def __init__(self, *, scene=None, node_name: str = NODE_NAME, slow_down=None, resolve_auto=None,
+                 **node_kwargs):
         super().__init__(node_name, **node_kwargs)
-        self._recorder, self._closed, self.engine, self.predictions = None, False, None, None
+        self._recorder, self._closed, self.engine = None, False, None
+        self.predictions = self.action_server = None
         try:
-            self._set_up(scene, slow_down)
+            self._set_up(scene, slow_down, resolve_auto)
         except BaseException:
             # a half-built node left to the garbage collector takes its logger's /rosout
             # registration with it whenever it is collected, even from a later node of that name
             self.destroy_node()
             raise
 
-    def _set_up(self, scene, slow_down) -> None:
+    def _set_up(self, scene, slow_down, resolve_auto) -> None:
         values = declare_parameters(self)
-        self.scene = scene if scene is not None else load_scene(values['scene_file'])
+        self.scene = scene if scene is not None else load_scene(values['scene_file'], resolve_auto)
         self.config = cfg = make_config(values, getattr(self.scene, 'mesh_frame_id', None))
         self.driver = SimulationDriver(self.scene, wrench_frame=cfg.wrench_frame,
                                        on_divergence=cfg.on_divergence)
         threads = cfg.threads_for(self.scene.mesh.n_elements)
         self.scene.model.set_threads(threads)
-        self.input = PoseInput(cfg.input_limits, reference_pose=self.scene.needle_pose)
+        self.input = PoseInput(cfg.input_limits, reference_pose=None if cfg.needle_at_first_pose
+                               else self.scene.needle_pose)
         self.other_inputs = [PoseInput(cfg.input_limits, reference_pose=(n.position.copy(), n.orientation.copy()))
                              for n in self.scene.needles[1:]]
         self._sim_time = bool(self.get_parameter('use_sim_time').value)
@@ -136,11 +125,13 @@ class TissueSimNode(Node):
         self._logged_kinds: set[str] = set()
         self.engine = EngineLoop(
             self.driver, self.input, period_s=cfg.period_s, now_ns=self._now_ns,
-            decode=decode_pose, log_once=self._log_once, log=self._log,
+            decode=self._decode_input, log_once=self._log_once, log=self._log,
             budget_fraction=cfg.budget_fraction, max_lag_s=cfg.max_lag_s,
             ladder=DegradationLadder(self.scene) if cfg.ladder else None, threads=threads,
             sim_time=self._sim_time, slow_down=slow_down, other_inputs=self.other_inputs)
+        self.engine.place_at_first_pose = cfg.needle_at_first_pose
         self._stats = NodeStats(cfg.publish_rate_hz)
+        self._set_up_tf(cfg)
         self.ticks, self._service_calls = 0, 0
         self._topology_version, self._marker = None, None
         self._positions = np.empty_like(self.scene.rest_positions)
@@ -163,6 +154,9 @@ class TissueSimNode(Node):
                            if cfg.marker_rate_hz > 0 else None)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
         self.targets_pub = self.create_publisher(PoseArray, 'tissue/targets', NODES_QOS)
+        self.shapes = NeedleShapes(self.scene.needle_names, [n.shape_size for n in self.scene.needles],
+                                   cfg.frame_id, lambda kind, topic: self.create_publisher(kind, topic, WRENCH_QOS),
+                                   serialize_message)
         self._target_positions = np.zeros((len(self.scene.targets), 3))
         self._target_figures = self.scene.targets.relative_to_needle(self.scene.targets.rest, self.scene.needle.tip,
                                                                      self.scene.needle.axis)
@@ -171,7 +165,7 @@ class TissueSimNode(Node):
                                                    'tissue/targets (from the scene file)', read_only=True))
         self.prediction_pub = self.candidate_sub = None
         if cfg.prediction_workers >= 0:
-            self._start_predictions(cfg)
+            start_predictions(self, cfg)
         self.pose_qos = pose_qos(cfg.input_reliability)
         self.pose_subs = [self.create_subscription(PoseStamped, pose, lambda data, k=k: self._on_pose(data, k),
                                                    self.pose_qos, raw=True)
@@ -181,8 +175,11 @@ class TissueSimNode(Node):
                                ParameterDescriptor(description='the needles, from the scene file: each has '
                                                    'needle/<name>/pose and /wrench when there are several',
                                                    read_only=True))
-        self.reset_srv = self.create_service(Trigger, '~/reset', self._on_reset)
-        self.pause_srv = self.create_service(SetBool, '~/pause', self._on_pause)
+        self.node_services = NodeServices(self)
+        services = self.node_services.services
+        self.reset_srv, self.pause_srv = services['~/reset'], services['~/pause']
+        self.ready_pub = self.create_publisher(Bool, '~/ready', READY_QOS)
+        self.readiness = Readiness(lambda ready: self._publish(self.ready_pub, Bool(data=ready)))
         self.trace_topic = self.resolve_topic_name('~/engine_trace')
         if cfg.recording_directory:
             self._start_recording()
@@ -190,6 +187,8 @@ class TissueSimNode(Node):
         self._wrench_bytes = [WrenchBytes(frame, serialize_message) for frame in self._wrench_frames]
         self._trace_bytes = TraceBytes(serialize_message)
         self._publish_surface(self._now_ns())
+        self.publish_static_transforms()
+        self.readiness.starting()
         # the marker (milliseconds of Python objects) and the recorded cloud: every k-th tick
         self._marker_every = every_kth_tick(cfg.publish_rate_hz, cfg.marker_rate_hz)
         self._record_nodes_every = every_kth_tick(cfg.publish_rate_hz, cfg.recording_nodes_rate_hz)
@@ -212,42 +211,67 @@ class TissueSimNode(Node):
             f'mesh in {cfg.frame_id!r}' + (f'; recording to {self._recorder.path}' if self._recorder
                                            else '; not recording') +
             ('; predictions off' if self.predictions is None else
-             f'; predictions on plan/candidate: {self.predictions.workers} worker(s) x '
+             f'; predictions on plan/candidate and ~/predict_path: {self.predictions.workers} worker(s) x '
              f'{self.predictions.threads} thread(s)'))
 
-    def _start_predictions(self, cfg) -> None:
-        ladder = self.engine.ladder
-        if cfg.prediction_max_error > 0 and ladder is None:
-            ladder = DegradationLadder(self.scene)      # its rungs' settings, never switched
-            self._measure_ladder(ladder)
+    def _set_up_tf(self, cfg) -> None:
+        """TF out (the frames the messages name) and in (the robot's tree), the tissue's registration."""
+        scene = self.scene
+        self.tf_frames = TfFrames(cfg.frame_id, needle_frames(cfg.needle_frame_id, scene.needle_names),
+                                  [n.geometry.length_m for n in scene.needles], scene.targets.names,
+                                  [n.rod is not None for n in scene.needles])
+        self.tf_input = TfInput(cfg.frame_id, tf_frame=cfg.tf_frame if cfg.input_source == 'tf' else None,
+                                offset=cfg.tf_offset, timeout_s=cfg.tf_timeout_s,
+                                own_frames=self.tf_frames.own_frames)
+        self.registration = Registration(cfg.frame_id, cfg.registration_parent, *cfg.tissue_pose,
+                                         tolerance=cfg.input_limits.unit_quaternion_tolerance)
+        self.tf_pub = self.create_publisher(TFMessage, '/tf', TF_QOS) if cfg.tf_publish else None
+        self.tf_static_pub = self.create_publisher(TFMessage, '/tf_static',
+                                                   TF_STATIC_QOS) if cfg.tf_publish else None
+        self._needle_poses = (np.zeros((len(scene.needles), 3)), np.zeros((len(scene.needles), 4)))
+        self.tf_subs = [self.create_subscription(TFMessage, topic, lambda data, s=static: self._on_tf(data,
+                                                                                                      s),
+                                                 qos, raw=True)
+                        for topic, qos, static in (('/tf', TF_QOS, False), ('/tf_static', TF_STATIC_QOS,
+                                                                            True))]
 
-        def rung():
-            level = None if ladder is None or cfg.prediction_max_error <= 0 else \
-                ladder.cheapest_within(cfg.prediction_max_error)
-            if level is None:
-                return None, None
-            chosen = ladder.rungs[level]
-            return chosen.threshold, ladder.base_mass_scaling * chosen.mass_factor
+    def _decode_input(self, data):
+        """(position, orientation, frame, stamp ns) of a pose as bytes or made from TF (a tuple; a TF
+        failure raises); one in another frame brought into the tissue frame by TF (engine thread)."""
+        if isinstance(data, Exception):
+            raise data
+        position, orientation, frame_id, stamp_ns = data if isinstance(data, tuple) else decode_pose(data)
+        expected = self.config.input_limits.expected_frame_id
+        if frame_id == expected or frame_id not in self.tf_input.buffer.frames():
+            return position, orientation, frame_id, stamp_ns      # (a frame TF does not know: wrong_frame)
+        position, orientation, _, stamp_ns = self.tf_input.to_tissue(position, orientation, frame_id,
+                                                                     stamp_ns)
+        return position, orientation, expected, stamp_ns
 
-        self.prediction_pub = self.create_publisher(JointTrajectory, 'plan/prediction', PLAN_QOS)
-        geometry = self.scene.needle.geometry
-        self.predictions = PredictionService(
-            self.engine, frame_id=cfg.frame_id, wrench_frame=cfg.wrench_frame,
-            wrench_frame_id=cfg.wrench_frame_id, target_names=self.scene.targets.names,
-            other_needles=self.scene.needle_names[1:],
-            max_jump_m=min(cfg.input_limits.max_jump_m, geometry.max_jump_m), length_m=geometry.length_m,
-            max_duration_s=cfg.prediction_max_duration_s, workers=cfg.prediction_workers,
-            threads=cfg.prediction_threads, publish=lambda msg: self._publish(self.prediction_pub, msg),
-            log_once=self._log_once, decode=lambda data: deserialize_message(data, Path), rung=rung,
-            prestart=cfg.prediction_prestart)
-        self.candidate_sub = self.create_subscription(Path, 'plan/candidate', self._on_candidate, PLAN_QOS,
-                                                      raw=True)
-
-    def _on_candidate(self, data: bytes) -> None:
-        """A candidate path as received: recorded as is, handed to the predictions' intake."""
+    def _on_tf(self, data: bytes, static: bool) -> None:
+        """/tf or /tf_static: recorded, into the TF buffer (the node's own skipped); a pose with TF input."""
+        receipt_ns = self._now_ns()
+        transforms = transforms_of(deserialize_message(data, TFMessage))
+        registered = static and self.registration.transform is not None
+        if all(child in self.tf_frames.own_frames or (registered and child == self.config.frame_id)
+               for _, child, *_ in transforms):
+            return                                     # the node's own broadcast, recorded as sent
         if self._recorder is not None:
-            self._recorder.write(self.candidate_sub.topic_name, data, self._now_ns())
-        self.predictions.receive(data)
+            self._recorder.write(self.tf_subs[static].topic_name, data, receipt_ns)
+        pose = self.tf_input.receive(transforms, static)
+        if pose is not None:
+            self.engine.submit(receipt_ns, pose)
+
+    def publish_static_transforms(self) -> None:
+        """/tf_static: the registration (also into the TF input's buffer) and the needle tips."""
+        registration = self.registration.transform
+        now_ns = self._now_ns()
+        if registration is not None:
+            parent, position, orientation = registration
+            self.tf_input.receive([(parent, self.config.frame_id, now_ns, position, orientation)],
+                                  static=True)
+        if self.tf_static_pub is not None:
+            self._publish(self.tf_static_pub, self.tf_frames.static_msg(now_ns, registration), now_ns)
 
     def _measure_ladder(self, ladder) -> None:
         """The ladder's errors (engine.ladder_probe): from the cache, or measured on a copy of the
@@ -355,8 +379,9 @@ class TissueSimNode(Node):
             self._publish(publisher, self._wrench_bytes[k].serialized(snap.forces[k], snap.torques[k], now_ns))
         publish_ns = self._now_ns()
         if not snap.held:
-            # the cloud is built only for a subscriber or the log: unsubscribed, it was a third
-            # of the tick's work (the publish alone about 100 us of thread time, 70 kB a tick)
+            self.shapes.publish(snap, now_ns, self._publish)
+            # the cloud is built only for a subscriber or the log: unsubscribed, it would be a
+            # third of the tick's work (the publish alone about 100 us of thread time, 70 kB a tick)
             record = self._recorder is not None and bool(self._record_nodes_every) and \
                 self.ticks % self._record_nodes_every == 0
             marker = bool(self._marker_every) and self.ticks % self._marker_every == 0
@@ -378,6 +403,12 @@ class TissueSimNode(Node):
                 self._target_figures = targets.relative_to_needle(self._target_positions, snap.tip, snap.axis)
                 self._publish(self.targets_pub, targets_msg(self._target_positions, self.config.frame_id, now_ns),
                               publish_ns)
+        if self.tf_pub is not None and not snap.held:
+            self._publish(self.tf_pub, self.tf_frames.dynamic_msg(
+                now_ns, snap.positions, snap.orientations, self._target_positions,
+                zip(snap.shape_positions, snap.shape_quaternions)), publish_ns)
+        if self.ticks == 0:
+            self.readiness.ticking()
         for receipt in self.engine.take_receipts(snap.index):
             self._stats.rings['latency_s'].add((publish_ns - receipt) / NS_PER_S)
         if self._recorder is not None:
@@ -400,35 +431,13 @@ class TissueSimNode(Node):
     def _publish_marker(self, now_ns: int) -> None:
         self._publish(self.marker_pub, bytes(self._marker.serialized(self._positions, now_ns)), now_ns)
 
-    def _on_reset(self, request, response):
-        self.engine.reset()
-        self.get_logger().info('~/reset: tissue at rest, needle at its initial pose')
-        response.success = True
-        response.message = (f'reset: simulated time {self.scene.time:g} s, needle at '
-                            f'{[round(float(x), 6) for x in self.scene.needle_pose[0]]} m; poses '
-                            f'farther than input.max_jump_m from it are refused')
-        self._record_call(self.reset_srv, Trigger, request, response)
-        return response
-
-    def _on_pause(self, request, response):
-        was = self.engine.paused
-
-        def set_paused():
-            self.engine.paused = bool(request.data)
-        self.engine.call(set_paused)
-        response.success = True
-        response.message = (f'{"paused" if self.engine.paused else "running"} at simulated time '
-                            f'{self.scene.time:.6g} s' + ('' if was != self.engine.paused else ' (unchanged)'))
-        self.get_logger().info(f'~/pause: {response.message}')
-        self._record_call(self.pause_srv, SetBool, request, response)
-        return response
-
     def diagnostics_statuses(self, now_ns: int) -> list:
         """The DiagnosticStatus tuples (name, level, message, values) of this moment."""
         return diagnostics_statuses(self.get_name(), now_ns, stats=self._stats, engine=self.engine,
                                     pose_input=self.input, ticks=self.ticks, recorder=self._recorder,
                                     needle_names=self.scene.needle_names,
-                                    other_inputs=zip(self.scene.needle_names[1:], self.other_inputs)) + \
+                                    other_inputs=zip(self.scene.needle_names[1:], self.other_inputs),
+                                    ready=self.readiness.state, source=self.config.input_description) + \
             [targets_status(self.get_name(), self.scene.targets.names, self._target_figures)] + \
             ([] if self.predictions is None else [self.predictions.status(self.get_name())])
 
@@ -450,6 +459,8 @@ class TissueSimNode(Node):
                 timer.cancel()
         if getattr(self, '_ticker', None) is not None:
             self._ticker.stop()
+        if self.action_server is not None:
+            self.action_server.close()
         if self.predictions is not None:
             self.predictions.close()
             self.get_logger().info(f'predictions: {self.predictions.answered} answered, '
@@ -471,10 +482,15 @@ class TissueSimNode(Node):
         return super().destroy_node()
 
 
-def main(argv=None) -> int:
-    """Run the node until SIGINT or SIGTERM; 0 on a clean stop, 2 on a refused parameter."""
+def main(argv=None, resolve_auto=None) -> int:
+    """Run the node until SIGINT or SIGTERM; 0 on a clean stop, 2 on a refused parameter.
+    ``resolve_auto``: how ``model: auto`` and ``solver.mass_scaling: auto`` become concrete keys
+    (``tissue_sim_ros.cli.node_script`` passes the analysis layer's; without it such a scene is
+    refused, naming the key)."""
+    import functools
+
     from tissue_sim_ros.ros.node_main import run
-    return run(TissueSimNode, help_text, argv)
+    return run(functools.partial(TissueSimNode, resolve_auto=resolve_auto), help_text, argv)
 
 
 if __name__ == '__main__':

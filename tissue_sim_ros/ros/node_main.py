@@ -14,7 +14,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 
-from tissue_sim_ros.ros.parameters import ConfigError
+from tissue_sim_ros.errors import ConfigError
 
 __all__ = ['make_executor', 'run']
 
@@ -53,7 +53,7 @@ def run(node_class, help_text, argv=None) -> int:
         # 1 ms (Python's default lets a running thread keep it for 5 ms, a late tick)
         sys.setswitchinterval(0.001)
         # the start-up's objects (numba, rclpy, the scene) move out of the collector's reach: a
-        # full collection walked them all, a 40-60 ms stall of the tick every few seconds
+        # full collection would walk them all, a 40-60 ms stall of the tick every few seconds
         gc.collect()
         gc.freeze()
         try:

@@ -6,7 +6,8 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.exceptions import (InvalidParameterTypeException, InvalidParameterValueException,
                               ParameterException)
 
-from tissue_sim_ros.ros.parameters import PARAMETERS, ConfigError
+from tissue_sim_ros.ros.parameters import PARAMETERS
+from tissue_sim_ros.errors import ConfigError
 
 __all__ = ['declare_parameters']
 

@@ -1,5 +1,5 @@
 """The node's parameters: every name with its default, range and meaning, and the checks that
-ranges cannot express. No rclpy here (declaring them is :mod:`parameter_declaration`), so tests,
+ranges cannot express. No rclpy here (declaring them is :mod:`.parameter_declaration`), so tests,
 the help text and the parameter file are built without a ROS graph.
 """
 from __future__ import annotations
@@ -14,8 +14,9 @@ import yaml
 
 from tissue_sim_ros.engine.needle.pose import DEFAULT_MAX_JUMP_M, DEFAULT_MAX_JUMP_RAD, QUATERNION_NORM_TOLERANCE
 from tissue_sim_ros.ros.loop.pose_input import PoseInputLimits
+from tissue_sim_ros.errors import ConfigError, InputError
 
-__all__ = ['AUTO_THREADS_ELEMENTS', 'NODE_NAME', 'PARAMETERS', 'ConfigError', 'NodeConfig', 'make_config', 'load_scene',
+__all__ = ['AUTO_THREADS_ELEMENTS', 'NODE_NAME', 'PARAMETERS', 'NodeConfig', 'make_config', 'load_scene',
            'parameters_yaml', 'help_text']
 
 NODE_NAME = 'tissue_sim'
@@ -62,8 +63,30 @@ PARAMETERS = (
     _Param('needle_frame_id', 'needle', 'name of the needle base frame (its +z is the needle axis)'),
     _Param('wrench.frame_id', 'needle', 'frame the wrench is expressed in: needle_frame_id or '
            'frame_id (either way about the needle base origin)'),
-    _Param('input.expected_frame_id', '', 'needle/pose header.frame_id accepted; empty = frame_id '
-           '(there is no tf here: other frames are refused)'),
+    _Param('input.expected_frame_id', '', 'needle/pose header.frame_id taken as is; empty = frame_id. '
+           'A pose in another frame is transformed into frame_id by TF (refused when TF cannot relate '
+           'them: bad_input.tf_unavailable)'),
+    _Param('input.source', 'topic', "where the needle's pose comes from: 'topic' (needle/pose) or 'tf' "
+           '(the TF frame input.tf_frame relative to frame_id, at the rate TF updates it)',
+           choices=('topic', 'tf')),
+    _Param('input.tf_frame', '', "with input.source tf: the TF frame that carries the needle (e.g. the "
+           "robot's tool0); the needle base is input.tf_offset_* from it"),
+    _Param('input.tf_offset_position_m', [0.0, 0.0, 0.0], 'the needle base origin in input.tf_frame '
+           '[x, y, z] (e.g. [0, 0, 0.15]: 150 mm along the tool axis)'),
+    _Param('input.tf_offset_orientation_xyzw', [0.0, 0.0, 0.0, 1.0], 'the needle base orientation in '
+           'input.tf_frame [qx, qy, qz, qw] (the needle axis is the base frame\'s +z)'),
+    _Param('input.tf_timeout_s', 0.1, 'a transform at most this much older than the time asked for is '
+           'used as it is; older: the pose is refused (bad_input.tf_unavailable)', 0.0, 10.0),
+    _Param('tf.publish', True, 'broadcast the tissue frame (from its registration), the needle base and '
+           'tip frames and each target\'s frame on /tf and /tf_static'),
+    _Param('registration.parent_frame_id', '', "the robot's frame the tissue is registered in (e.g. "
+           'base_link); empty = no registration published (frame_id is a root, or another node places it)'),
+    _Param('registration.tissue_position_m', [0.0, 0.0, 0.0], 'the tissue frame (frame_id) origin in '
+           'registration.parent_frame_id [x, y, z]; ~/set_tissue_pose changes it at run time'),
+    _Param('registration.tissue_orientation_xyzw', [0.0, 0.0, 0.0, 1.0], 'the tissue frame orientation '
+           'in registration.parent_frame_id [qx, qy, qz, qw]'),
+    _Param('registration.needle_at_first_pose', False, 'the needle starts where the first pose received '
+           'puts it, however far from the scene\'s initial pose (as ~/register_needle with that pose)'),
     _Param('input.reliability', 'reliable', 'QoS reliability of the needle/pose subscription '
            '(best_effort also accepts best-effort publishers)', choices=('reliable', 'best_effort')),
     _Param('input.max_jump_m', DEFAULT_MAX_JUMP_M, 'a pose farther than this from the previous '
@@ -109,10 +132,6 @@ PARAMETERS = (
 )
 
 
-class ConfigError(ValueError):
-    """A parameter the node refuses at start; the message names it and its value."""
-
-
 @dataclass(frozen=True)
 class NodeConfig:
     publish_rate_hz: float
@@ -136,6 +155,14 @@ class NodeConfig:
     recording_nodes_rate_hz: float
     recording_prefix: str
     on_divergence: str
+    input_source: str
+    tf_frame: str
+    tf_offset: tuple              # (position (3,), orientation (4,)) of the needle base in tf_frame
+    tf_timeout_s: float
+    tf_publish: bool
+    registration_parent: str
+    tissue_pose: tuple            # (position (3,), orientation (4,)) of frame_id in registration_parent
+    needle_at_first_pose: bool
     prediction_workers: int
     prediction_threads: int
     prediction_prestart: bool
@@ -153,6 +180,11 @@ class NodeConfig:
             return self.engine_threads
         import os
         return 1 if n_elements < AUTO_THREADS_ELEMENTS else len(os.sched_getaffinity(0))
+
+    @property
+    def input_description(self) -> str:
+        """Where the first needle's poses come from, in words (diagnostics)."""
+        return 'needle/pose' if self.input_source == 'topic' else f'tf: {self.tf_frame} in {self.frame_id}'
 
     @property
     def wrench_frame(self) -> str:
@@ -201,6 +233,17 @@ def make_config(values: dict, scene_frame_id: str | None = None) -> NodeConfig:
             probe.unlink()
         except OSError as exc:
             refuse('recording.directory', f'a writable directory ({exc.strerror})')
+    tf_offset = _pose_parameter(v, 'input.tf_offset_position_m', 'input.tf_offset_orientation_xyzw', refuse)
+    tissue_pose = _pose_parameter(v, 'registration.tissue_position_m',
+                                  'registration.tissue_orientation_xyzw', refuse)
+    if v['input.source'] == 'tf':
+        own = {frame_id, v['needle_frame_id'], f"{v['needle_frame_id']}_tip"}
+        if not v['input.tf_frame'] or v['input.tf_frame'] in own:
+            refuse('input.tf_frame',
+                   f'a TF frame the robot publishes (input.source is tf), not one of {sorted(own)}')
+    parent = v['registration.parent_frame_id']
+    if parent and (parent == frame_id or parent != parent.strip() or parent.startswith('/')):
+        refuse('registration.parent_frame_id', f'a frame name other than frame_id ({frame_id!r})')
     if not v['recording.prefix'] or '/' in v['recording.prefix']:
         refuse('recording.prefix', 'a non-empty file name prefix without /')
     limits = PoseInputLimits(
@@ -222,10 +265,29 @@ def make_config(values: dict, scene_frame_id: str | None = None) -> NodeConfig:
         recording_chunk_interval_s=v['recording.chunk_interval_s'],
         recording_compression=v['recording.compression'],
         recording_nodes_rate_hz=v['recording.nodes_rate_hz'], recording_prefix=v['recording.prefix'],
-        on_divergence=v['on_divergence'], prediction_workers=v['prediction.workers'],
+        on_divergence=v['on_divergence'], input_source=v['input.source'], tf_frame=v['input.tf_frame'],
+        tf_offset=tf_offset, tf_timeout_s=v['input.tf_timeout_s'], tf_publish=v['tf.publish'],
+        registration_parent=parent, tissue_pose=tissue_pose,
+        needle_at_first_pose=v['registration.needle_at_first_pose'],
+        prediction_workers=v['prediction.workers'],
         prediction_threads=v['prediction.threads'], prediction_prestart=v['prediction.prestart'],
         prediction_max_error=v['prediction.max_error'],
         prediction_max_duration_s=v['prediction.max_duration_s'], values=dict(values))
+
+
+def _pose_parameter(v: dict, position_name: str, orientation_name: str, refuse) -> tuple:
+    """(position (3,), unit quaternion (4,)) from a pair of array parameters; a wrong length, a
+    non-finite value or a quaternion off unit by more than the input's tolerance is refused."""
+    import numpy as np
+    position = np.asarray(v[position_name], dtype=np.float64)
+    orientation = np.asarray(v[orientation_name], dtype=np.float64)
+    if position.shape != (3,) or not np.isfinite(position).all():
+        refuse(position_name, 'three finite numbers [x, y, z] in metres')
+    norm = float(np.linalg.norm(orientation)) if orientation.shape == (4,) else 0.0
+    if orientation.shape != (4,) or not np.isfinite(orientation).all() or \
+            abs(norm - 1.0) > v['input.unit_quaternion_tolerance']:
+        refuse(orientation_name, f'a unit quaternion [qx, qy, qz, qw] (norm {norm:.6g})')
+    return position, orientation / norm
 
 
 def parameters_yaml(values: dict, node_name: str = NODE_NAME) -> str:
@@ -251,13 +313,15 @@ def help_text(summary: str = '') -> str:
     return '\n'.join(lines)
 
 
-def load_scene(scene_file: str):
-    """The scene of ``scene_file`` (empty: the packaged default), or ConfigError naming it."""
+def load_scene(scene_file: str, resolve_auto=None):
+    """The scene of ``scene_file`` (empty: the packaged default), or ConfigError naming it;
+    ``resolve_auto``: as ``Scene.from_file``'s (the console script passes the analysis layer's,
+    for ``model: auto`` and ``solver.mass_scaling: auto``)."""
     from tissue_sim_ros.engine.scene.scene import Scene, default_scene_path
     path = scene_file or default_scene_path()
     try:
-        return Scene.from_file(path)
+        return Scene.from_file(path, resolve_auto=resolve_auto)
     except FileNotFoundError as exc:
         raise ConfigError(f'parameter scene_file: {scene_file!r}: {exc}') from None
-    except (ValueError, KeyError, TypeError, OSError, yaml.YAMLError) as exc:
+    except (InputError, OSError) as exc:
         raise ConfigError(f'parameter scene_file: {str(path)!r} was refused: {exc}') from None

@@ -17,7 +17,9 @@ import datetime as _dt
 from tissue_sim_ros.ros.loop.trace import TRACE_TYPE
 from tissue_sim_ros.ros.parameters import parameters_yaml
 from tissue_sim_ros.ros.messages.topics import (DIAGNOSTICS_QOS, MARKER_QOS, NODE_TOPIC_TYPES, NODES_QOS, PLAN_QOS,
-                                      SERVICE_EVENT_QOS, SURFACE_QOS, WRENCH_QOS)
+                                                READY_QOS, SERVICE_EVENT_QOS, SURFACE_QOS, TF_QOS,
+                                                TF_STATIC_QOS,
+                                                WRENCH_QOS)
 
 __all__ = ['node_log_topics', 'open_node_log', 'every_kth_tick', 'record_service_call']
 
@@ -28,26 +30,31 @@ def every_kth_tick(publish_rate_hz: float, rate_hz: float) -> int:
 
 def node_log_topics(node, qos_to_dict) -> list:
     """(resolved topic, ROS type, QoS dict) of every channel of the node's log: its publishers
-    (tissue/targets only for a scene with targets: nothing is published on it otherwise), its
-    pose subscriptions (one per needle) and its two services' event topics."""
+    (tissue/targets only for a scene with targets: nothing is published on it otherwise; a shape
+    and a wrench per needle), its pose subscriptions (one per needle), /tf and /tf_static (what it
+    broadcasts and what it receives from others), ``~/ready`` and its services' event topics."""
     needles = {}
     for (pose, wrench), pose_sub, wrench_pub in zip(node.needle_topics, node.pose_subs, node.wrench_pubs):
         needles[wrench] = (wrench_pub, WRENCH_QOS, NODE_TOPIC_TYPES['needle/wrench'])
         needles[pose] = (pose_sub, node.pose_qos, NODE_TOPIC_TYPES['needle/pose'])
+    for shape, shape_pub in zip(node.shapes.topics, node.shapes.publishers):
+        needles[shape] = (shape_pub, WRENCH_QOS, NODE_TOPIC_TYPES['needle/shape'])
     entities = {'tissue/nodes': (node.nodes_pub, NODES_QOS),
                 'tissue/surface': (node.surface_pub, SURFACE_QOS),
                 'tissue/marker': (node.marker_pub, MARKER_QOS),
                 'tissue/targets': (node.targets_pub if len(node.scene.targets) else None, NODES_QOS),
                 '/diagnostics': (node.diagnostics_pub, DIAGNOSTICS_QOS),
                 'plan/candidate': (node.candidate_sub, PLAN_QOS),
-                'plan/prediction': (node.prediction_pub, PLAN_QOS)}
+                'plan/prediction': (node.prediction_pub, PLAN_QOS),
+                '/tf': (node.tf_subs[0], TF_QOS), '/tf_static': (node.tf_subs[1], TF_STATIC_QOS),
+                '~/ready': (node.ready_pub, READY_QOS)}
     entities = {name: (entity, profile, NODE_TOPIC_TYPES[name]) for name, (entity, profile) in entities.items()}
     topics = [(entity.topic_name, type_name, qos_to_dict(profile))
               for entity, profile, type_name in [*needles.values(), *entities.values()] if entity is not None]
     topics.append((node.trace_topic, TRACE_TYPE, qos_to_dict(WRENCH_QOS)))
-    return topics + [(node._event_topic(srv), type_name, qos_to_dict(SERVICE_EVENT_QOS))
-                     for srv, type_name in ((node.reset_srv, 'std_srvs/srv/Trigger_Event'),
-                                            (node.pause_srv, 'std_srvs/srv/SetBool_Event'))]
+    from tissue_sim_ros.ros.services import SERVICE_TYPES
+    return topics + [(node._event_topic(node.node_services.services[name]), f'{type_name}_Event',
+                      qos_to_dict(SERVICE_EVENT_QOS)) for name, type_name in SERVICE_TYPES.items()]
 
 
 def open_node_log(config, *, scene_text: str, node_name: str, node_fqn: str, topics,

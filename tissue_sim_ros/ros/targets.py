@@ -1,10 +1,10 @@
-"""The scene's targets on ROS (issue 18 item 2): ``tissue/targets`` and their diagnostics.
+"""The scene's targets on ROS: ``tissue/targets`` and their diagnostics.
 
 ``tissue/targets`` (geometry_msgs/msg/PoseArray, every tick, in ``frame_id``): where each target
 is now, in the scene's order (the names: the diagnostics status and the scene file); identity
 orientations (a target is a point). The status ``<node>: targets`` gives the names, and per
 target the needle tip's distance to it and the lateral miss of the needle's line [m], the two
-figures a planner steers by (engine.targets).
+figures a planner steers by (engine.scene.targets).
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ def targets_msg(positions: np.ndarray, frame_id: str, stamp) -> PoseArray:
 
 def targets_status(name: str, names, figures) -> tuple:
     """The DiagnosticStatus tuple of the targets: ``figures`` (tip distance, lateral miss, ahead
-    of the tip), each (k,) [m], as the last tick computed them (engine.targets)."""
+    of the tip), each (k,) [m], as the last tick computed them (engine.scene.targets)."""
     values = {'targets': len(names), 'names': ', '.join(names)}
     for k, target in enumerate(names):
         values[f'{target}/tip_distance_m'] = float(figures[0][k])

@@ -5,15 +5,13 @@ busy 2-core machine a fully spinning pool (OMP_WAIT_POLICY=active) steals the co
 thread needs, while a sleeping pool (passive) pays ~0.1 ms to wake at every parallel region, a
 6x slowdown of a 1e3-tetrahedron step. A bounded spin, GOMP_SPINCOUNT=10000 (microseconds, then
 sleep), covers the gap between the back-to-back kernels of one step and sleeps otherwise.
-Measured with `tissue-sim bench` (tet-steps/s at 1e3 / 1e5 tetrahedra, 2 cores):
-  unloaded:             passive 7.6e6 / 6.3e7, spin 1e4 4.6e7 / 8.1e7, active 4.5e7 / 8.9e7
-  one busy process:     passive 2.8e7 / 4.8e7, spin 1e4 1.0e7 / 3.6e7, active 1.7e7 / 3.5e7
+Figures: docs/performance.md.
 
 On AVX-512 machines LLVM prefers 256-bit vectors by default (the 'prefer-256-bit' tuning of
 Skylake-X and later, against the clock drop of older parts); the element pass's lane loops are
-long straight-line arithmetic, and 512-bit vectors run them faster: 98304 tetrahedra, one thread,
-full model 2.6 -> 2.4 ms, with viscosity 3.3 -> 3.0 ms; the linear model unchanged. So on such a
-host numba gets the host's own features with '-prefer-256-bit' appended.
+long straight-line arithmetic, and 512-bit vectors run the full model's about 8 % faster (the
+linear model's no slower). So on such a host numba gets the host's own features with
+'-prefer-256-bit' appended.
 
 These are defaults only: a user who exports NUMBA_THREADING_LAYER, OMP_WAIT_POLICY,
 GOMP_SPINCOUNT or NUMBA_CPU_FEATURES keeps their choice (OMP_WAIT_POLICY=passive is the better
@@ -23,7 +21,7 @@ numba's cache of compiled kernels goes to a per-user directory, $XDG_CACHE_HOME/
 (default ~/.cache/tissue_sim_ros/numba), one known place instead of __pycache__ beside the installed
 sources, which may be read-only on a ROS install. Under it, one directory per version of the engine's
 sources (user_cache.sources_key): numba checks only the stamp of the file that defines a kernel, so
-a kernel whose helpers live in another file (forces.py's element pass and simd_lanes.py) would load
+a kernel whose helpers live in another file (kernels.py's element pass and simd_lanes.py) would load
 its old machine code after a change to that file alone. A user's own NUMBA_CACHE_DIR keeps its
 meaning, and that check only.
 The variable is process-wide: other numba code in the same process caches there too (under its own

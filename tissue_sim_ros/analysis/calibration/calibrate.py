@@ -5,7 +5,7 @@
 2. Affordable stiffness: a trial that would shrink the time step below the starting scene's keeps
    that step by raising the mass scaling (the critical step grows as its square root); its
    damping force stays the scene's (the rate falls as the mass scaling rises:
-   ``scene_overrides.with_mass_scaling``, the rule the node's degradation ladder follows). The inertia
+   ``engine.scene.keys.with_mass_scaling``, the rule the node's degradation ladder follows). The inertia
    error this brings is measured once, on the scene the search runs on: the fastest speed's
    simulation (the shortest, and the largest inertial forces: the worst case) at the starting
    mass scaling m0 and at m0 / 4, the damping force kept; the quasi-static error of mass scaling
@@ -34,9 +34,10 @@ from pathlib import Path
 import numpy as np
 
 from tissue_sim_ros.analysis.calibration.fine import REFIT_STEPS
+from tissue_sim_ros.analysis.calibration.objective import calibrated_spec
 from tissue_sim_ros.engine.scene.keys import with_mass_scaling
 
-__all__ = ['INERTIA_BOUND', 'measure_inertia_error', 'calibrate', 'calibrated_spec', 'noise_floor',
+__all__ = ['INERTIA_BOUND', 'measure_inertia_error', 'calibrate', 'noise_floor',
            'parse_phase_weights', 'speed_folds', 'main']
 
 INERTIA_BOUND = 0.02
@@ -79,11 +80,45 @@ def noise_floor(objective, evaluation) -> float:
     return float(np.nanmean(floors)) if np.isfinite(floors).any() else float('nan')
 
 
-def _start(keys, spec, log) -> np.ndarray:
+def _whole_scene(spec, where: str, centroids=None) -> None:
+    """Check scene keys as a scene would (every key, every list, the combinations, and with the
+    mesh's element ``centroids`` that every element has a region), without building the scene; a
+    SceneError starting with ``where``."""
+    from tissue_sim_ros.engine.mesh.selectors import RegionSelectors
+    from tissue_sim_ros.engine.scene.build import check_combinations
+    from tissue_sim_ros.engine.scene.checks import apply_schema
+    from tissue_sim_ros.engine.scene.schema import SCHEMA
+    from tissue_sim_ros.errors import SceneError
+    try:
+        checked = apply_schema('', spec, SCHEMA)
+        check_combinations(checked)
+    except SceneError as exc:
+        raise SceneError(f'{where}: {exc}') from None
+    if centroids is not None and checked['mesh']['generator'] != 'file':
+        orphans = int(np.sum(RegionSelectors(checked['regions']).element_regions(centroids) < 0))
+        if orphans:
+            raise SceneError(f'{where}: {orphans} elements would belong to no region (the first region must '
+                             'select all, or the regions together cover the mesh)')
+
+
+def _start(keys, spec, log, centroids=None) -> np.ndarray:
+    """The unit coordinates of the scene's values; a key that cannot take its bounds is refused
+    here, before the first evaluation: each bound set alone, and every key at its lower and at
+    its upper bound at once, must make a scene the schema and its combinations accept (a
+    relaxation term's part of the modulus, whose sum must stay below 1; relaxation with an
+    implicit integrator)."""
     from tissue_sim_ros.analysis.calibration.parameters import read_key
+    from tissue_sim_ros.engine.scene.keys import set_key, set_keys
     u = []
+    for side in ('low', 'high'):
+        corner = {k.key: getattr(k, side) for k in keys}
+        where = f"--fit with every key at its {'lower' if side == 'low' else 'upper'} bound"
+        _whole_scene(set_keys(spec, corner) if len(keys) > 1 else spec, where, centroids)
     for k in keys:
         value = read_key(spec, k.key)
+        for bound in (k.low, k.high):
+            where = f'--fit {k.key}={k.low:g}:{k.high:g}'
+            _whole_scene(set_key(spec, k.key, bound, where=where), f'{where} (at {bound:g})', centroids)
         if not k.low <= value <= k.high:
             log(f'warning: {k.key} = {value:g} in the scene is outside --fit {k.low:g}:{k.high:g}; '
                 'starting at the nearest bound')
@@ -99,17 +134,23 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
     """Fit ``keys`` (FittedKey) of ``scene`` to ``trials``; everything the report needs."""
     from tqdm import tqdm
 
-    from tissue_sim_ros.analysis.calibration.objective import Objective
+    from tissue_sim_ros.analysis.calibration.evaluation_log import logged_runs
+    from tissue_sim_ros.analysis.calibration.objective import Budget, Objective
     from tissue_sim_ros.analysis.calibration.fine import fine_finish, refit_loading
-    from tissue_sim_ros.analysis.calibration.search import search, uncertainty
+    from tissue_sim_ros.analysis.calibration.search import search, uncertainty, why_not_moved
     from tissue_sim_ros.analysis.compare.trial_simulation import ResultStore
     log = log or (lambda text: print(text, file=sys.stderr))
     wall0 = time.perf_counter()
+    if max_evaluations is not None and max_evaluations < len(keys) + 2:
+        raise ValueError(f'--max-evaluations {max_evaluations}: expected at least {len(keys) + 2} for {len(keys)} '
+                         'key(s) (the start, a step, and the Jacobian of the standard errors at the result)')
+    budget = Budget(max_evaluations, reserve=len(keys))
     out = Path(out) if out is not None else None
     store = ResultStore(out / 'simulations') if out is not None else None
     log_path = out / 'evaluations.jsonl' if out is not None else None
+    earlier_runs = logged_runs(log_path)
     search_scene = coarse_scene or scene
-    u0 = _start(keys, scene.spec, log)
+    u0 = _start(keys, scene.spec, log, scene.mesh.rest_positions[scene.mesh.tetrahedra].mean(axis=1))
     from tissue_sim_ros.analysis.jobs import WorkerPool
     pool = WorkerPool(workers if scheduler is None else 1)
     options = dict(align=align, gap_m=gap_m, tick_s=tick_s, phase_weights=phase_weights, store=store,
@@ -122,8 +163,10 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
         return dict(inertia, cap=cap, bound=inertia_bound)
 
     def objective_for(a_scene, inertia):
-        return Objective(trials, a_scene, keys, keep_time_step_s=a_scene.dt, max_mass_scaling=inertia['cap'],
+        made = Objective(trials, a_scene, keys, keep_time_step_s=a_scene.dt, max_mass_scaling=inertia['cap'],
                          **options)
+        made.budget = budget
+        return made
 
     bar = tqdm(desc='calibration', unit='eval', file=sys.stderr, disable=quiet, dynamic_ncols=True)
 
@@ -140,12 +183,21 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
         objective = objective_for(search_scene, inertia)
         used_objectives = [progress(objective)]
         start = objective.evaluate(u0)
+        floor = noise_floor(objective, start)
+
+        def enough(evaluation):
+            return bool(np.isfinite(floor) and evaluation.nrmse_mean <= floor)
+        stages: list = []
         # with a coarse scene the joint refinement is the fine finish's, on the scene as asked
         u = search(objective, u0, staged=staged, global_search=global_search, generations=generations,
                    stage_evaluations=stage_evaluations, joint_evaluations=joint_evaluations,
-                   max_evaluations=max_evaluations, joint=coarse_scene is None or not staged, log=log)
+                   joint=coarse_scene is None or not staged, log=log, record=stages,
+                   enough=enough if coarse_scene is None else None)
         at_optimum, J, finish = objective, None, []
-        if coarse_scene is not None:
+        stopped_at_start = any(entry.get('stopped') == 'already optimal' for entry in stages)
+        if stopped_at_start:
+            J = next(entry.pop('jacobian') for entry in stages if entry.get('stopped') == 'already optimal')
+        if coarse_scene is not None and not stopped_at_start:
             log('fine stage: on the scene as asked')
             objective = objective_for(scene, inertia)
             used_objectives.append(progress(objective))
@@ -156,9 +208,12 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
                 u, J, finish = fine_finish(objective, u, steps=fine_steps, noise_floor=noise_floor(objective, start),
                                            log=log)
         best = objective.evaluate(u)
+        for used in used_objectives:
+            used.for_search = False              # the reserve: the Jacobian of the standard errors
         spread = uncertainty(at_optimum, u, J)
         spread['jacobian'] = ('the scene as asked, before the fine finish\'s steps' if J is not None else
                               'the scene as asked, at the optimum')
+        spread['moved'] = why_not_moved(at_optimum, u0, u, spread['jacobian_matrix'], spread['correlation'])
     evaluations = [e for o in used_objectives for e in o.evaluations]
     failed = [e for e in evaluations if e.failures]
     partial = sum(e.phases is not None for e in evaluations)
@@ -166,16 +221,16 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
     used = max((r.mass_scaling for r in best.results if np.isfinite(r.mass_scaling)), default=inertia['mass_scaling'])
     inertia['mass_scaling_at_optimum'] = used
     inertia['error_at_optimum'] = inertia['error_at_start'] * used / inertia['mass_scaling']
+    wall = time.perf_counter() - wall0
+    earlier = sum(run['elapsed_s'] for run in earlier_runs.values())
     return {'keys': keys, 'u0': u0, 'u': u, 'start': start, 'best': best, 'uncertainty': spread,
-            'inertia': inertia, 'objective': objective, 'evaluations': len(evaluations),
+            'inertia': inertia, 'objective': objective, 'evaluations': budget.used,
+            'replayed_evaluations': budget.replayed, 'max_evaluations': max_evaluations,
             'partial_evaluations': partial, 'failed': failed, 'simulations': simulations,
-            'search_wall_s': time.perf_counter() - wall0, 'finish': finish}
-
-
-def calibrated_spec(fit: dict) -> dict:
-    """The scene keys of the optimum, with the mass scaling it ran with (and the damping rate that
-    keeps the scene's damping force at it)."""
-    return with_mass_scaling(fit['objective'].spec_for(fit['u']), fit['inertia']['mass_scaling_at_optimum'])
+            'search_wall_s': wall, 'wall_s_all_runs': earlier + wall, 'runs': len(earlier_runs) + 1,
+            'evaluations_logged': sum(run['evaluations'] for run in logged_runs(log_path).values()),
+            'finish': finish, 'stages': stages, 'noise_floor_nrmse': floor, 'stopped_at_start': stopped_at_start,
+            'evaluations_in_memory': len(evaluations)}
 
 
 def parse_phase_weights(texts) -> dict:
@@ -231,7 +286,7 @@ def main(*, data_spec, fits, validate_spec=None, leave_one_speed_out=False, scen
     gives as the cross-validation."""
     from tissue_sim_ros.analysis.calibration.parameters import parse_fit
     from tissue_sim_ros.analysis.calibration.report import speed_label
-    from tissue_sim_ros.engine.scene.scene import Scene
+    from tissue_sim_ros.analysis.charting.auto_keys import load_scene
     from tissue_sim_ros.io.trials.data_spec import DataSpec, load_trials
     stream = sys.stdout if stream is None else stream
     keys = [parse_fit(text) for text in fits]
@@ -249,8 +304,8 @@ def main(*, data_spec, fits, validate_spec=None, leave_one_speed_out=False, scen
         trials = [within_depth(t, max_depth_mm * 1e-3, gap_m=gap) for t in trials]
         held_out = [within_depth(t, max_depth_mm * 1e-3, gap_m=gap) for t in held_out]
     folds = speed_folds(trials) if leave_one_speed_out else []
-    scene = Scene.from_file(scene_file, sets=sets)
-    coarse = Scene.from_file(scene_file, sets=list(sets) + list(coarse_sets)) if coarse_sets else None
+    scene = load_scene(scene_file, sets=sets)
+    coarse = load_scene(scene_file, sets=list(sets) + list(coarse_sets)) if coarse_sets else None
     print(f'calibrate: {len(keys)} key(s) on {len(trials)} trial(s) from {spec.source}'
           f'{f", {len(held_out)} held out" if held_out else ""}'
           f'{f", cross-validated leaving out each of {len(folds)} speeds" if folds else ""}; '
@@ -269,7 +324,7 @@ def main(*, data_spec, fits, validate_spec=None, leave_one_speed_out=False, scen
                                data_spec=data_spec, validate_spec=f'{data_spec} ({label})', **options)
         row = dict(fold['validation']['speeds'][0], role='left out',
                    parameters={k: p['value'] for k, p in fold['parameters'].items()},
-                   report=fold['outputs']['report.json'])
+                   report=fold['outputs']['calibrate.json'])
         print(f'cross-validation: {label} predicted at NRMSE {row["nrmse_calibrated"]:.4f} (noise floor '
               f'{row["noise_floor_nrmse"] or float("nan"):.4f}, the nearest other speed\'s data '
               f'{row["nearest_speed_nrmse"] or float("nan"):.4f})', file=stream)
@@ -277,14 +332,18 @@ def main(*, data_spec, fits, validate_spec=None, leave_one_speed_out=False, scen
     report = _fit_and_report(trials, held_out, Path(out), data_spec=data_spec, validate_spec=validate_spec,
                              cross_validation=cross_validation or None, **options)
     for key, entry in report['parameters'].items():
-        print(f"  {key} = {entry['value']:.6g} +- {entry['stderr']:.2g} (start {entry['start']:.6g})", file=stream)
+        why = '' if entry.get('moved') or not entry.get('why_not_moved') else f"; did not move: {entry['why_not_moved']}"
+        print(f"  {key} = {entry['value']:.6g} +- {entry['stderr']:.2g} (start {entry['start']:.6g}{why})", file=stream)
     for warning in report['warnings']:
         print(f'  warning: {warning}', file=stream)
     print(f"fit NRMSE {report['fit']['nrmse_mean']:.4f} (start {report['fit']['nrmse_mean_start']:.4f})"
           + (f"; held out {report['validation']['nrmse_mean']:.4f}" if report.get('validation') else '')
           + (f"; leave-one-speed-out {report['cross_validation']['nrmse_mean']:.4f}"
              if report.get('cross_validation') else '')
-          + f"; {report['evaluations']} evaluations, {report['simulations']} simulations, "
-          f"{report['wall_s']:.1f} s", file=stream)
+          + f"; {report['evaluations']}{'' if max_evaluations is None else f' of {max_evaluations}'} evaluations"
+          f"{'' if not report.get('replayed_evaluations') else ' (' + str(report['replayed_evaluations']) + ' replayed)'}, "
+          f"{report['simulations']} simulations, {report['wall_s']:.1f} s"
+          + (f" ({report['wall_s_all_runs']:.1f} s over {report['runs']} runs)" if report.get('runs', 1) > 1 else ''),
+          file=stream)
     print(f"wrote {', '.join(report['outputs'].values())}", file=stream)
     return report

@@ -2,13 +2,12 @@
 scene as asked, then finish there with its own Jacobian.
 
 A coarser mesh is not the same tissue. Its linear tetrahedra lock more (the liver's Poisson ratio
-is 0.45) and its contact patch is coarser, so it is stiffer: on the calibration benchmark the
-coarse optimum had every key within 5 % of the truth but Young's modulus, 42 % low (fine
-objective 0.056 there, the truth 0.00005). The stiffness and the law act on the loading before
-the first puncture, so they are fitted again on the scene as asked, on the loading alone
-(:func:`refit_loading`: ``REFIT_STEPS`` Gauss-Newton steps from the coarse optimum on the
+is 0.45) and its contact patch is coarser, so it is stiffer: its optimum can have every other
+key close to the truth and Young's modulus far too low. The stiffness and the law act on the
+loading before the first puncture, so they are fitted again on the scene as asked, on the loading
+alone (:func:`refit_loading`: ``REFIT_STEPS`` Gauss-Newton steps from the coarse optimum on the
 loading's residuals, the simulations stopped at the first puncture by the objective's horizons,
-a quarter of a whole run), which took the benchmark's modulus to within 1 % (objective 0.00025).
+a quarter of a whole run).
 
 Then the **fine finish** (:func:`fine_finish`) over every key on every residual. Both are
 :func:`gauss_newton`: the scene's own Jacobian at the start point (one parallel batch; forward
@@ -19,19 +18,15 @@ objective), the Jacobian updated after each by Broyden's rank-one secant rule so
 batch is spent. Shortened, not clipped to a box: the loading cannot tell the law's amplitude
 from the stiffness well (on the benchmark the loading Jacobian's singular values are 0.28 and
 0.0017, the second almost all amplitude), and with the step solved inside a box the stiffness's
-long step stopped at the box's face and the amplitude took up the rest, from the truth to -47 %
-in one step. Chord steps with the Jacobian held converged linearly (on the small synthetic study, stiffness -13 %, -8 %,
--4 % after one, two, three; with the updates -3 % and +1 % after two and three). On the
-benchmark the finish reached the objective of the true values (0.000058 against 0.000051) in
-three steps. The first Jacobian gives the standard errors: the fine scene's, though taken where
-the finish started, not at the point it returns (another batch would cost as much again; the
-report says so).
+long step would stop at the box's face and the amplitude take up the rest. The Jacobian is
+updated, not held: chord steps with it held converge only linearly. The first Jacobian gives the
+standard errors: the fine scene's, though taken where the finish started, not at the point it
+returns (another batch would cost as much again; the report says so).
 
-This replaced output space mapping (Bandler et al. 2004: the coarse residuals shifted to agree
-with the fine ones where last run, searched again): its fixed point is not the fine optimum
-when the coarse scene responds to the keys along other directions, as a coarse mesh does (its
-Jacobian 36-141 % off the fine one per key on the benchmark), and there it moved the law's
-amplitude from the truth to +86 % and ended at a fine objective 9x the truth's.
+Not output space mapping (Bandler et al. 2004: the coarse residuals shifted to agree with the
+fine ones where last run, searched again): its fixed point is not the fine optimum when the
+coarse scene responds to the keys along other directions, as a coarse mesh does (its Jacobian
+36-141 % off the fine one per key on the benchmark). Figures: docs/performance.md.
 """
 from __future__ import annotations
 

@@ -14,56 +14,72 @@ when the force drops would dominate the sum); the puncture stage fits the events
 
 A simulated puncture later (or earlier) than the measured one puts the samples between the two
 on opposite sides of the drop: each misses by the drop, and how many there are changes in whole
-samples as the parameters move, a staircase no finite difference reads. On the calibration
-benchmark two such samples held 82 % of a trial's objective at the search's result, and the fine
-Jacobian's predictions missed by 12-21x. So those samples count 0 too, and each measured
+samples as the parameters move, a staircase no finite difference reads: two such samples can
+hold most of a trial's objective, and a Jacobian's predictions then miss by an order of
+magnitude. So those samples count 0 too, and each measured
 puncture adds one residual instead: the measured drop over the force range times the signed root
-of the Huber cost of the matched simulated puncture's shift (k-th with k-th) counted in scored
+of the Huber cost of the matched simulated puncture's shift (the same layer's) counted in scored
 samples, with the inserted phase's weight (:func:`huber_root`). Its square grows as the shift's
 square within half a sample (smooth where the finish works) and by one sample's cost per sample
-beyond, as the samples it replaces did. Growing as the square all the way, a shift of ten
-samples weighed ten times what the pointwise error did, and on the bovine liver (one trial,
-25 mm) the search traded the curve for the puncture's depth (NRMSE 0.077 where the pointwise
-objective had reached 0.063; 0.073 with the Huber cost).
+beyond, as the samples it replaces would. Growing as the square all the way, a shift of ten
+samples would weigh ten times what the pointwise error does, and the search would trade the
+curve for the puncture's depth.
 
 A run that diverges, trips the watchdog, or whose keys the scene refuses, scores 1 at every
 residual (a miss by the whole force range: worse than any run that finishes) and its reason is
 logged; a sample the simulation did not reach scores 1 likewise. The samples are chosen among
 those the first finished run reached, and the plan's simulations run past the end of every repeat
-they are compared with (:mod:`~tissue_sim_ros.analysis.compare.measured_motion`), so a miss is a run's,
-not the data's: the last sample of a jittered recording scoring 1 in every run was a constant
-that made the search's relative tests stop early. Nothing is NaN and nothing stops the search.
+they are compared with (:mod:`~tissue_sim_ros.analysis.compare.measured_motion`), so a miss is a
+run's, not the data's: a sample no run reaches would be a constant in every evaluation, which
+stops the search's relative tests early. Nothing is NaN and nothing stops the search.
 
 A stage of the search that fits only the first phases of the curve (the loading before the first
 puncture, the puncture itself, the steady insertion) needs the simulations only that far: an
 evaluation for ``phases`` runs each speed's simulation to a **horizon**, the latest sample of
-those phases over the speed's trials (each on its own contact's clock; for the puncture, the
-travel to ``EVENT_REACH`` times the first puncture's depth plus the detector's window, so that a
+those phases over the speed's trials (each on its own contact's clock; for a layer's puncture,
+the travel to ``EVENT_REACH`` times its depth, and the detector's window at least, so that a
 simulated puncture somewhat deeper than the measured one is still found) plus ``HORIZON_MARGIN_S``
 and ``HORIZON_MARGIN_FRACTION`` of it (the simulated contact's lag, the cross-correlation's
 shift). On the calibration benchmark the loading ends at a quarter of the slowest speed's run.
 Such a partial evaluation scores only its phases (its other samples are misses), so it never
 becomes the best; one that does not reach a sample of its phases is run again whole.
 
-Every evaluation is appended to ``evaluations.jsonl`` (parameter values, objective, mean NRMSE,
-failures); the simulations are kept in a :class:`~tissue_sim_ros.analysis.compare.trial_simulation.ResultStore`,
+The data's punctures are those its repeats share (``compare.measured_layers``: a pre-drop is no
+puncture, and each carries its layer), and a simulated puncture
+is paired with the data's of the same layer; the samples between them count 0 (as above) and, in
+compare's NRMSE, too when the simulated one lies within the repeats' spread. Each sample carries
+its stage label (:func:`~tissue_sim_ros.analysis.calibration.stages.sample_labels`): a stage's
+residuals are those of its labels, and its puncture events (per layer, the force and depth
+errors), and its horizon the latest of those samples (a puncture's: its depth plus half of it,
+and the detector's window, at least).
+
+**The budget** (:class:`Budget`, one for a whole calibration, coarse and fine scenes alike):
+every evaluation the search asks for counts, whether its simulations run or are replayed from
+the store (a resumed run counts what it replays, so it ends where the uninterrupted one did), a
+partial evaluation run again whole counts twice; a batch that would pass the limit is not run
+(:class:`BudgetSpent`).
+
+Every evaluation is appended to ``evaluations.jsonl`` once, across resumes (parameter values,
+objective and mean NRMSE, or for a partial one its stage's objective, failures, ``run``: the run of the study that made it, 1 the first,
+``elapsed_s``: the seconds since that run began, ``replayed``: its simulations all came from the
+store); the simulations are kept in a :class:`~tissue_sim_ros.analysis.compare.trial_simulation.ResultStore`,
 so a second run over the same inputs replays them instead of simulating again (resume).
 """
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ['Evaluation', 'Objective', 'FAILED_RESIDUAL', 'BudgetSpent', 'huber_root', 'puncture_shift_residuals']
+from tissue_sim_ros.analysis.calibration.evaluation_log import log_evaluation, logged_keys
+
+__all__ = ['Budget', 'Evaluation', 'Objective', 'FAILED_RESIDUAL', 'BudgetSpent', 'calibrated_spec', 'huber_root',
+           'puncture_shift_residuals']
 
 #: the residual of a sample the simulation did not give (diverged, refused, not reached)
 FAILED_RESIDUAL = 1.0
-#: the phases whose stages may stop the simulations early (module docstring); later phases run whole
-PARTIAL_PHASES = ('loading', 'inserted')
 #: the puncture stage's simulations run to this multiple of the first puncture's depth
 EVENT_REACH = 1.5
 #: a horizon's margin: this much time, and this fraction of the time since contact
@@ -73,6 +89,27 @@ HORIZON_MARGIN_FRACTION = 0.05
 
 class BudgetSpent(Exception):
     """The evaluations the search may run are spent (``Objective.budget``)."""
+
+
+class Budget:
+    """Evaluations a calibration may make (``limit``; None: no limit), ``used`` so far (run or
+    replayed), ``replayed`` of them; ``reserve``: kept back from the search for the Jacobian the
+    standard errors need at its result."""
+
+    def __init__(self, limit: int | None = None, reserve: int = 0):
+        self.limit, self.reserve, self.used, self.replayed = limit, int(reserve), 0, 0
+
+    def left(self, for_search: bool = True) -> float:
+        if self.limit is None:
+            return float('inf')
+        return self.limit - self.used - (self.reserve if for_search else 0)
+
+    def take(self, count: int, for_search: bool = True) -> None:
+        """Count ``count`` evaluations, or raise BudgetSpent when they would pass the limit."""
+        if count > self.left(for_search):
+            raise BudgetSpent(f'{self.limit} evaluations: {self.used} used'
+                              + (f', {self.reserve} kept for the standard errors' if for_search and self.reserve else ''))
+        self.used += count
 
 
 @dataclass
@@ -86,7 +123,9 @@ class Evaluation:
     results: list
     failures: list = field(default_factory=list)
     #: the phases a partial evaluation ran for (module docstring); None: the whole curves
-    phases: tuple | str | None = None
+    phases: object = None
+    #: every simulation came from the store (an earlier run's)
+    replayed: bool = False
 
     @property
     def objective(self) -> float:
@@ -100,18 +139,30 @@ class Evaluation:
 
 def puncture_shift_residuals(comparison, indices, error, scale):
     """``error`` (a trial's residuals at the scored samples ``indices``) with the samples strictly
-    between each measured puncture and the simulated one matched with it (k-th with k-th) set to
+    between each measured puncture and the simulated one of its layer (``pair_punctures``) set to
     0, and per measured puncture its shift as one residual: the measured drop over the force
     range ``scale`` times the Huber root of the simulated puncture's shift counted in scored
-    samples (0 for a puncture the simulation has no match for). See the module docstring."""
+    samples; a puncture the simulation has no drop of costs as one shifted past every scored
+    sample up to the next measured puncture (or the end): a run that stops puncturing a layer, or
+    punctures it without a drop, is not let off the samples the missing drop leaves on the wrong
+    side. See the module docstring."""
     travel = comparison.travel_since_contact_m
     spacing = np.diff(travel[indices])
     spacing = float(np.median(spacing[spacing > 0])) if np.any(spacing > 0) else 0.0
     shifts = np.zeros(len(comparison.measured_punctures))
     if spacing <= 0:
         return error, shifts
+    from tissue_sim_ros.analysis.compare.shared_punctures import pair_punctures
     error = np.array(error, dtype=float)
-    for k, (data, sim) in enumerate(zip(comparison.measured_punctures, comparison.simulated_punctures)):
+    paired = {id(m): sim for m, sim in pair_punctures(comparison.measured_punctures, comparison.simulated_punctures)}
+    measured = comparison.measured_punctures
+    for k, data in enumerate(measured):
+        sim = paired.get(id(data))
+        if sim is None:
+            until = measured[k + 1].index if k + 1 < len(measured) else np.inf
+            missed = int(np.count_nonzero((indices > data.index) & (indices < until)))
+            shifts[k] = (data.drop_n / scale) * huber_root(max(missed, 1))
+            continue
         first, last = sorted((data.index, sim.index))
         error[(indices > first) & (indices <= last)] = 0.0   # both peaks are the last samples before a drop
         shifts[k] = (data.drop_n / scale) * huber_root((sim.travel_m - data.travel_m) / spacing)
@@ -144,13 +195,20 @@ class Objective:
         self.keep_time_step_s, self.max_mass_scaling = keep_time_step_s, max_mass_scaling
         self.store, self.workers, self.scheduler, self.pool = store, workers, scheduler, pool
         self.log_path = None if log_path is None else Path(log_path)
+        self._logged, self.run_number = logged_keys(self.log_path)       # a resumed run logs each evaluation once
+        self.started = time.perf_counter()
+        from tissue_sim_ros.analysis.compare.compare import measured_layers
+        self._measured, self._layers = measured_layers(self.trials, self.plan.motions)
+        self.n_layers = max((len(layers) for layers in self._layers if layers), default=0)
+        self.regions = self.base_spec['regions']
         self._cache: dict = {}           # (vector key, horizon key) -> Evaluation; horizon None: whole
-        self._points = None              # per trial: (sample indices, phases there)
+        self._points = None              # per trial: (sample indices, phases there, stage labels there)
         self._horizons: dict = {}        # stage phases -> per job the schedule's end index (None: whole)
         self.simulations_run = 0
         self.best: Evaluation | None = None
         self.on_evaluation = None        # called with each new Evaluation (progress)
-        self.budget: int | None = None   # evaluations at most (None: no limit), else BudgetSpent
+        self.budget: Budget | None = None   # the calibration's (None: no limit), else BudgetSpent
+        self.for_search = True           # whether the budget's reserve is kept back
 
     @property
     def evaluations(self) -> list[Evaluation]:
@@ -162,9 +220,9 @@ class Objective:
         return {k.key: k.value(x) for k, x in zip(self.keys, u)}
 
     def spec_for(self, u) -> dict:
-        from tissue_sim_ros.analysis.calibration.parameters import overrides_for
-        from tissue_sim_ros.engine.scene.keys import apply_overrides
-        return apply_overrides(self.base_spec, overrides_for(self.keys, [k.value(x) for k, x in zip(self.keys, u)]))
+        """The scene keys at ``u``: each fitted value set by its key path, checked there."""
+        from tissue_sim_ros.engine.scene.keys import set_keys
+        return set_keys(self.base_spec, self.values(u))
 
     def jobs_for(self, u, ends=None) -> list:
         """The simulation jobs of ``u``; ``ends``: per job the schedule's end index (None: whole)."""
@@ -181,34 +239,57 @@ class Objective:
         or None when it needs the whole curves; known after the first (whole) evaluation."""
         if phases is None or self._points is None:
             return None
-        key = phases if isinstance(phases, str) else tuple(sorted(phases))
+        labels, events = self._scope(phases)
+        key = (labels, events)
         if key not in self._horizons:
-            self._horizons[key] = self._find_horizon(phases)
+            self._horizons[key] = self._find_horizon(labels, events)
         return self._horizons[key]
 
-    def _find_horizon(self, phases):
+    def _scope(self, phases) -> tuple:
+        """(sample labels, event layers) of a stage: a Stage, 'events' (every layer's puncture), or
+        compare's phase names ('loading': the segments before a puncture, 'inserted': after the last)."""
+        from tissue_sim_ros.analysis.calibration.stages import Stage
+        if isinstance(phases, Stage):
+            return tuple(sorted(phases.labels)), tuple(phases.events)
+        if phases == 'events':
+            return (), tuple(range(max(self.n_layers, 1)))
+        names = (phases,) if isinstance(phases, str) else tuple(phases)
+        labels = set()
+        segments = max(self.n_layers, 1)
+        for name in names:
+            if name == 'loading':
+                labels |= {f'segment {k}' for k in range(segments)}
+            elif name == 'inserted':
+                labels.add(f'segment {self.n_layers}')
+            elif name == 'retraction':
+                labels |= {f'retraction {k}' for k in range(segments)}
+            else:
+                labels.add(name)
+        return tuple(sorted(labels)), ()
+
+    def _find_horizon(self, labels, events):
         from tissue_sim_ros.analysis.compare.force_events import PUNCTURE_WINDOW_M
-        if phases != 'events' and not set(phases) <= set(PARTIAL_PHASES):
+        if not all(label.startswith('segment ') for label in labels):
             return None
         first = next(iter(self._cache.values()))       # the first evaluation (whole: it chose the points)
         needed = [0.0] * len(self.plan.jobs)           # per job: time since contact
-        for i, (comparison, (indices, sample_phases)) in enumerate(zip(first.comparisons, self._points)):
+        for i, (comparison, (indices, _, sample_labels)) in enumerate(zip(first.comparisons, self._points)):
             since = comparison.time_since_contact_s
-            if phases == 'events':
-                if not comparison.measured_punctures:
+            times = [float(since[inside].max()) for inside in [indices[np.isin(sample_labels, labels)]] if inside.size]
+            for layer in events:
+                punctures = [p for p in comparison.measured_punctures if p.layer == layer]
+                if not punctures:
                     continue
-                reach = EVENT_REACH * comparison.measured_punctures[0].travel_m + PUNCTURE_WINDOW_M
+                depth = punctures[0].travel_m
+                reach = depth + max(PUNCTURE_WINDOW_M, (EVENT_REACH - 1.0) * depth)
                 beyond = np.flatnonzero(comparison.travel_since_contact_m >= reach)
                 if not beyond.size:
                     return None
-                t = float(since[beyond[0]])
-            else:
-                inside = indices[np.isin(sample_phases, phases)]
-                if not inside.size:
-                    continue
-                t = float(since[inside].max())
+                times.append(float(since[beyond[0]]))
+            if not times:
+                continue
             job = self.plan.job_of_trial[i]
-            needed[job] = max(needed[job], t)
+            needed[job] = max(needed[job], max(times))
         ends = []
         for job, schedule in enumerate(self.plan.schedules):
             motion = self.plan.motions[self.plan.representative[job]]
@@ -229,15 +310,20 @@ class Objective:
         (a stage's, :meth:`stage_residuals`): the simulations may stop at their horizon."""
         ends = self.horizon(phases)
         scope = None if ends is None else phases
+        scope_key = None if scope is None else str(self._scope(scope))
         keys = [self._key(u) for u in us]
-        found = {k: self._cache.get((k, None)) or self._cache.get((k, str(scope))) for k in keys}
+        found = {k: self._cache.get((k, None)) or self._cache.get((k, scope_key)) for k in keys}
         new = list(dict.fromkeys(k for k in keys if found[k] is None))
-        if new and self.budget is not None and len(self._cache) + len(new) > self.budget:
-            raise BudgetSpent(f'{self.budget} evaluations spent')
+        if new and self.budget is not None:
+            self.budget.take(len(new), self.for_search)
         for k, evaluation in zip(new, self._run(new, ends, scope)):
             if scope is not None and self._short_of(evaluation, phases):
+                if self.budget is not None:
+                    self.budget.take(1, self.for_search)
                 evaluation = self._run([k], None, None)[0]        # the horizon fell short: whole
-            found[k] = self._cache[(k, None if evaluation.phases is None else str(scope))] = evaluation
+            found[k] = self._cache[(k, None if evaluation.phases is None else scope_key)] = evaluation
+            if self.budget is not None and evaluation.replayed:
+                self.budget.replayed += 1
             self._log(evaluation)
             if evaluation.phases is None and (self.best is None or evaluation.objective < self.best.objective):
                 self.best = evaluation
@@ -247,11 +333,24 @@ class Objective:
 
     def _run(self, vectors, ends, phases) -> list[Evaluation]:
         """The vectors' simulations to ``ends`` (one batch), scored."""
+        from tissue_sim_ros.analysis.compare.trial_simulation import SimulationResult, simulate
         from tissue_sim_ros.analysis.jobs import run_jobs
-        from tissue_sim_ros.analysis.compare.trial_simulation import simulate
-        jobs = [job for k in vectors for job in self.jobs_for(k, ends)]
-        results = [self.store.get(job.key) if self.store is not None else None for job in jobs]
+        from tissue_sim_ros.errors import InputError
+        jobs, results, stored = [], [], []
+        for k in vectors:
+            try:
+                vector_jobs = self.jobs_for(k, ends)
+            except InputError as exc:          # a value the scene refuses: scored as a miss
+                cut = ends or [None] * len(self.plan.jobs)
+                results += [SimulationResult.refused(len(job.times_s[:end]), exc)
+                            for job, end in zip(self.plan.jobs, cut)]
+                jobs += [None] * len(self.plan.jobs)
+                continue
+            jobs += vector_jobs
+            results += [self.store.get(job.key) if self.store is not None else None for job in vector_jobs]
         todo = [i for i, r in enumerate(results) if r is None]
+        stored = [all(results[n * len(self.plan.jobs) + j] is not None for j in range(len(self.plan.jobs)))
+                  and jobs[n * len(self.plan.jobs)] is not None for n in range(len(vectors))]
 
         def keep(position, result):
             results[todo[position]] = result
@@ -261,14 +360,19 @@ class Objective:
                  on_result=keep, quiet=True, pool=self.pool)
         self.simulations_run += len(todo)
         per = len(self.plan.jobs)
-        return [self._score(k, results[n * per:(n + 1) * per], ends, phases) for n, k in enumerate(vectors)]
+        scored = [self._score(k, results[n * per:(n + 1) * per], ends, phases) for n, k in enumerate(vectors)]
+        for evaluation, replayed in zip(scored, stored):
+            evaluation.replayed = replayed
+        return scored
 
     def _short_of(self, evaluation: Evaluation, phases) -> bool:
-        """Whether a partial evaluation left a sample of ``phases`` unreached (not diverged)."""
-        if evaluation.failures or phases == 'events':     # a puncture beyond the reach is a miss
+        """Whether a partial evaluation left a sample of ``phases`` unreached (not diverged; a
+        puncture beyond the reach is a miss, not a shortfall)."""
+        labels, _ = self._scope(phases)
+        if evaluation.failures or not labels:
             return False
-        return any(np.any(np.isnan(c.simulated_n[indices[np.isin(p, phases)]]))
-                   for c, (indices, p) in zip(evaluation.comparisons, self._points))
+        return any(np.any(np.isnan(c.simulated_n[indices[np.isin(sample_labels, labels)]]))
+                   for c, (indices, _, sample_labels) in zip(evaluation.comparisons, self._points))
 
     def evaluate(self, u, phases=None) -> Evaluation:
         return self.evaluate_many([u], phases)[0]
@@ -279,7 +383,8 @@ class Objective:
         ends = ends or [None] * len(plan.jobs)
         curves = [simulated_curve(results[j], _cut(plan.schedules[j], ends[j]), plan.motions[plan.representative[j]],
                                   self.scene_gap_m) for j in range(len(plan.jobs))]
-        comparisons = [compare_trial(trial, plan.motions[i], curves[plan.job_of_trial[i]], self.align)
+        comparisons = [compare_trial(trial, plan.motions[i], curves[plan.job_of_trial[i]], self.align,
+                                     measured_punctures=self._measured[i], layers=self._layers[i])
                        for i, trial in enumerate(self.trials)]
         if self._points is None:
             self._points = [self._choose_points(c) for c in comparisons]
@@ -300,12 +405,14 @@ class Objective:
             eligible &= np.isin(phases, ('loading', 'inserted'))
         if not comparison.diverged and np.isfinite(comparison.simulated_n).any():
             eligible &= np.isfinite(comparison.simulated_n)
+        from tissue_sim_ros.analysis.calibration.stages import sample_labels
         candidates = np.flatnonzero(eligible)
         if candidates.size > self.points_per_trial:
             candidates = candidates[np.linspace(0, candidates.size - 1, self.points_per_trial).round().astype(int)]
-        return candidates, phases[candidates]
+        labels = sample_labels(comparison.travel_since_contact_m, phases, comparison.measured_punctures)
+        return candidates, phases[candidates], labels[candidates]
 
-    def _trial_residuals(self, comparison, indices, phases) -> np.ndarray:
+    def _trial_residuals(self, comparison, indices, phases, labels=None) -> np.ndarray:
         from tissue_sim_ros.analysis.compare.compare import away_from_events
         measured = comparison.measured_n
         scale = float(np.ptp(measured)) or 1.0
@@ -323,38 +430,44 @@ class Objective:
         return np.concatenate([error * weights, shifts * shift_weight]) / np.sqrt(max(total, 1))
 
     def stage_residuals(self, evaluation: Evaluation, phases=None) -> np.ndarray:
-        """The residuals a stage of the search fits: those of samples in ``phases`` (None: all),
-        or for ``phases == 'events'`` the first puncture of each trial that has one: its force
-        error over the trial's force range and its travel error over the trial's travel range
-        (a simulation without a puncture there scores 1 on both)."""
+        """The residuals a stage of the search fits (None: all): those of the samples its labels
+        hold (:meth:`_scope`), then per trial and per layer of its events the layer's puncture:
+        its force error over the trial's force range and its depth error over the trial's travel
+        range (a simulation without that layer's puncture scores 1 on both), scaled when a stage
+        has both so that each group weighs as the mean of its squared relative errors.""" 
+        from tissue_sim_ros.analysis.compare.shared_punctures import pair_punctures
         if phases is None:
             return evaluation.residuals
-        if phases == 'events':
-            out = []
-            for c in evaluation.comparisons:
-                if not c.measured_punctures:
+        labels, events = self._scope(phases)
+        mask = np.concatenate([np.concatenate([np.isin(sample_labels, labels),
+                                               np.zeros(len(c.measured_punctures), bool)])
+                               for (_, _, sample_labels), c in zip(self._points, evaluation.comparisons)])
+        samples = evaluation.residuals[mask]
+        out = []
+        for c in evaluation.comparisons:
+            pairs = {m.layer: s for m, s in pair_punctures(c.measured_punctures, c.simulated_punctures)}
+            for m in c.measured_punctures:
+                if m.layer not in events:
                     continue
-                force = c.events.get('first_puncture_force_error_n', np.nan) / (float(np.ptp(c.measured_n)) or 1.0)
-                travel = c.events.get('first_puncture_travel_error_m', np.nan) / (
-                    float(np.ptp(c.travel_since_contact_m)) or 1.0)
-                out += [force if np.isfinite(force) else FAILED_RESIDUAL,
-                        travel if np.isfinite(travel) else FAILED_RESIDUAL]
-            return np.array(out)
-        mask = np.concatenate([np.concatenate([np.isin(p, tuple(phases)), np.zeros(len(c.measured_punctures), bool)])
-                               for (_, p), c in zip(self._points, evaluation.comparisons)])
-        return evaluation.residuals[mask]
+                sim = pairs.get(m.layer) if not c.diverged else None
+                if sim is None:
+                    out.append(np.array([FAILED_RESIDUAL, FAILED_RESIDUAL]))
+                    continue
+                out.append(np.array([(sim.force_n - m.force_n) / (float(np.ptp(c.measured_n)) or 1.0),
+                                     (sim.travel_m - m.travel_m) / (float(np.ptp(c.travel_since_contact_m)) or 1.0)]))
+        if not out:
+            return samples
+        events_part = np.concatenate(out)
+        if samples.size:          # each group a mean of squared relative errors, weighted alike
+            total = sum(len(points[0]) for points in self._points)
+            events_part = events_part * np.sqrt(samples.size / (events_part.size * max(total, 1)))
+        return np.concatenate([samples, events_part])
 
     def _log(self, evaluation: Evaluation) -> None:
-        if self.log_path is None:
-            return
-        record = {'time': time.strftime('%Y-%m-%dT%H:%M:%S'), 'values': evaluation.values,
-                  'phases': None if evaluation.phases is None else str(evaluation.phases),
-                  'objective': evaluation.objective, 'nrmse_mean': evaluation.nrmse_mean,
-                  'failures': evaluation.failures,
-                  'mass_scaling': max((r.mass_scaling for r in evaluation.results), default=float('nan'))}
-        with self.log_path.open('a') as log:
-            log.write(json.dumps(record, default=float) + '\n')
-
+        if self.log_path is not None:
+            stage = None if evaluation.phases is None else self.stage_residuals(evaluation, evaluation.phases)
+            log_evaluation(self.log_path, self._logged, evaluation, stage, run=self.run_number,
+                           elapsed_s=time.perf_counter() - self.started)
 
 def _cut(schedule, end):
     """``schedule`` up to its sample ``end`` (None: whole)."""
@@ -362,3 +475,10 @@ def _cut(schedule, end):
         return schedule
     return replace(schedule, times_s=schedule.times_s[:end], positions=schedule.positions[:end],
                    travel_m=schedule.travel_m[:end], trial_time_s=schedule.trial_time_s[:end])
+
+
+def calibrated_spec(fit: dict) -> dict:
+    """The scene keys of a calibration's optimum, with the mass scaling it ran with (and the
+    damping rate that keeps the scene's damping force at it)."""
+    from tissue_sim_ros.engine.scene.keys import with_mass_scaling
+    return with_mass_scaling(fit['objective'].spec_for(fit['u']), fit['inertia']['mass_scaling_at_optimum'])

@@ -8,9 +8,10 @@ finite-difference step means the same relative change for every key.
 
 Each key belongs to the phase of the curve where it acts, which the staged start fits it on
 (:data:`PHASE_RULES`, first match on the key's name): stiffness and law coefficients on the
-loading before the first puncture, the puncture threshold on the peaks, cutting and insertion
-friction on the steady part after the puncture, retraction friction on the retraction,
-relaxation on the hold.
+loading before the first puncture, the puncture threshold and a layer's boundary (where it is
+punctured) on the peaks, cutting and insertion friction on the steady part after the puncture,
+retraction friction on the retraction, relaxation on the hold; layer by layer
+(:mod:`~tissue_sim_ros.analysis.calibration.stages`).
 """
 from __future__ import annotations
 
@@ -18,11 +19,11 @@ import math
 import re
 from dataclasses import dataclass
 
-__all__ = ['FittedKey', 'PHASE_RULES', 'parse_fit', 'phase_of', 'read_key', 'overrides_for', 'yaml_number']
+__all__ = ['FittedKey', 'PHASE_RULES', 'parse_fit', 'phase_of', 'read_key']
 
 #: (pattern on the key, the phase it is fitted on in the staged start); the first match wins
 PHASE_RULES = (
-    (r'membrane|rupture|puncture', 'puncture'),
+    (r'membrane|rupture|puncture|\.select\.', 'puncture'),
     (r'friction\.retraction', 'retraction'),
     (r'cutting|friction', 'inserted'),
     (r'relaxation|prony', 'hold'),
@@ -71,8 +72,8 @@ class FittedKey:
 
 def parse_fit(text: str) -> FittedKey:
     """``KEY=LOW:HIGH[:log]`` -> FittedKey; a clear error naming the option otherwise."""
-    from tissue_sim_ros.engine.scene.keys import parse_override
-    from tissue_sim_ros.engine.scene.schema import SceneError
+    from tissue_sim_ros.engine.scene.keys import parse_key
+    from tissue_sim_ros.errors import SceneError
     if '=' not in text:
         raise SceneError(f'--fit {text!r}: expected KEY=LOW:HIGH[:log], e.g. '
                          'regions[0].young_modulus_pa=5000:50000:log')
@@ -90,38 +91,17 @@ def parse_fit(text: str) -> FittedKey:
         raise SceneError(f'--fit {text!r}: expected finite bounds with LOW < HIGH, got {low} and {high}')
     if log and low <= 0:
         raise SceneError(f'--fit {text!r}: a log scale needs LOW > 0, got {low}')
-    parse_override(f'{key.strip()}=0')          # the key's syntax, with --set's message
+    parse_key(key, context=f'--fit {text!r}')     # the key path's syntax
     return FittedKey(key.strip(), low, high, log)
 
 
-def read_key(spec: dict, key: str):
-    """The value of the dotted scene ``key`` in ``spec`` (a scene's keys with their defaults,
-    ``Scene.spec``); a SceneError naming the key when the scene has no such key."""
-    from tissue_sim_ros.engine.scene.keys import parse_override, select_region
-    from tissue_sim_ros.engine.scene.schema import SceneError
-    parts, _ = parse_override(f'{key}=0')
-    node = spec
-    for name, selector in parts:
-        if not isinstance(node, dict) or name not in node:
-            raise SceneError(f'--fit {key}: the scene has no key {name!r} here')
-        node = node[name]
-        if isinstance(node, list):
-            node = select_region(node, selector, f'--fit {key}', name)
-    if isinstance(node, bool) or not isinstance(node, (int, float)):
-        raise SceneError(f'--fit {key}: its value {node!r} is not a number')
-    return float(node)
-
-
-def yaml_number(value: float) -> str:
-    """``value`` with every digit (repr), written so that YAML reads a number: PyYAML (YAML 1.1)
-    reads ``1e-10`` as text, ``1.0e-10`` as a float."""
-    text = repr(float(value))
-    mantissa, e, exponent = text.partition('e')
-    if e and '.' not in mantissa:
-        text = f'{mantissa}.0e{exponent}'
-    return text
-
-
-def overrides_for(keys, values) -> list[str]:
-    """``--set`` texts giving each key its value."""
-    return [f'{k.key}={yaml_number(v)}' for k, v in zip(keys, values)]
+def read_key(spec: dict, key: str) -> float:
+    """The number at the fitted ``key`` in ``spec`` (a scene's checked keys, ``Scene.spec``), after
+    checking that every value between its bounds can be set there (a SceneError naming the key
+    before any evaluation runs, not a miss at every one)."""
+    from tissue_sim_ros.engine.scene.keys import get_key
+    from tissue_sim_ros.errors import SceneError
+    value = get_key(spec, key)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SceneError(f'--fit {key}: its value {value!r} is not a number')
+    return float(value)

@@ -3,7 +3,7 @@
 - ``calibrated.yaml``: the complete scene at the optimum (every key, the mass scaling it ran
   with), the fitted values with their standard errors, the data and the command in comments;
   every command that takes ``--scene`` accepts it.
-- ``report.json``: ``parameters`` (per fitted key: ``value``, ``stderr``, ``start``, ``low``,
+- ``calibrate.json``: ``parameters`` (per fitted key: ``value``, ``stderr``, ``start``, ``low``,
   ``high``, ``log``, ``phase``), ``correlation`` (``keys`` and ``matrix``), ``fit``
   (``nrmse_mean`` and ``nrmse_mean_start`` over the fitted trials, ``speeds``), ``validation``
   (the same over the held-out trials, when given), ``cross_validation`` (with leave-one-speed-out:
@@ -12,13 +12,22 @@
   at the start and at the optimum, the data's noise floor, the nearest other speed's mean curve
   as a prediction), ``inertia`` (the mass scaling's measured error), ``finish`` (per step of the
   fine finish: ``objective_before``, ``predicted`` by its linear model, ``objective`` run), ``warnings``,
-  ``evaluations`` (``partial_evaluations`` of them ran the simulations only as far as a stage of
-  the search needed), ``simulations``, ``wall_s``, ``outputs``.
-- ``report.md``: the same for a person; ``calibration.csv``: one row per speed and role (fit,
+  ``evaluations`` (every one the search made, within ``max_evaluations``, across resumes:
+  ``replayed_evaluations`` of them replayed an earlier run's simulations; ``partial_evaluations``
+  ran the simulations only as far as a stage of the search needed), ``evaluations_logged`` (lines of
+  evaluations.jsonl, each evaluation once), ``simulations``, ``wall_s`` (this run) and
+  ``wall_s_all_runs`` (with the earlier ``runs`` of an interrupted study), ``stages`` (per stage of
+  the staged start: its keys, its residuals' objective and every residual's, before and after),
+  ``stopped_at_start`` (the start was within the noise floor), ``noise_floor_nrmse``; per key in
+  ``parameters`` also ``moved`` and ``why_not_moved`` (at a bound, insensitive, correlated, at its
+  optimum), ``outputs``.
+- ``calibrate.md``: the same for a person; ``calibrate.csv``: one row per speed and role (fit,
   held out, left out);
   ``evaluations.jsonl``: every evaluation of the search (written as it ran);
-  ``calibration_<speed>.png``: per speed the data (trials, mean and one standard deviation), the
-  starting scene and the calibrated scene, force against time since contact.
+  ``calibrate_<role>_<speed>.png``: per speed the data (trials, mean and one standard
+  deviation, punctures) against depth and against time since contact, the starting and the
+  calibrated scene (punctures marked), and their NRMSEs beside the noise floor and the nearest
+  other speed's data.
 """
 from __future__ import annotations
 
@@ -35,6 +44,19 @@ __all__ = ['speed_label', 'write_report']
 def _number(value):
     value = float(value)
     return value if math.isfinite(value) else None
+
+
+def _plain(value):
+    """JSON-ready: numbers as floats (NaN as None), containers walked."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (bool, str)) or value is None:
+        return value
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    return _number(value)
 
 
 def speed_label(speed) -> str:
@@ -131,7 +153,11 @@ def _calibrated_yaml(path, spec, report, *, scene_file, sets, data_spec, base_di
     path.write_text(scene_yaml(spec, base_dir, lines))
 
 
-def _plot(out, study_start, study_final, role) -> dict:
+def _plot(out, study_start, study_final, role, rows) -> dict:
+    """Per speed: the data against depth and against time since contact (each repeat, the mean and
+    one standard deviation as a band, its punctures as circles), the starting and the calibrated
+    simulations (their punctures as crosses), and the NRMSEs beside the noise floor and the nearest
+    other speed's data."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
@@ -140,28 +166,49 @@ def _plot(out, study_start, study_final, role) -> dict:
     written = {}
     for group in study_final['speeds']:
         speed = group['speed_m_s']
+        row = next((r for r in rows if r['role'] == role and r['speed_m_s'] == speed), {})
         members = [i for i, c in enumerate(study_final['comparisons']) if str(c.file) in group['files']]
-        fig, ax = plt.subplots(figsize=(7, 4.2))
         comparisons = [study_final['comparisons'][i] for i in members]
-        for c in comparisons:
-            ax.plot(c.time_since_contact_s, c.measured_n, color='0.75', lw=0.6)
-        if len(comparisons) >= 2:
-            curves = [ForceCurve(c.time_since_contact_s, c.measured_n,
-                                 contact_index=int(np.argmin(np.abs(c.time_since_contact_s)))) for c in comparisons]
-            grid, mean, std, _ = mean_and_spread(curves, by='time_since_contact')
-            ax.fill_between(grid, mean - std, mean + std, color='C0', alpha=0.25, label='data: mean ± 1 s.d.')
-        for study, style, label in ((study_start, '--', 'starting scene'), (study_final, '-', 'calibrated')):
-            c = study['comparisons'][members[0]]
-            ax.plot(c.time_since_contact_s, c.simulated_n, style, color='C3' if style == '-' else 'C1',
-                    lw=1.3, label=f"{label} (NRMSE {_number(np.nanmean([study['comparisons'][i].errors.get('nrmse', np.nan) for i in members])) or float('nan'):.3f})")
-        ax.set_title(f'{role}: {speed_label(speed)}, {len(members)} trial(s)', fontsize=9)
-        ax.set_xlabel('time since contact [s]')
-        ax.set_ylabel('axial force [N]')
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        fig, axes = plt.subplots(1, 3, figsize=(16, 4.4), gridspec_kw={'width_ratios': [3, 3, 1.3]})
+        for ax, by in zip(axes[:2], ('depth', 'time')):
+            def x_of(c):
+                return c.travel_since_contact_m * 1e3 if by == 'depth' else c.time_since_contact_s
+            for n, c in enumerate(comparisons):
+                ax.plot(x_of(c), c.measured_n, color='0.72', lw=0.6, label='repeats' if n == 0 else None)
+                ax.plot(x_of(c)[[p.index for p in c.measured_punctures]], [p.force_n for p in c.measured_punctures],
+                        'o', mfc='none', color='0.3', ms=5)
+            if len(comparisons) >= 2:
+                curves = [ForceCurve(c.time_since_contact_s, c.measured_n,
+                                     c.travel_since_contact_m if by == 'depth' else None,
+                                     int(np.argmin(np.abs(c.time_since_contact_s)))) for c in comparisons]
+                grid, mean, std, _ = mean_and_spread(curves, by='travel_since_contact' if by == 'depth'
+                                                     else 'time_since_contact')
+                scale = 1e3 if by == 'depth' else 1.0
+                ax.fill_between(grid * scale, mean - std, mean + std, color='C0', alpha=0.25,
+                                label='data: mean ± 1 s.d.')
+            for study, style, colour, label in ((study_start, '--', 'C1', 'starting scene'),
+                                                (study_final, '-', 'C3', 'calibrated')):
+                c = study['comparisons'][members[0]]
+                ax.plot(x_of(c), c.simulated_n, style, color=colour, lw=1.2, label=label)
+                ax.plot(x_of(c)[[p.index for p in c.simulated_punctures]], [p.force_n for p in c.simulated_punctures],
+                        'x', color=colour, ms=7)
+            ax.set_xlabel('depth since contact [mm]' if by == 'depth' else 'time since contact [s]')
+            ax.set_ylabel('axial force [N]')
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7, loc='best')
+        bars = [('start', row.get('nrmse_start')), ('calibrated', row.get('nrmse_calibrated')),
+                ('noise floor', row.get('noise_floor_nrmse')), ('nearest\nspeed', row.get('nearest_speed_nrmse'))]
+        axes[2].bar([b[0] for b in bars], [b[1] or 0.0 for b in bars], color=['C1', 'C3', '0.5', 'C2'])
+        for k, (_, value) in enumerate(bars):
+            axes[2].text(k, value or 0.0, 'n/a' if value is None else f'{value:.3f}', ha='center', va='bottom',
+                         fontsize=7)
+        axes[2].set_ylabel('NRMSE')
+        axes[2].tick_params(axis='x', labelsize=7)
+        fig.suptitle(f'{role}: {speed_label(speed)}, {len(members)} trial(s): punctures as circles (data) and '
+                     'crosses (simulations)', fontsize=9)
         fig.tight_layout()
-        name = f"calibration_{role.replace(' ', '_')}_{'unknown' if speed is None else f'{speed * 1e3:g}mm_s'}.png"
-        fig.savefig(out / name, dpi=110)
+        name = f"calibrate_{role.replace(' ', '_')}_{'unknown' if speed is None else f'{speed * 1e3:g}mm_s'}.png"
+        fig.savefig(out / name, dpi=100)
         plt.close(fig)
         written[name] = str(out / name)
     return written
@@ -170,13 +217,30 @@ def _plot(out, study_start, study_final, role) -> dict:
 def _markdown(report) -> str:
     def f(value, digits=4):
         return 'n/a' if value is None else f'{value:.{digits}f}'
+    budget = '' if report.get('max_evaluations') is None else f" of {report['max_evaluations']}"
     lines = ['# Calibration', '', f"Data: {report['data_spec']}" + (f"; held out: {report['validate_spec']}"
                                                                   if report['validate_spec'] else ''),
-             f"Scene: {report['scene']}; {report['evaluations']} evaluations, {report['simulations']} "
-             f"simulations, {report['wall_s']:.1f} s", '',
-             '| key | start | calibrated | standard error | bounds |', '|---|---|---|---|---|']
+             f"Scene: {report['scene']}; {report['evaluations']}{budget} evaluations "
+             f"({report.get('replayed_evaluations', 0)} replayed from an earlier run's simulations), "
+             f"{report['simulations']} simulations, {report['wall_s']:.1f} s"
+             + (f" ({report['wall_s_all_runs']:.1f} s over {report['runs']} runs)" if report.get('runs', 1) > 1 else ''),
+             '']
+    if report.get('stopped_at_start'):
+        lines += ['**The start was already as close to the data as its repeats are to each other (NRMSE within '
+                  'the noise floor): nothing to fit; the search ended there.**', '']
+    lines += ['| key | start | calibrated | standard error | bounds | moved |', '|---|---|---|---|---|---|']
     lines += [f"| `{k}` | {p['start']:.6g} | {p['value']:.6g} | {p['stderr']:.2g} | {p['low']:g} to {p['high']:g}"
-              f"{' (log)' if p['log'] else ''} |" for k, p in report['parameters'].items()]
+              f"{' (log)' if p['log'] else ''} | {'yes' if p.get('moved') else 'no: ' + (p.get('why_not_moved') or '')} |"
+              for k, p in report['parameters'].items()]
+    stages = [st for st in report.get('stages', []) if 'objective_before' in st]
+    if stages:
+        lines += ['', '## Staged start', '', '| stage | keys | residuals | its objective | every residual |',
+                  '|---|---|---|---|---|']
+        def g(value):
+            return 'not reached (evaluations spent)' if value is None else f'{value:.4g}'
+        lines += [f"| {st['stage']} | {', '.join(f'`{k}`' for k in st['keys'])} | {st['residuals']} | "
+                  f"{g(st['objective_before'])} -> {g(st.get('objective_after'))} | {g(st['whole_before'])} -> "
+                  f"{g(st.get('whole_after'))} |" for st in stages]
     lines += ['', f"Standard errors from the Jacobian of {report['jacobian']} (a lower bound: neighbouring "
                   'force samples are correlated).']
     lines += ['', '| role | speed | trials | NRMSE start | NRMSE calibrated | noise floor | nearest other speed\'s data |',
@@ -208,7 +272,7 @@ def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_fi
     """Write every output (see the module docstring); the report dict. ``cross_validation``: per
     speed, its prediction by the calibration without it (the held-out row of that fold's report,
     with its ``parameters`` and ``report``)."""
-    from tissue_sim_ros.analysis.calibration.calibrate import calibrated_spec
+    from tissue_sim_ros.analysis.calibration.objective import calibrated_spec
     from tissue_sim_ros.analysis.compare.trial_simulation import ResultStore
     out.mkdir(parents=True, exist_ok=True)
     options = dict(align=align, gap_m=gap_m, tick_s=tick_s, store=ResultStore(out / 'simulations'),
@@ -221,8 +285,10 @@ def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_fi
     rows = [row for role, pair in studies.items() for row in _speed_rows(*pair, role, baseline)]
     spread = fit['uncertainty']
     keys = fit['keys']
+    moved = spread.get('moved', {})
     parameters = {k.key: {'value': k.value(x), 'stderr': float(se), 'start': k.value(x0), 'low': k.low,
-                          'high': k.high, 'log': k.log, 'phase': k.phase}
+                          'high': k.high, 'log': k.log, 'phase': k.phase,
+                          'moved': moved.get(k.key, {}).get('moved'), 'why_not_moved': moved.get(k.key, {}).get('why')}
                   for k, x, x0, se in zip(keys, fit['u'], fit['u0'], spread['stderr'])}
     report = {'data_spec': str(data_spec), 'validate_spec': str(validate_spec) if validate_spec else None,
               'scene': str(scene_file or 'the packaged default'), 'sets': list(sets), 'align': align,
@@ -235,8 +301,13 @@ def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_fi
               'speeds': rows,
               'inertia': {k: (_number(v) if isinstance(v, float) else v) for k, v in fit['inertia'].items()},
               'finish': fit.get('finish', []),
-              'evaluations': fit['evaluations'], 'partial_evaluations': fit['partial_evaluations'],
-              'simulations': fit['simulations'], 'wall_s': fit['search_wall_s']}
+              'evaluations': fit['evaluations'], 'max_evaluations': fit.get('max_evaluations'),
+              'replayed_evaluations': fit.get('replayed_evaluations', 0),
+              'evaluations_logged': fit.get('evaluations_logged'), 'partial_evaluations': fit['partial_evaluations'],
+              'simulations': fit['simulations'], 'wall_s': fit['search_wall_s'],
+              'runs': fit.get('runs', 1), 'wall_s_all_runs': fit.get('wall_s_all_runs', fit['search_wall_s']),
+              'stages': _plain(fit.get('stages', [])), 'stopped_at_start': fit.get('stopped_at_start', False),
+              'noise_floor_nrmse': _number(fit.get('noise_floor_nrmse', float('nan')))}
     if held_out:
         report['validation'] = {'nrmse_mean': _mean(studies['held out'][1]['comparisons']),
                                 'nrmse_mean_start': _mean(studies['held out'][0]['comparisons']),
@@ -248,16 +319,16 @@ def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_fi
                                       'speeds': cross_validation}
     rows = rows + list(cross_validation or [])   # the CSV and the warnings; report['speeds'] keeps its roles
     report['warnings'] = _warnings(fit, rows, spread)
-    outputs = {name: str(out / name) for name in ('calibrated.yaml', 'report.json', 'report.md',
-                                                  'calibration.csv', 'evaluations.jsonl')}
+    outputs = {name: str(out / name) for name in ('calibrated.yaml', 'calibrate.json', 'calibrate.md',
+                                                  'calibrate.csv', 'evaluations.jsonl')}
     for role, (start, final) in studies.items():
-        outputs.update(_plot(out, start, final, role))
+        outputs.update(_plot(out, start, final, role, report['speeds']))
     report['outputs'] = outputs
     _calibrated_yaml(out / 'calibrated.yaml', calibrated_spec(fit), report, scene_file=scene_file, sets=sets,
                      data_spec=data_spec, base_dir=start_scene.base_dir)
-    (out / 'report.json').write_text(json.dumps(report, indent=2, default=float))
-    (out / 'report.md').write_text(_markdown(report))
-    with (out / 'calibration.csv').open('w', newline='') as handle:
+    (out / 'calibrate.json').write_text(json.dumps(report, indent=2, default=float))
+    (out / 'calibrate.md').write_text(_markdown(report))
+    with (out / 'calibrate.csv').open('w', newline='') as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]), extrasaction='ignore')
         writer.writeheader()
         writer.writerows(rows)

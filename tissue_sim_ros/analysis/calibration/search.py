@@ -9,12 +9,18 @@ search does what the field does:
    generations; ``'optuna'`` is Optuna's multivariate TPE sampler (when installed) with the same
    budget, each generation's trials asked for together and evaluated as one parallel batch, the
    start enqueued as the first trial;
-2. **staged start**: for each phase of the curve that has fitted keys and samples (loading,
-   puncture, inserted, retraction, hold; :data:`~tissue_sim_ros.analysis.calibration.parameters.PHASE_RULES`),
-   that phase's keys on that phase's residuals (the puncture keys on the first puncture's force
-   and travel errors), the others held: first a scan of each key over ``SCAN_POINTS`` values across its
-   bounds (one parallel batch; a threshold the simulation never reaches has no gradient at all,
-   so a local method cannot find it from there), the best kept, then a bounded least-squares fit;
+2. **staged start**, layer by layer (:mod:`~tissue_sim_ros.analysis.calibration.stages`: each
+   layer's loading, its puncture, the level after it; then the retraction and the pause): each
+   stage's keys on the residuals of the samples where they act (a puncture's keys also on that
+   layer's puncture force and depth errors), the others held: first a scan of each puncture key
+   over ``SCAN_POINTS`` values across its bounds (one parallel batch; a threshold the simulation
+   never reaches has no gradient at all, so a local method cannot find it from there), the best
+   kept, then a bounded least-squares fit. Each stage ends with a whole evaluation, recorded with its
+   own residuals' objective before and after (``record``); the staged start hands on the best
+   whole evaluation it made, so it never leaves the fit worse than its start. A start already
+   optimal ends the search at once: its fit within the data's noise floor (``enough``) and the
+   Gauss-Newton step from its Jacobian (which then gives the standard errors) gaining less than
+   ``OPTIMAL_GAIN`` of its objective;
 3. **joint refinement** (``joint``; the calibration leaves it to the fine finish when it
    searches on a coarse scene): scipy.optimize.least_squares ('trf', bounds [0, 1] in unit
    coordinates) over every key on every residual.
@@ -26,8 +32,9 @@ Jacobians are forward differences of ``FD_STEP`` in unit coordinates (about 5 % 
 log key: wider than a step of the simulation's events, narrow enough for the curvature),
 stepping inward at a bound; the vectors of one Jacobian run as one parallel batch.
 
-``max_evaluations`` bounds the evaluations of one search; when they are spent the best vector
-so far is the result.
+The objective's :class:`~tissue_sim_ros.analysis.calibration.objective.Budget` bounds the
+evaluations (``max_evaluations`` makes one when the objective has none); when they are spent the
+best vector so far is the result.
 
 Uncertainty: with J the Jacobian of the residuals at the optimum (unit coordinates), m residuals
 and n keys, the covariance is s^2 (J^T J)^-1 with s^2 = sum(r^2) / (m - n) (the Gauss-Newton
@@ -39,14 +46,18 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['FD_STEP', 'CORRELATION_WARNING', 'GLOBAL_METHODS', 'STAGE_PHASES', 'search', 'jacobian', 'uncertainty']
+__all__ = ['FD_STEP', 'CORRELATION_WARNING', 'GLOBAL_METHODS', 'search', 'jacobian', 'uncertainty', 'why_not_moved']
 
 FD_STEP = 0.03
 SCAN_POINTS = 5
 CORRELATION_WARNING = 0.95
-#: stage -> the sample phases its residuals come from
-STAGE_PHASES = {'loading': ('loading',), 'puncture': 'events', 'inserted': ('inserted',),
-                'retraction': ('retraction',), 'hold': ('hold',)}
+#: a start within the noise floor whose Gauss-Newton step would gain less than this fraction of its
+#: objective is already optimal: the search ends there
+OPTIMAL_GAIN = 0.02
+#: a key that moved less than this (unit coordinates) did not move; one this near a bound is at it
+MOVED, AT_BOUND = 0.01, 1e-3
+#: a key whose Jacobian column is below this fraction of the largest does not change the curves
+INSENSITIVE = 1e-3
 
 
 def jacobian(objective, u, free, phases=None, fd_step=FD_STEP) -> np.ndarray:
@@ -141,47 +152,102 @@ GLOBAL_METHODS = {'de': _global, 'optuna': _global_optuna}
 
 def search(objective, u0, *, staged=True, global_search=False, generations=5, seed=0,
            stage_evaluations=6, joint_evaluations=20, max_evaluations=None, joint=True, fixed_jacobian=None,
-           log=print) -> np.ndarray:
+           log=print, record=None, enough=None) -> np.ndarray:
     """The optimum in unit coordinates, from ``u0`` (see the module docstring); ``fixed_jacobian``
-    (residuals x keys): the joint refinement's one Jacobian for every step (chord steps)."""
-    from tissue_sim_ros.analysis.calibration.objective import BudgetSpent
+    (residuals x keys): the joint refinement's one Jacobian for every step (chord steps);
+    ``record``: a list each stage appends its record to; ``enough(evaluation)``: True when a fit is
+    as close to the data as the data's repeats are to each other."""
+    from tissue_sim_ros.analysis.calibration.objective import Budget, BudgetSpent
     u = np.clip(np.asarray(u0, dtype=float), 0.0, 1.0)
-    objective.evaluate(u)
-    objective.budget = None if max_evaluations is None else len(objective.evaluations) + int(max_evaluations)
+    own_budget = max_evaluations is not None and getattr(objective, 'budget', None) is None
+    if own_budget:
+        objective.budget = Budget(len(objective.evaluations) + int(max_evaluations))
+    record = [] if record is None else record
     try:
+        start = objective.evaluate(u)
+        if enough is not None and enough(start):
+            J = jacobian(objective, u, list(range(len(u))))
+            gain = _predicted_gain(J, start.residuals, u)
+            if gain <= OPTIMAL_GAIN * start.objective:
+                log(f'the start is already optimal: its fit is as close to the data as the repeats are to each '
+                    f'other (NRMSE {start.nrmse_mean:.4f}) and a Gauss-Newton step would gain '
+                    f'{gain / max(start.objective, 1e-300):.1%} of its objective; the search ends here')
+                record.append({'stage': 'start', 'stopped': 'already optimal', 'nrmse': start.nrmse_mean,
+                               'predicted_gain': gain / max(start.objective, 1e-300), 'jacobian': J})
+                return u
+            log(f'the start is within the noise floor (NRMSE {start.nrmse_mean:.4f}), but a step would gain '
+                f'{gain / max(start.objective, 1e-300):.1%} of its objective: searching on')
         u = _stages(objective, u, staged, global_search, generations, seed, stage_evaluations,
-                    joint_evaluations if joint else 0, fixed_jacobian, log)
-    except BudgetSpent:
-        log(f'{max_evaluations} evaluations spent: the best so far is the result')
+                    joint_evaluations if joint else 0, fixed_jacobian, log, record)
+    except BudgetSpent as spent:
+        log(f'evaluations spent ({spent}): the best so far is the result')
+        record.append({'stage': 'budget', 'stopped': str(spent)})
         u = np.asarray(objective.best.u, dtype=float)
     finally:
-        objective.budget = None
+        if own_budget:
+            objective.budget = None
     best = objective.best
     return np.asarray(best.u if best.objective < objective.evaluate(u).objective else u, dtype=float)
 
 
+def _predicted_gain(J, r, u) -> float:
+    """What the bounded Gauss-Newton step from ``u`` would take off the objective r.r, by its
+    linear model (scipy lsq_linear)."""
+    from scipy.optimize import lsq_linear
+    if J.size == 0:
+        return 0.0
+    step = lsq_linear(J, -r, bounds=(-u, 1.0 - u)).x
+    return float(r @ r - np.sum((r + J @ step) ** 2))
+
+
+def _stage_list(objective):
+    from tissue_sim_ros.analysis.calibration.stages import plan_stages
+    return plan_stages(objective.keys, getattr(objective, 'regions', []), getattr(objective, 'n_layers', 0))
+
+
 def _stages(objective, u, staged, global_search, generations, seed, stage_evaluations, joint_evaluations,
-            fixed_jacobian, log):
+            fixed_jacobian, log, record):
     if global_search:
         method = 'de' if global_search is True else global_search
         name = 'differential evolution' if method == 'de' else 'Optuna TPE'
         log(f'global stage: {name}, {generations} generation(s)')
         u = GLOBAL_METHODS[method](objective, u, generations, seed)
     if staged:
-        for stage, phases in STAGE_PHASES.items():
-            free = [i for i, k in enumerate(objective.keys) if k.phase == stage]
-            count = objective.stage_residuals(objective.evaluate(u, phases), phases).size
-            if not free or count == 0 or len(free) == len(objective.keys):
+        start_whole = objective.evaluate(u).objective
+        for stage in _stage_list(objective):
+            free = list(stage.free)
+            before = objective.stage_residuals(objective.evaluate(u, stage), stage)
+            if before.size == 0 or len(free) == len(objective.keys):
                 continue
-            log(f'staged start: {stage} ({", ".join(objective.keys[i].key for i in free)}) on '
-                f'{count} residual(s)')
-            for i in free:
-                u = _scan(objective, u, i, phases)
-            u = _least_squares(objective, u, free, phases, stage_evaluations)
+            log(f'staged start: {stage.name} ({", ".join(objective.keys[i].key for i in free)}) on '
+                f'{before.size} residual(s)')
+            entry = {'stage': stage.name, 'keys': [objective.keys[i].key for i in free],
+                     'residuals': int(before.size), 'objective_before': float(before @ before),
+                     'whole_before': objective.evaluate(u).objective, 'values_before': objective.values(u)}
+            record.append(entry)
+            for i in free:          # a threshold the simulation does not reach has no gradient: scan it
+                if objective.keys[i].phase == 'puncture':
+                    u = _scan(objective, u, i, stage)
+            u = _least_squares(objective, u, free, stage, stage_evaluations)
+            after = objective.stage_residuals(objective.evaluate(u, stage), stage)
+            entry.update(objective_after=float(after @ after), whole_after=objective.evaluate(u).objective,
+                         values_after=objective.values(u))
+            log(f'  {stage.name}: its objective {entry["objective_before"]:.4g} -> {entry["objective_after"]:.4g}; '
+                f'every residual {entry["whole_before"]:.4g} -> {entry["whole_after"]:.4g}')
+        best = objective.best
+        if best is not None and best.objective < objective.evaluate(u).objective:
+            log(f'staged start: its best whole evaluation ({best.objective:.4g}, not its last) goes on')
+            u = np.asarray(best.u, dtype=float)
+        record.append({'stage': 'staged start', 'whole_before': start_whole,
+                       'whole_after': objective.evaluate(u).objective})
     if not joint_evaluations:
         return u
     log(f'joint refinement: {len(u)} key(s)')
-    return _least_squares(objective, u, list(range(len(u))), None, joint_evaluations, fixed_jacobian)
+    before = objective.evaluate(u).objective
+    u = _least_squares(objective, u, list(range(len(u))), None, joint_evaluations, fixed_jacobian)
+    record.append({'stage': 'joint refinement', 'keys': [k.key for k in objective.keys], 'whole_before': before,
+                   'whole_after': objective.evaluate(u).objective})
+    return u
 
 
 def uncertainty(objective, u, J=None) -> dict:
@@ -204,4 +270,33 @@ def uncertainty(objective, u, J=None) -> dict:
              for i in range(n) for j in range(i + 1, n) if abs(correlation[i, j]) > CORRELATION_WARNING]
     insensitive = [objective.keys[i].key for i in range(n) if not np.any(J[:, i])]
     return {'stderr': sd * np.abs(scale), 'correlation': correlation, 'correlated_pairs': pairs,
-            'insensitive': insensitive}
+            'insensitive': insensitive, 'jacobian_matrix': J}
+
+
+def why_not_moved(objective, u0, u, J, correlation) -> dict:
+    """Per fitted key: whether it moved from its start (more than ``MOVED`` in unit coordinates)
+    and, when not, why: at a bound (its gradient pushing past it), insensitive (its Jacobian column
+    below ``INSENSITIVE`` of the largest: it does not change the fitted curves), correlated with
+    another key (above ``CORRELATION_WARNING``: the data cannot tell them apart), or at its optimum
+    (its gradient there is zero to the data's precision, so the start was already its best value)."""
+    r = objective.evaluate(u).residuals
+    gradient = J.T @ r if J.size else np.zeros(len(u))
+    norms = np.linalg.norm(J, axis=0) if J.size else np.zeros(len(u))
+    largest = float(norms.max()) if norms.size else 0.0
+    out = {}
+    for i, key in enumerate(objective.keys):
+        moved = abs(float(u[i]) - float(u0[i])) > MOVED
+        reasons = []
+        if u[i] <= AT_BOUND and gradient[i] > 0 or u[i] >= 1 - AT_BOUND and gradient[i] < 0:
+            reasons.append(f'at its {"lower" if u[i] <= AT_BOUND else "upper"} bound, the fit pushing past it')
+        if largest > 0 and norms[i] < INSENSITIVE * largest or largest == 0:
+            reasons.append('insensitive: it does not change the fitted curves')
+        partners = [objective.keys[j].key for j in range(len(u))
+                    if j != i and abs(correlation[i, j]) > CORRELATION_WARNING]
+        if partners:
+            reasons.append(f'correlated with {", ".join(partners)}: the data cannot tell them apart')
+        if not reasons:
+            reasons.append('at its optimum: the start was already its best value')
+        out[key.key] = {'moved': bool(moved), 'why': None if moved else '; '.join(reasons),
+                        'at_bound': bool(u[i] <= AT_BOUND or u[i] >= 1 - AT_BOUND)}
+    return out

@@ -1,15 +1,19 @@
-"""Speed against accuracy (issue 17 item 2): ``tissue-sim chart --scene SCENE --out DIR``.
+"""Speed against accuracy: ``tissue-sim chart --scene SCENE --out DIR``.
 
-Every configuration runs the scene's insertion task: the needle from 1 mm above the surface,
-``speed`` along its axis for ``travel`` (through the first layer's puncture on the default
-scene), sampled every 20 ms, no retraction. A configuration is the scene plus ``--set``
-overrides along four axes:
+Every configuration runs the scene's insertion task: the insertion the scene is for when it
+plans one (``needle.planned_travel_m`` from its own start pose, along its needle's axis: an
+organ scene's path to its tumour), else the needle from 1 mm above the surface for ``travel``
+(12 mm: through the first layer's puncture on the default scene); ``speed`` along the axis,
+sampled every 20 ms, no retraction (:func:`insertion_task`). A configuration is the scene plus
+``--set`` overrides along four axes:
 
 * the model (linear, physically non-linear, geometric, full; the full model without viscosity,
   with other non-linearity thresholds, and with its element pass in float32), on each mesh
   level;
 * the mesh refinement (``mesh.fine_size_m`` and ``mesh.divisions`` scaled: coarse, medium, the
-  scene's, and in the full preset a finer one);
+  scene's, and in the full preset a finer one); a mesh file has no such keys: its scene's mesh
+  is the one level (chart one mesh file against another with ``--set mesh.file=...``, meshes
+  that ``tissue-sim mesh --cell-mm`` makes);
 * the time step through the mass scaling (the full model on the scene's mesh, and the cheaper
   non-linear models at two smaller scalings), and the mass-proportional damping that the mass
   scaling multiplies (the full model at 400 and 1600 with lower damping rates);
@@ -48,27 +52,29 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['configurations', 'force_nrmse', 'make_job', 'read_reference', 'run_chart', 'simulate_job', 'main']
+from tissue_sim_ros.engine.scene.keys import override_text
 
-_NO_VISCOSITY = ['model.viscosity_mu_pa_s=0', 'model.viscosity_lambda_pa_s=0']
-#: model name -> overrides (the law, the viscosity and the threshold: the scene's unless set)
+__all__ = ['configurations', 'force_nrmse', 'insertion_task', 'make_job', 'read_reference', 'run_chart', 'simulate_job', 'main']
+
+_NO_VISCOSITY = {'model.viscosity_mu_pa_s': 0.0, 'model.viscosity_lambda_pa_s': 0.0}
+#: model name -> scene values (the law, the viscosity and the threshold: the scene's unless set)
 MODELS = {
-    'linear': ['model.geometric=false', 'model.physical.law=none'] + _NO_VISCOSITY,
-    'physical': ['model.geometric=false'] + _NO_VISCOSITY,
-    'geometric': ['model.geometric=true', 'model.physical.law=none'] + _NO_VISCOSITY,
-    'full': ['model.geometric=true'],
-    'full, no viscosity': ['model.geometric=true'] + _NO_VISCOSITY,
-    'full, threshold 0': ['model.geometric=true', 'model.nonlinearity_threshold=0'],
-    'full, threshold 0.05': ['model.geometric=true', 'model.nonlinearity_threshold=0.05'],
-    'full, threshold 0.1': ['model.geometric=true', 'model.nonlinearity_threshold=0.1'],
-    'full, float32': ['model.geometric=true', 'model.precision=float32'],
+    'linear': {'model.geometric': False, 'model.physical.law': 'none', **_NO_VISCOSITY},
+    'physical': {'model.geometric': False, **_NO_VISCOSITY},
+    'geometric': {'model.geometric': True, 'model.physical.law': 'none', **_NO_VISCOSITY},
+    'full': {'model.geometric': True},
+    'full, no viscosity': {'model.geometric': True, **_NO_VISCOSITY},
+    'full, threshold 0': {'model.geometric': True, 'model.nonlinearity_threshold': 0.0},
+    'full, threshold 0.05': {'model.geometric': True, 'model.nonlinearity_threshold': 0.05},
+    'full, threshold 0.1': {'model.geometric': True, 'model.nonlinearity_threshold': 0.1},
+    'full, float32': {'model.geometric': True, 'model.precision': 'float32'},
 }
-#: mesh level -> overrides (the default scene's graded box: near-needle cell, far-field divisions)
+#: mesh level -> scene values (the default scene's graded box: near-needle cell, far-field divisions)
 MESHES = {
-    'coarse': ['mesh.fine_size_m=0.004', 'mesh.divisions=[5,5,4]'],
-    'medium': ['mesh.fine_size_m=0.003', 'mesh.divisions=[6,6,5]'],
-    'scene': [],
-    'fine': ['mesh.fine_size_m=0.001', 'mesh.divisions=[12,12,10]'],
+    'coarse': {'mesh.fine_size_m': 0.004, 'mesh.divisions': [5, 5, 4]},
+    'medium': {'mesh.fine_size_m': 0.003, 'mesh.divisions': [6, 6, 5]},
+    'scene': {},
+    'fine': {'mesh.fine_size_m': 0.001, 'mesh.divisions': [12, 12, 10]},
 }
 MASS_SCALINGS = (25.0, 100.0, 1600.0)
 #: cheaper models also run at smaller mass scalings on the scene's mesh: a model's own error and
@@ -87,6 +93,8 @@ INTEGRATOR_RUNS = (('implicit', 1.0, None), ('implicit', 4.0, None), ('implicit'
 #: same error without inertia (0.049 against its 0.052)
 QUICK_INTEGRATOR_RUNS = tuple(run for run in INTEGRATOR_RUNS if run != ('implicit', 4.0, 1.0))
 START_GAP_M = 0.001
+#: the travel of a scene that plans no insertion [m]
+DEFAULT_TRAVEL_M = 0.012
 #: plate compression: (integrator, multiple of the cube's explicit step)
 COMPRESSION_INTEGRATORS = (('explicit', 1.0), ('implicit', 10.0), ('quasi_static', 10.0))
 COMPRESSION_STRAIN = 0.005
@@ -99,38 +107,51 @@ def _model_family(name: str) -> str:
     return name.split(',')[0]
 
 
-def configurations(scene_dt: float, *, quick: bool) -> list[dict]:
-    """The grid (module docstring) as rows of (name fields, overrides); the first is the reference.
-    ``scene_dt``: the scene's explicit step, which the implicit runs multiply."""
-    levels = ['coarse', 'medium', 'scene'] + ([] if quick else ['fine'])
+def insertion_task(scene_file=None, sets=(), travel=None) -> dict:
+    """The insertion a chart scores (module docstring): {travel_m, start_gap_m (None: the scene's
+    own start pose), planned}. ``travel``: given, it replaces the scene's plan (from 1 mm above
+    the surface)."""
+    from tissue_sim_ros.engine.scene.scene import read_scene_keys
+    planned = read_scene_keys(scene_file, list(sets))[0]['needle']['planned_travel_m']
+    if travel is None and planned is not None:
+        return dict(travel_m=float(planned), start_gap_m=None, planned=True)
+    return dict(travel_m=float(travel if travel is not None else DEFAULT_TRAVEL_M), start_gap_m=START_GAP_M,
+                planned=False)
+
+
+def configurations(scene_dt: float, *, quick: bool, mesh_levels=True) -> list[dict]:
+    """The grid (module docstring) as rows of (name fields, scene values); the first is the reference.
+    ``scene_dt``: the scene's explicit step, which the implicit runs multiply; ``mesh_levels``:
+    False for a mesh file (the scene's mesh the one level)."""
+    levels = (['coarse', 'medium', 'scene'] + ([] if quick else ['fine'])) if mesh_levels else ['scene']
     finest = levels[-1]
     rows = [dict(task='insertion', model='full', mesh=finest, integrator='explicit', mass_scaling=1.0, reference=True,
-                 overrides=MODELS['full'] + MESHES[finest] + ['solver.mass_scaling=1'])]
-    for model, model_sets in MODELS.items():
+                 values={**MODELS['full'], **MESHES[finest], 'solver.mass_scaling': 1.0})]
+    for model, model_values in MODELS.items():
         for level in levels:
             rows.append(dict(task='insertion', model=model, mesh=level, integrator='explicit', mass_scaling=None,
-                             reference=False, overrides=model_sets + MESHES[level]))
+                             reference=False, values={**model_values, **MESHES[level]}))
     for model in ('full',) + CROSSED_MODELS:
         for scaling in MASS_SCALINGS if model == 'full' else CROSSED_SCALINGS:
             rows.append(dict(task='insertion', model=model, mesh='scene', integrator='explicit', mass_scaling=scaling,
-                             reference=False, overrides=MODELS[model] + [f'solver.mass_scaling={scaling:g}']))
+                             reference=False, values={**MODELS[model], 'solver.mass_scaling': scaling}))
     for scaling in (400.0, 1600.0):
         for damping in DAMPINGS:
             rows.append(dict(task='insertion', model='full', mesh='scene', integrator='explicit', mass_scaling=scaling,
-                             reference=False, overrides=MODELS['full'] + [f'solver.mass_scaling={scaling:g}',
-                                                                          f'solver.damping_per_s={damping:g}']))
+                             reference=False, values={**MODELS['full'], 'solver.mass_scaling': scaling,
+                                                      'solver.damping_per_s': damping}))
     for integrator, multiple, scaling in QUICK_INTEGRATOR_RUNS if quick else INTEGRATOR_RUNS:
-        sets = MODELS['full'] + [f'solver.integrator={integrator}', f'solver.time_step_s={multiple * scene_dt!r}']
+        values = {**MODELS['full'], 'solver.integrator': integrator, 'solver.time_step_s': multiple * scene_dt}
         if scaling is not None:
-            sets.append(f'solver.mass_scaling={scaling:g}')
+            values['solver.mass_scaling'] = scaling
         rows.append(dict(task='insertion', model='full', mesh='scene', integrator=integrator, mass_scaling=scaling,
-                         reference=False, overrides=sets))
+                         reference=False, values=values))
     for model in ('linear', 'physical', 'geometric', 'full'):
         for divisions in (4, 6) if quick else (4, 6, 8):
             for integrator, multiple in COMPRESSION_INTEGRATORS:
                 rows.append(dict(task='compression', model=model, mesh=f'{divisions}^3 cube', divisions=divisions,
                                  integrator=integrator, step_multiple=multiple, mass_scaling=None, reference=False,
-                                 overrides=MODELS[model] + [f'solver.integrator={integrator}']))
+                                 values={**MODELS[model], 'solver.integrator': integrator}))
     return rows
 
 
@@ -145,10 +166,10 @@ def _compression_job(job: dict) -> dict:
     """The plate compression of the scene's material and model, error against E A strain."""
     from tissue_sim_ros.analysis.charting.compression import scene_block
     from tissue_sim_ros.engine.scene.scene import Scene
-    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+    from tissue_sim_ros.errors import SimulationDiverged
     row = {k: job[k] for k in ('key', 'task', 'model', 'mesh', 'integrator', 'reference')}
-    row['overrides'] = list(job['overrides'])
-    scene = Scene.from_file(job['scene_file'], sets=list(job['sets']) + list(job['overrides']))
+    row['values'] = dict(job['values'])
+    scene = Scene.from_file(job['scene_file'], sets=job['sets'], values=job['values'])
     explicit = scene_block(scene, COMPRESSION_STRAIN, divisions=job['divisions'], integrator='explicit')
     dt = explicit.simulation.dt * job['step_multiple']
     block = scene_block(scene, COMPRESSION_STRAIN, divisions=job['divisions'], dt=dt)
@@ -171,22 +192,23 @@ def _compression_job(job: dict) -> dict:
 def _insertion_job(job: dict) -> dict:
     """One configuration's insertion: the axial force per tick, the punctures, and the cost."""
     from tissue_sim_ros.analysis.insertion import run_insertion
-    from tissue_sim_ros.engine.scene.scene import Scene, SceneError
-    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+    from tissue_sim_ros.engine.scene.scene import Scene
+    from tissue_sim_ros.errors import SceneError, SimulationDiverged
     row = {k: job[k] for k in ('key', 'model', 'mesh', 'integrator', 'reference')}
     row['task'] = 'insertion'
     row['mass_scaling'] = job.get('mass_scaling')
-    row['overrides'] = list(job['overrides'])
+    row['values'] = dict(job['values'])
+    task = insertion_task(job['scene_file'], job['sets'], job['travel'])
+    gap = {} if task['start_gap_m'] is None else {'needle.start_gap_m': task['start_gap_m']}
     try:
-        scene = Scene.from_file(job['scene_file'], sets=list(job['sets']) + list(job['overrides'])
-                                + [f'needle.start_gap_m={START_GAP_M!r}'])
+        scene = Scene.from_file(job['scene_file'], sets=job['sets'], values={**job['values'], **gap})
     except (SceneError, ValueError) as exc:
         return dict(row, failure=f'refused: {exc}')
     row.update(tetrahedra=int(scene.mesh.n_elements), time_step_s=float(scene.dt),
                mass_scaling=float(scene.spec['solver']['mass_scaling']),
                damping_per_s=float(scene.spec['solver']['damping_per_s']))
     try:
-        result = run_insertion(scene, job['speed'], job['travel'], retract=False)
+        result = run_insertion(scene, job['speed'], task['travel_m'], retract=False)
     except SimulationDiverged as exc:
         return dict(row, failure=f'diverged: {exc.reason}')
     sim_time = float(result.time[-1])
@@ -245,9 +267,9 @@ def _pareto_of(rows: list[dict]) -> None:
             and (o['cost_s_per_sim_s'] < r['cost_s_per_sim_s'] or o['error'] < r['error']) for o in candidates)
 
 
-def make_job(config: dict, scene_file=None, sets=(), *, speed=0.005, travel=0.012) -> dict:
+def make_job(config: dict, scene_file=None, sets=(), *, speed=0.005, travel=None) -> dict:
     """A job for simulate_job: a configuration (``model``, ``mesh``, ``integrator``, ``reference``,
-    ``overrides``) on the scene and task."""
+    ``values``: {key path: value}) on the scene and task (``travel`` None: :func:`insertion_task`'s)."""
     job = dict(config, scene_file=None if scene_file is None else str(scene_file), sets=list(sets), speed=speed,
                travel=travel)
     job['key'] = json.dumps(job, sort_keys=True)
@@ -256,12 +278,12 @@ def make_job(config: dict, scene_file=None, sets=(), *, speed=0.005, travel=0.01
 
 def jobs_for(scene_file, sets, *, quick, speed, travel) -> list[dict]:
     from tissue_sim_ros.engine.scene.scene import Scene
-    scene_dt = Scene.from_file(scene_file, sets=list(sets)).dt
+    scene = Scene.from_file(scene_file, sets=list(sets))
     return [make_job(config, scene_file, sets, speed=speed, travel=travel)
-            for config in configurations(scene_dt, quick=quick)]
+            for config in configurations(scene.dt, quick=quick, mesh_levels=scene.spec['mesh']['generator'] != 'file')]
 
 
-def run_chart(scene_file=None, sets=(), *, quick=False, speed=0.005, travel=0.012, out='out', workers=None,
+def run_chart(scene_file=None, sets=(), *, quick=False, speed=0.005, travel=None, out='out', workers=None,
               scheduler=None, jobs=None, quiet=False) -> dict:
     """Run the grid (or ``jobs``, a subset of jobs_for's) and write the outputs; returns the report."""
     from tissue_sim_ros.analysis.jobs import run_logged
@@ -282,7 +304,7 @@ def run_chart(scene_file=None, sets=(), *, quick=False, speed=0.005, travel=0.01
     _errors(rows)
     _pareto(rows)
     report = dict(scene=str(scene_file) if scene_file else 'packaged liver sample', sets=list(sets), quick=quick,
-                  task=dict(speed_m_s=speed, travel_m=travel, start_gap_m=START_GAP_M, tick_s=0.02),
+                  task=dict(speed_m_s=speed, tick_s=0.02, **insertion_task(scene_file, sets, travel)),
                   error_metric='force_nrmse: RMS difference of the axial force from the reference over the '
                                "insertion's ticks / the reference's force range",
                   compression_error_metric=f'|plate force / (E A strain) - 1| at {COMPRESSION_STRAIN:g} strain, held',
@@ -308,8 +330,9 @@ def _cell(value):
     return value
 
 
-def _overrides_text(overrides) -> str:
-    return ' '.join(f'--set {shlex.quote(s)}' for s in overrides)
+def _overrides_text(values: dict) -> str:
+    """The ``--set`` options that reproduce a row's scene values."""
+    return ' '.join(f'--set {shlex.quote(override_text(k, v))}' for k, v in values.items())
 
 
 def _write_outputs(out: Path, report: dict, rows: list[dict]) -> None:
@@ -318,7 +341,7 @@ def _write_outputs(out: Path, report: dict, rows: list[dict]) -> None:
         w = csv.writer(f)
         w.writerow(_CSV_COLUMNS)
         for r in rows:
-            w.writerow([_overrides_text(r['overrides']) if c == 'overrides' else _cell(r.get(c))
+            w.writerow([_overrides_text(r['values']) if c == 'overrides' else _cell(r.get(c))
                         for c in _CSV_COLUMNS])
     (out / 'chart.json').write_text(json.dumps(report, indent=1))
     _plot(out / 'chart.png', rows)
@@ -330,8 +353,10 @@ def _markdown(report: dict, rows: list[dict]) -> str:
     lines = [f"# Speed against accuracy: {report['scene']}", '',
              f"Cost: wall seconds per simulated second, one thread. {report['wall_s']:.0f} s of wall time"
              f"{' (quick preset)' if report['quick'] else ''}.", '',
-             f"## Needle insertion: from {task['start_gap_m'] * 1e3:g} mm above the surface, "
-             f"{task['travel_m'] * 1e3:g} mm at {task['speed_m_s'] * 1e3:g} mm/s", '',
+             f"## Needle insertion: "
+             + (f"the scene's planned insertion from its start pose, " if task['planned'] else
+                f"from {task['start_gap_m'] * 1e3:g} mm above the surface, ")
+             + f"{task['travel_m'] * 1e3:g} mm at {task['speed_m_s'] * 1e3:g} mm/s", '',
              f"Error: {report['error_metric']}.", '',
              '| model | mesh | tetrahedra | integrator | mass scaling | damping [1/s] | dt [s] | cost [s/s] | error | '
              'peak | puncture [mm] | Pareto |', '|---|---|---|---|---|---|---|---|---|---|---|---|']
@@ -403,9 +428,10 @@ def _plot_task(ax, rows: list[dict], families: list[str], task: str) -> None:
     ax.legend(fontsize=7, loc='best')
 
 
-def main(scene_file=None, sets=(), quick=False, speed_mm_s=5.0, travel_mm=12.0, out='out', workers=None,
+def main(scene_file=None, sets=(), quick=False, speed_mm_s=5.0, travel_mm=None, out='out', workers=None,
          scheduler=None) -> int:
-    run_chart(scene_file, sets, quick=quick, speed=speed_mm_s * 1e-3, travel=travel_mm * 1e-3, out=out,
+    run_chart(scene_file, sets, quick=quick, speed=speed_mm_s * 1e-3,
+              travel=None if travel_mm is None else travel_mm * 1e-3, out=out,
               workers=workers, scheduler=scheduler)
     print((Path(out) / 'chart.md').read_text())
     print(f'wrote {out}/chart.csv, chart.png, chart.md, chart.json', file=sys.stderr)

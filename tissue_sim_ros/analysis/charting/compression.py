@@ -8,9 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tissue_sim_ros.engine.model.material import Material
 from tissue_sim_ros.engine.mesh.generators import box_mesh
+from tissue_sim_ros.engine.model.material import Material
 from tissue_sim_ros.engine.model.tensor_mass import TensorMassModel
+from tissue_sim_ros.engine.scene.build import build_material, build_model, build_simulation
 from tissue_sim_ros.engine.solver.explicit import Simulation
 
 
@@ -66,7 +67,7 @@ def plate_compression(size=(0.05, 0.05, 0.03), divisions=(10, 10, 6), material=N
 
 @dataclass
 class SceneBlock:
-    simulation: object          # engine.solver.Simulation
+    simulation: object          # engine.solver.explicit.Simulation
     plate_nodes: np.ndarray     # the top face's nodes (z prescribed)
     steps: int                  # steps of the travel and the hold
     expected_reaction: float    # E A strain [N] (A the top's area), the small-strain plate force at the end
@@ -74,28 +75,21 @@ class SceneBlock:
 
 def scene_block(scene, strain, *, size=0.02, divisions=6, speed=0.01, hold_s=0.3, mesh_filter=None,
                 dt=None, integrator=None) -> SceneBlock:
-    """A cube of side ``size`` [m] of the scene's first material and model, its solver's damping,
-    mass scaling, step rule and integrator, on a frictionless floor (two nodes pinned against rigid
-    motion), a frictionless plate pressing its top to ``strain`` at ``speed`` [m/s], then held for
-    ``hold_s`` (the mass-proportional damping's 1 / e time at 50/s is 0.04 s). ``mesh_filter``
-    changes the box mesh before use (stability's slivers); ``dt`` and ``integrator`` override the
-    scene's step rule and integrator."""
+    """A cube of side ``size`` [m] of the scene's first material and model (every model key, built
+    as the scene builds its own), its solver's damping, mass scaling, step rule and integrator, on a
+    frictionless floor (two nodes pinned against rigid motion), a frictionless plate pressing its
+    top to ``strain`` at ``speed`` [m/s], then held for ``hold_s`` (the mass-proportional damping's
+    1 / e time at 50/s is 0.04 s). ``mesh_filter`` changes the box mesh before use (stability's
+    slivers); ``dt`` (None: the cube's own critical step times the scene's safety) and
+    ``integrator`` override the scene's step rule and integrator."""
     import math
 
-    from tissue_sim_ros.engine.mesh.generators import box_mesh
     mesh = box_mesh(size=(size, size, size), divisions=(divisions, divisions, divisions))
     if mesh_filter is not None:
         mesh = mesh_filter(mesh)
-    region = scene.spec['regions'][0]
-    material = Material(region['young_modulus_pa'], region['poisson_ratio'], region['density_kg_per_m3'])
-    m = scene.model
-    model = TensorMassModel(mesh, material, geometric=m.geometric, physical=m.physical_law, viscosity=m.viscosity,
-                            nonlinearity_threshold=m.nonlinearity_threshold, inversion_safeguard=m.inversion_safeguard)
-    solver = scene.spec['solver']
-    sim = Simulation(model, damping=solver['damping_per_s'], mass_scaling=solver['mass_scaling'],
-                     time_step_safety=solver['time_step_safety'], dt=dt,
-                     integrator=integrator or solver['integrator'],
-                     newton_tolerance=solver['newton_tolerance'])
+    material = build_material(scene.spec['regions'][0])
+    model = build_model(mesh, material, scene.spec['model'])
+    sim = build_simulation(model, scene.spec['solver'], dt=dt, integrator=integrator)
     x = mesh.rest_positions
     top = np.flatnonzero(np.isclose(x[:, 2], size))
     sim.fix(np.flatnonzero(np.isclose(x[:, 2], 0.0)), axes='z')

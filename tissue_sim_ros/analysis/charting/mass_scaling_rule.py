@@ -15,7 +15,7 @@ The rule:
 is first order (the added force while loading, and the punctures it moves earlier), 0.79-0.85
 of the measured error on the default scene from 100x up, and at smaller scalings it is an
 expectation over where the force samples fall (25x: 0.011-0.024 estimated, 0.0024-0.059
-measured; README). A bound wants the error itself.
+measured; docs/performance.md). A bound wants the error itself.
 
 It is found by probes, from s = START:
 
@@ -40,7 +40,7 @@ import math
 import sys
 from pathlib import Path
 
-from tissue_sim_ros.engine.scene.schema import SceneError
+from tissue_sim_ros.errors import SceneError
 
 __all__ = ['REFERENCE_SCALING', 'START', 'MAX_SCALING', 'MAX_PROBES', 'choose_mass_scaling', 'auto_mass_scaling']
 
@@ -103,7 +103,7 @@ def auto_mass_scaling(spec: dict, base_dir='.', *, quiet=False) -> tuple[float, 
 
     def probe(s):
         config = dict(model='scene', mesh='scene', integrator=solver['integrator'], reference=False,
-                      overrides=[f'solver.mass_scaling={s!r}'])
+                      values={'solver.mass_scaling': s})
         return simulate_job(make_job(config, scene_file, (), speed=speed))
 
     say(f'tissue_sim_ros: solver.mass_scaling: auto: probing for the largest mass scaling within a force '

@@ -1,4 +1,4 @@
-"""The least model a scene needs (issue 17 item 4): ``tissue-sim recommend --scene SCENE
+"""The least model a scene needs: ``tissue-sim recommend --scene SCENE
 --tolerance 0.05 [--rate-hz 50] --out DIR``.
 
 Runs the chart's grid (:mod:`.chart`, into DIR/chart, resumable; ``--quick`` for its preset) and
@@ -58,11 +58,12 @@ def choose(rows: list[dict], tolerance: float, rate_hz: float, budget: float = C
     return rows[k], verdicts
 
 
-def recommend(scene_file=None, sets=(), *, tolerance=0.05, rate_hz=50.0, quick=False, speed=0.005, travel=0.012,
+def recommend(scene_file=None, sets=(), *, tolerance=0.05, rate_hz=50.0, quick=False, speed=0.005, travel=None,
               out='out', workers=None, scheduler=None, jobs=None, quiet=False, budget=CORE_BUDGET) -> dict:
     """The study (module docstring); returns recommend.json's content. ``jobs``: a subset of the
     chart's; ``budget``: the share of a core the physics may take (CORE_BUDGET)."""
     from tissue_sim_ros.analysis.charting import chart
+    from tissue_sim_ros.engine.scene.keys import override_text
     from tissue_sim_ros.engine.scene.scene import Scene, scene_yaml
     if not (np.isfinite(tolerance) and tolerance > 0):
         raise ValueError(f'tolerance = {tolerance!r}: expected a force NRMSE > 0 (e.g. 0.05)')
@@ -74,20 +75,21 @@ def recommend(scene_file=None, sets=(), *, tolerance=0.05, rate_hz=50.0, quick=F
     rows = [r for r in report['rows'] if r['task'] == 'insertion']
     chosen, verdicts = choose(rows, tolerance, rate_hz, budget)
     base = Scene.from_file(scene_file, sets=list(sets))
-    spec = Scene.from_file(scene_file, sets=list(sets) + list(chosen['overrides'])).spec
+    spec = Scene.from_file(scene_file, sets=list(sets), values=chosen['values']).spec
+    overrides = [override_text(k, v) for k, v in chosen['values'].items()]
     header = [f'The least model within a force NRMSE of {tolerance:g} at {rate_hz:g} Hz: tissue-sim recommend',
               f"({chosen['model']}, {chosen['mesh']} mesh, {chosen['integrator']}, mass scaling "
               f"{chosen['mass_scaling']:g}; predicted error {chosen['error']:.4f}, cost "
               f"{chosen['cost_s_per_sim_s']:.3g} s per simulated s).",
               f"Starting scene: {scene_file or 'the packaged default'}"
               + (f" with {' '.join('--set ' + s for s in sets)}" if sets else ''),
-              f"Changes: {' '.join('--set ' + s for s in chosen['overrides']) or 'none'}"]
+              f"Changes: {' '.join('--set ' + s for s in overrides) or 'none'}"]
     out.mkdir(parents=True, exist_ok=True)
     path = out / 'recommended.yaml'
     path.write_text(scene_yaml(spec, base.base_dir, header))
     # the chosen scene afresh, from the file, against the chart's reference
     fresh = chart.simulate_job(chart.make_job(dict(model=chosen['model'], mesh=chosen['mesh'],
-                                                   integrator=chosen['integrator'], reference=False, overrides=[]),
+                                                   integrator=chosen['integrator'], reference=False, values={}),
                                               path, speed=speed, travel=travel))
     reference = chart.read_reference(out / 'chart')
     measured = chart.force_nrmse(fresh['axial_force'], reference) if not fresh.get('failure') else None
@@ -97,7 +99,7 @@ def recommend(scene_file=None, sets=(), *, tolerance=0.05, rate_hz=50.0, quick=F
                   tolerance_met=chosen['error'] <= tolerance,
                   keeps_real_time=chosen['cost_s_per_sim_s'] + rate_hz * TICK_OVERHEAD_S <= budget,
                   predicted_error=chosen['error'], measured_error=measured,
-                  cost_s_per_sim_s=chosen['cost_s_per_sim_s'], overrides=list(chosen['overrides']),
+                  cost_s_per_sim_s=chosen['cost_s_per_sim_s'], overrides=overrides,
                   chosen={k: chosen[k] for k in ('model', 'mesh', 'integrator', 'tetrahedra', 'time_step_s',
                                                  'mass_scaling', 'peak_force_error', 'puncture_depth_error_mm')},
                   rule=f'cost_s_per_sim_s + rate_hz x {TICK_OVERHEAD_S:g} s <= {budget:g}; the cheapest '
@@ -190,7 +192,7 @@ def _markdown(r: dict) -> str:
              f"time step {c['time_step_s']:.3g} s, mass scaling {c['mass_scaling']:g}: predicted error "
              f"{r['predicted_error']:.4f}, measured afresh {measured}, cost {r['cost_s_per_sim_s']:.3g} s per "
              'simulated s.', '',
-             f"Overrides: `{' '.join('--set ' + s for s in r['overrides']) or 'none'}`"]
+             f"Changes: `{' '.join('--set ' + s for s in r['overrides']) or 'none'}`"]
     if not r['tolerance_met']:
         lines += ['', '**No configuration fast enough is within the tolerance**: this is the most accurate one '
                       'that keeps real time.']
@@ -199,10 +201,10 @@ def _markdown(r: dict) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def main(scene_file=None, sets=(), tolerance=0.05, rate_hz=50.0, quick=False, speed_mm_s=5.0, travel_mm=12.0,
+def main(scene_file=None, sets=(), tolerance=0.05, rate_hz=50.0, quick=False, speed_mm_s=5.0, travel_mm=None,
          out='out', workers=None, scheduler=None) -> int:
     recommend(scene_file, sets, tolerance=tolerance, rate_hz=rate_hz, quick=quick, speed=speed_mm_s * 1e-3,
-              travel=travel_mm * 1e-3, out=out, workers=workers, scheduler=scheduler)
+              travel=None if travel_mm is None else travel_mm * 1e-3, out=out, workers=workers, scheduler=scheduler)
     print((Path(out) / 'recommend.md').read_text())
     print(f'wrote {out}/recommended.yaml, recommend.json, recommend.csv, recommend.png, recommend.md', file=sys.stderr)
     return 0

@@ -1,5 +1,5 @@
 """Where each model and integrator stops being stable, and what happens when a run is pushed past
-it (issue 17 item 3): ``tissue-sim stability --scene SCENE --out DIR``.
+it: ``tissue-sim stability --scene SCENE --out DIR``.
 
 1. **Largest stable step.** For each model (linear, physically non-linear, geometric, full; the
    scene's law and viscosity) and integrator, the scene's own loading is run at a time step
@@ -91,13 +91,13 @@ def _needle_run(scene, duration_s, speed, watch):
 
 def _scene(scene_file, sets):
     from tissue_sim_ros.engine.scene.scene import Scene
-    return Scene.from_file(scene_file, sets=list(sets) + [f'needle.start_gap_m={START_GAP_M!r}'])
+    return Scene.from_file(scene_file, sets=sets, values={'needle.start_gap_m': START_GAP_M})
 
 
 def _stable_at(scene, dt, window_s, speed):
     """(stable, reason): the loading at time step ``dt`` from rest."""
     from tissue_sim_ros.analysis.insertion import run_insertion
-    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+    from tissue_sim_ros.errors import SimulationDiverged
     scene.reset()
     scene.simulation.dt = dt
     try:
@@ -174,8 +174,7 @@ def _with_slivers(mesh):
 
 def failure_job(job: dict) -> dict:
     """One induced failure (module docstring, item 2)."""
-    from tissue_sim_ros.engine.scene.scene import SceneError
-    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+    from tissue_sim_ros.errors import SceneError, SimulationDiverged
     t0 = time.perf_counter()
     case, sets, speed, window = job['case'], list(job['sets']), job['speed'], job['window_s']
     row = dict(key=job['key'], kind='failure', case=case, model='full', integrator='explicit',

@@ -28,8 +28,8 @@ For each trial (one file of a study, :mod:`tissue_sim_ros.io.trials.data_spec`):
 
 The simulations run in a process pool (or on a Dask cluster, ``scheduler``) with a progress
 bar, and each is kept in ``DIR/simulations`` as it finishes: a second run with the same inputs
-reuses them (resume). Outputs (:mod:`~tissue_sim_ros.analysis.compare.report`): report.json,
-report.md, comparison.csv, and PNGs of force against depth and against time.
+reuses them (resume). Outputs (:mod:`~tissue_sim_ros.analysis.compare.report`): compare.json,
+compare.md, compare.csv, and PNGs of force against depth and against time.
 """
 from __future__ import annotations
 
@@ -39,34 +39,17 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_sim_ros.analysis.compare.shared_punctures import EVENT_WINDOW_M, within_spread
+from tissue_sim_ros.analysis.compare.simulated_curve import SimulatedCurve, simulated_curve
+
 __all__ = ['ALIGNMENTS', 'TrialComparison', 'SimulatedCurve', 'simulated_curve', 'compare_trial',
-           'plan_simulations', 'compare_trials']
+           'measured_layers', 'plan_simulations', 'compare_trials', 'within_spread']
 
 ALIGNMENTS = ('contact', 'xcorr', 'depth')
 MAX_SHIFT_S = 0.5
-#: the pointwise errors leave out this much travel, and these samples, around each puncture
-EVENT_WINDOW_M = 0.00015
+#: the pointwise errors leave out EVENT_WINDOW_M of travel (shared_punctures's), and these samples,
+#: around each puncture
 EVENT_WINDOW_SAMPLES = 3
-
-
-@dataclass
-class SimulatedCurve:
-    """A simulation on a trial's clock: time since contact [s], travel since contact [m],
-    axial force [N]; ``diverged``: the watchdog's reason, or ''."""
-
-    time_since_contact_s: np.ndarray
-    travel_since_contact_m: np.ndarray
-    axial_force_n: np.ndarray
-    diverged: str = ''
-
-
-def simulated_curve(result, schedule, motion, scene_gap_m: float) -> SimulatedCurve:
-    """The simulation ``result`` of ``schedule`` (made from ``motion``) on the trial's clock."""
-    contact_time = float(motion.time_s[motion.contact_index])
-    keep = schedule.trial_time_s >= 0.0                       # not the pre-roll
-    return SimulatedCurve(schedule.trial_time_s[keep] - contact_time,
-                          schedule.travel_m[keep] - scene_gap_m, np.asarray(result.axial_force_n)[keep],
-                          result.diverged)
 
 
 @dataclass
@@ -88,19 +71,26 @@ class TrialComparison:
     measured_punctures: list = field(default_factory=list)
     simulated_punctures: list = field(default_factory=list)
     diverged: str = ''
+    #: the scene's own puncture events (travel since contact [m], layer), the simulation's clock
+    simulated_events: tuple = ()
 
 
-def compare_trial(trial, motion, curve: SimulatedCurve, align: str = 'contact') -> TrialComparison:
-    """The errors of ``curve`` against ``trial`` (see the module docstring)."""
+def compare_trial(trial, motion, curve: SimulatedCurve, align: str = 'contact', *, measured_punctures=None,
+                  layers=None) -> TrialComparison:
+    """The errors of ``curve`` against ``trial`` (see the module docstring). ``measured_punctures``:
+    the trial's punctures as its repeats share them (:func:`measured_layers`; None: detected in this
+    trial alone); ``layers``: the repeats' layers (their depths' spread), which say whether a
+    simulated puncture lies within the spread."""
     from tissue_sim_ros.analysis.compare.alignment import best_time_shift, resample
     from tissue_sim_ros.analysis.compare.force_events import detect_punctures, segment_phases
     from tissue_sim_ros.analysis.compare.force_metrics import curve_errors, event_errors, per_phase_errors
+    from tissue_sim_ros.analysis.compare.shared_punctures import pair_punctures
     if align not in ALIGNMENTS:
         raise ValueError(f'align = {align!r}: expected one of {", ".join(ALIGNMENTS)}')
     force = np.asarray(trial.axial_force_n, dtype=float)
     since = motion.time_s - motion.time_s[motion.contact_index]
     travel = motion.travel_m - motion.gap_m
-    data_punctures = detect_punctures(travel, force)
+    data_punctures = detect_punctures(travel, force) if measured_punctures is None else list(measured_punctures)
     phases = segment_phases(motion.time_s, motion.travel_m, force, contact=motion.contact_index,
                             first_puncture=data_punctures[0].index if data_punctures else None)
     shift = 0.0
@@ -117,12 +107,18 @@ def compare_trial(trial, motion, curve: SimulatedCurve, align: str = 'contact') 
             simulated = resample(curve.time_since_contact_s - shift, curve.axial_force_n, since)
     compared = np.isfinite(simulated)
     kept = np.flatnonzero(compared)                  # punctures indexed on the trial's samples
-    sim_punctures = [replace(p, index=int(kept[p.index]))
-                     for p in detect_punctures(travel[kept], simulated[kept])] if kept.size > 2 else []
+    sim_punctures = _labelled([replace(p, index=int(kept[p.index]))
+                               for p in _simulated_punctures(travel[kept], simulated[kept], curve)], curve) \
+        if kept.size > 2 else []
+    pairs = pair_punctures(data_punctures, sim_punctures)
     events = event_errors(data_punctures, sim_punctures, measured_force_n=force[compared],
                           measured_phases=phases[compared], simulated_force_n=simulated[compared],
-                          simulated_phases=phases[compared]) if compared.any() else {}
-    pointwise = np.where(away_from_events(travel, data_punctures + sim_punctures), simulated, np.nan)
+                          simulated_phases=phases[compared], pairs=pairs) if compared.any() else {}
+    within = [(m, p) for m, p in pairs if within_spread(m, p, layers)]
+    if compared.any():
+        events['punctures_within_spread'] = len(within)
+    pointwise = np.where(away_from_events(travel, data_punctures + sim_punctures, between=within), simulated,
+                         np.nan)
     normaliser = float(np.ptp(force)) or None
     errors = curve_errors(force, pointwise, normaliser=normaliser) \
         if np.isfinite(pointwise).any() else {'nrmse': float('nan'), 'rmse_n': float('nan'), 'count': 0}
@@ -132,21 +128,79 @@ def compare_trial(trial, motion, curve: SimulatedCurve, align: str = 'contact') 
         if np.isfinite(pointwise).any() else {}
     return TrialComparison(trial.file, trial.speed_m_s, trial.repeat, since, travel, force, simulated,
                            phases, errors, per_phase, events, shift, data_punctures, sim_punctures,
-                           curve.diverged)
+                           curve.diverged, curve.puncture_events)
 
 
-def away_from_events(travel, punctures) -> np.ndarray:
+def away_from_events(travel, punctures, between=()) -> np.ndarray:
     """Samples farther than EVENT_WINDOW_M of travel (and EVENT_WINDOW_SAMPLES samples) from
-    every puncture of either curve: the pointwise errors leave those out. A puncture drops the
-    force by most of its value within a sample; a timing difference of one sample there would
-    otherwise dominate the whole curve's RMSE. Events are measured as events: their depth and
-    force errors."""
+    every puncture of either curve, and not between the two punctures of a pair in ``between``
+    ((measured, simulated) pairs whose simulated one lies within the repeats' spread): the
+    pointwise errors leave those out. A puncture drops the force by most of its value within a
+    sample; a timing difference of one sample there would otherwise dominate the whole curve's
+    RMSE, and a simulated puncture where the repeats themselves puncture is no miss of the
+    samples between. Events are measured as events: their depth and force errors."""
+    travel = np.asarray(travel, dtype=float)
     keep = np.ones(len(travel), dtype=bool)
     for p in punctures:
         near = np.abs(travel - p.travel_m) <= EVENT_WINDOW_M
         near[max(0, p.index - EVENT_WINDOW_SAMPLES):p.index + EVENT_WINDOW_SAMPLES + 1] = True
         keep &= ~near
+    for measured, simulated in between:
+        first, last = sorted((measured.index, simulated.index))
+        keep[first:last + 1] = False
     return keep
+
+
+#: a simulated curve's puncture is the scene's event within this much travel of it
+EVENT_MATCH_M = 0.001
+
+
+def _simulated_punctures(travel, force, curve: SimulatedCurve) -> list:
+    """The simulated curve's punctures: the drops a measured puncture needs, and any other drop
+    within EVENT_MATCH_M of a membrane the scene ruptured. The engine says that one is a puncture;
+    the drop fraction only keeps noise out of measured data (where a small puncture may pass it in
+    one repeat and not the next: the repeats' majority makes it a layer), and a simulation has no
+    noise."""
+    from tissue_sim_ros.analysis.compare.force_events import PUNCTURE, detect_drops, detect_punctures
+    found = detect_punctures(travel, force)
+    indices = {p.index for p in found}
+    ruptures = [at for at, _ in curve.puncture_events]
+    found += [p for p in detect_drops(travel, force, min_drop_fraction=0.0)
+              if p.kind == PUNCTURE and p.index not in indices
+              and any(abs(at - p.travel_m) <= EVENT_MATCH_M for at in ruptures)]
+    return sorted(found, key=lambda p: p.index)
+
+
+def _labelled(punctures, curve: SimulatedCurve) -> list:
+    """The punctures found in the simulated force, each with the layer of a scene's puncture event
+    within EVENT_MATCH_M of it: the outermost such layer not given to an earlier puncture (two
+    layers that rupture together show as one drop: it is the outer one's); -1 where none."""
+    taken, out = set(), []
+    for p in punctures:
+        near = sorted(layer for travel, layer in curve.puncture_events
+                      if abs(travel - p.travel_m) <= EVENT_MATCH_M and layer not in taken)
+        layer = near[0] if near else -1
+        taken.add(layer)
+        out.append(replace(p, layer=layer))
+    return out
+
+
+def measured_layers(trials, motions) -> tuple[list, list]:
+    """Per trial: its punctures as the repeats of its speed share them, and that speed's layers
+    (:mod:`~tissue_sim_ros.analysis.compare.shared_punctures`; travel since contact)."""
+    from tissue_sim_ros.analysis.compare.shared_punctures import shared_punctures
+    groups: dict = {}
+    for index, trial in enumerate(trials):
+        key = index if trial.speed_m_s is None else round(trial.speed_m_s, 9)
+        groups.setdefault(key, []).append(index)
+    punctures, layers = [None] * len(trials), [None] * len(trials)
+    for members in groups.values():
+        shared = shared_punctures([motions[i].travel_m - motions[i].gap_m for i in members],
+                                  [trials[i].axial_force_n for i in members])
+        for position, i in enumerate(members):
+            punctures[i] = shared.punctures_of(position)
+            layers[i] = shared.layers
+    return punctures, layers
 
 
 def _at_its_contact(curve: SimulatedCurve, measured_force) -> SimulatedCurve:
@@ -160,9 +214,10 @@ def _at_its_contact(curve: SimulatedCurve, measured_force) -> SimulatedCurve:
                            curve.travel_since_contact_m, noise_n=noise)
     if index is None:
         return curve
+    shift = float(curve.travel_since_contact_m[index])
     return SimulatedCurve(curve.time_since_contact_s - curve.time_since_contact_s[index],
-                          curve.travel_since_contact_m - curve.travel_since_contact_m[index],
-                          curve.axial_force_n, curve.diverged)
+                          curve.travel_since_contact_m - shift, curve.axial_force_n, curve.diverged,
+                          tuple((travel - shift, layer) for travel, layer in curve.puncture_events))
 
 
 def _on_travel(curve: SimulatedCurve, travel, phases) -> np.ndarray:
@@ -236,19 +291,29 @@ def run_plan(plan: Plan, *, store=None, workers=None, scheduler=None, quiet=Fals
 
 def compare_trials(trials, scene, *, align: str = 'contact', gap_m: float | None = None,
                    per_trial: bool = False, tick_s: float = 0.01, store=None, workers=None,
-                   scheduler=None, quiet: bool = False) -> dict:
+                   scheduler=None, quiet: bool = False, simulated_repeats: int = 0) -> dict:
     """Everything the report needs: the comparisons, the plan, the results, the repeats' floors
-    by speed, and what it cost."""
+    by speed, each speed's punctures measured and simulated (with ``simulated_repeats`` runs of a
+    scene that states its spread: :mod:`.puncture_spread`), and what it cost."""
+    from tissue_sim_ros.analysis.compare.puncture_spread import run_simulated_repeats, spread_by_speed
     wall0 = time.perf_counter()
     plan = plan_simulations(trials, scene, gap_m=gap_m, per_trial=per_trial, tick_s=tick_s)
     results = run_plan(plan, store=store, workers=workers, scheduler=scheduler, quiet=quiet)
     curves = [simulated_curve(results[j], plan.schedules[j], plan.motions[plan.representative[j]],
                               scene.start_gap_m) for j in range(len(plan.jobs))]
-    comparisons = [compare_trial(trial, plan.motions[i], curves[plan.job_of_trial[i]], align)
+    punctures, layers = measured_layers(trials, plan.motions)
+    comparisons = [compare_trial(trial, plan.motions[i], curves[plan.job_of_trial[i]], align,
+                                 measured_punctures=punctures[i], layers=layers[i])
                    for i, trial in enumerate(trials)]
-    return {'comparisons': comparisons, 'plan': plan, 'results': results, 'curves': curves,
-            'speeds': speed_groups(trials, plan.motions, comparisons),
-            'wall_s': time.perf_counter() - wall0}
+    study = {'comparisons': comparisons, 'plan': plan, 'results': results, 'curves': curves, 'layers': layers,
+             'speeds': speed_groups(trials, plan.motions, comparisons), 'scene_gap_m': scene.start_gap_m}
+    repeats = run_simulated_repeats(plan, scene, simulated_repeats, store=store, workers=workers,
+                                    scheduler=scheduler, quiet=quiet)
+    study['repeat_results'] = repeats
+    for position, rows in spread_by_speed(study, repeats, scene.start_gap_m).items():
+        study['speeds'][position]['punctures'] = rows
+    study['wall_s'] = time.perf_counter() - wall0
+    return study
 
 
 def speed_groups(trials, motions, comparisons) -> list[dict]:
@@ -288,13 +353,13 @@ def data_spec_from_options(files, options: dict):
 
 def main(*, data_spec=None, files=(), options=None, scene_file=None, sets=(), align='contact',
          gap_mm=None, max_depth_mm=None, per_trial=False, tick_ms=10.0, workers=None, scheduler=None, out='out/compare',
-         stream=None) -> dict:
+         simulated_repeats=0, stream=None) -> dict:
     """The ``tissue-sim compare`` command: load the trials, compare, write the report."""
     import sys
 
     from tissue_sim_ros.analysis.compare.report import write_report
     from tissue_sim_ros.analysis.compare.trial_simulation import ResultStore
-    from tissue_sim_ros.engine.scene.scene import Scene
+    from tissue_sim_ros.analysis.charting.auto_keys import load_scene
     from tissue_sim_ros.io.trials.data_spec import DataSpec, load_trials
     stream = sys.stdout if stream is None else stream
     spec = DataSpec.from_file(data_spec) if data_spec else data_spec_from_options(files, options or {})
@@ -303,13 +368,14 @@ def main(*, data_spec=None, files=(), options=None, scene_file=None, sets=(), al
         from tissue_sim_ros.analysis.compare.measured_motion import within_depth
         trials = [within_depth(t, max_depth_mm * 1e-3, gap_m=None if gap_mm is None else gap_mm * 1e-3)
                   for t in trials]
-    scene = Scene.from_file(scene_file, sets=sets)
+    scene = load_scene(scene_file, sets=sets)
     print(f'compare: {len(trials)} trial(s) from {spec.source}; scene {scene_file or "(default)"}'
           f'{" with " + ", ".join(sets) if sets else ""}: {scene.mesh.n_elements} tetrahedra', file=stream)
     out = Path(out)
     study = compare_trials(trials, scene, align=align, gap_m=None if gap_mm is None else gap_mm * 1e-3,
                            per_trial=per_trial, tick_s=tick_ms * 1e-3,
-                           store=ResultStore(out / 'simulations'), workers=workers, scheduler=scheduler)
+                           store=ResultStore(out / 'simulations'), workers=workers, scheduler=scheduler,
+                           simulated_repeats=simulated_repeats)
     report = write_report(out, study, scene_label=str(scene_file or 'the default scene'),
                           overrides=sets, align=align)
     s = report['summary']
@@ -323,6 +389,14 @@ def main(*, data_spec=None, files=(), options=None, scene_file=None, sets=(), al
         speed = 'unknown' if group['speed_m_s'] is None else f"{group['speed_m_s'] * 1e3:g} mm/s"
         print(f"  {speed:>12}: {group['trials']} trial(s), model NRMSE {fmt(group['nrmse_mean'])}, "
               f"noise floor {fmt(group['noise_floor_nrmse'])}", file=stream)
+        for row in group.get('punctures') or []:
+            m, sim = row['measured'], row['simulated']
+            print(f"    layer {row['layer']}: measured {1e3 * m['depth_m']:.2f} +- {1e3 * m['depth_sd_m']:.2f} mm, "
+                  f"{m['force_n']:.3f} +- {m['force_sd_n']:.3f} N ({m['found']} of {m['repeats']}); simulated "
+                  + ('none' if not sim['depth_m']['count'] else
+                     f"{1e3 * sim['depth_m']['mean']:.2f} +- {1e3 * (sim['depth_m']['sd'] or 0):.2f} mm, "
+                     f"{sim['force_n']['mean']:.3f} +- {sim['force_n']['sd'] or 0:.3f} N ({sim['runs']} run(s))")
+                  + ('' if row['within_spread'] else ', outside the repeats\' spread'), file=stream)
     print(f"wrote {', '.join(report['outputs'].values())}", file=stream)
     return report
 

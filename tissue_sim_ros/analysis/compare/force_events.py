@@ -7,8 +7,8 @@ The rules (module constants, SI units):
 - Pre-contact level: the median (``baseline``) and the robust standard deviation (``noise``,
   1.4826 x the median absolute deviation) of the first 10 % of the samples (at least 10): robust
   to a few spikes, and zero for a noiseless simulated curve. A recording that starts just above
-  the tissue has the loading's rise in its first 10 %: taken as noise it hid a 0.4 N puncture
-  behind an 8-noise threshold of 0.87 N, and raising the median it put the contact 1 mm late.
+  the tissue has the loading's rise in its first 10 %: taken as noise it would hide a small
+  puncture behind the 8-noise threshold, and raising the median it would put the contact late.
   So the baseline is the smaller of that median and the median of the first third of those
   samples, and with 20 samples or more the noise is the smaller of that spread and the spread
   about a quadratic fit to them.
@@ -20,14 +20,29 @@ The rules (module constants, SI units):
   noise make a false start unlikely (3e-7 a sample) and the sustain excludes spikes; the walk
   back on the averaged force puts the onset near where the force leaves the noise, not 5 noise
   later, and closer to it the more samples a second the record holds.
-- Puncture: the force is smoothed by a running median over 0.1 mm of travel (a puncture's step
-  survives a median; spikes and noise do not); a local maximum of prominence >= ``min_drop_n``
-  (scipy.signal.find_peaks) during insertion is a puncture when the force falls by at least
-  ``max(min_drop_fraction x peak, min_drop_n)`` within ``window_m`` of further travel, before it
-  climbs back above the peak. Lower tops between that peak and the lowest point of its fall (a
-  double top) belong to the same puncture, reported at the higher top. ``min_drop_n`` defaults
-  to ``8 noise + 10 mN``: the range of a thousand Gaussian samples rarely reaches 8 sigma, and
-  10 mN keeps a noiseless simulation's numerical ripples out.
+- Drops: the force is smoothed by a running median over 0.1 mm of travel (a puncture's step
+  survives a median; spikes and noise do not); each local maximum of prominence >= ``min_drop_n``
+  (scipy.signal.find_peaks) during insertion is a candidate, its drop the fall to the lowest
+  point within ``window_m`` of further travel (4 mm: a rounded peak falls over millimetres, not
+  at one sample) before the force climbs back above the peak. A drop of at least
+  ``max(min_drop_fraction x peak, min_drop_n)`` is an event. Lower tops between a peak and the
+  lowest point of its fall (a double top) belong to its event. ``min_drop_n`` defaults to
+  ``8 noise + 10 mN``: the range of a thousand Gaussian samples rarely reaches 8 sigma, and 10 mN
+  keeps a noiseless simulation's numerical ripples out. The noise here is the smaller of the
+  pre-contact one and the whole record's sample-to-sample noise (the robust standard deviation of
+  the force's second differences over sqrt(6), white noise's own; the curve's trend, its kinks
+  and its few drops barely move a median): a recording that starts a millimetre above the tissue
+  has little before contact to read the noise from, and the loading's shape read as noise set the
+  threshold above a layer's drop.
+- Puncture or pre-drop: a puncture ends the loading that built its peak (the force has to build a
+  new one, in a new layer or inside the tissue), so the force stays below the peak for a while; a
+  pre-drop (a surface dimple giving way, a slip) is a drop the same loading recovers from at once.
+  An event whose peak the force regains within ``regain_fraction`` (0.15) of the travel that
+  built it (from the last sample before the peak at 10 % of its rise above the lowest force since
+  the previous puncture), and within 0.3 mm at least, is a pre-drop: also the first top of a double
+  top whose second top is higher (a digitized curve's vertical line). The others are punctures. A
+  layer's puncture is a drop the repeats share: :mod:`.shared_punctures` groups the events of
+  several repeats.
 - At depth (hold): the travel smoothed by a 5-sample running median is within
   ``max(4 travel-noise, 10 um)`` of its maximum, from the first such sample to the last.
   Travel noise is the robust standard deviation of the travel's second differences / sqrt(6): zero
@@ -46,8 +61,8 @@ from scipy.signal import find_peaks
 
 from tissue_sim_ros.analysis.compare.alignment import increasing_time, sample_array
 
-__all__ = ['PHASES', 'Puncture', 'baseline_and_noise', 'depth_bounds', 'detect_contact',
-           'detect_punctures', 'segment_phases', 'travel_noise_m']
+__all__ = ['PHASES', 'PRE_DROP', 'PUNCTURE', 'Puncture', 'baseline_and_noise', 'depth_bounds', 'detect_contact',
+           'detect_drops', 'detect_punctures', 'sample_noise_n', 'segment_phases', 'travel_noise_m']
 
 PHASES = ('approach', 'loading', 'inserted', 'hold', 'retraction')
 MAD_TO_SIGMA = 1.4826
@@ -57,19 +72,35 @@ CONTACT_TRAVEL_NOISE_MULTIPLE = 3.0
 PUNCTURE_NOISE_MULTIPLE, PUNCTURE_FLOOR_N = 8.0, 1e-2
 PUNCTURE_SMOOTHING_M, MAX_SMOOTHING_HALF_WIDTH = 1e-4, 100
 DEPTH_NOISE_MULTIPLE, DEPTH_TOLERANCE_FLOOR_M, TRAVEL_MEDIAN_SAMPLES = 4.0, 1e-5, 5
-#: the travel within which a peak's force must fall to count as a puncture (``window_m``)
-PUNCTURE_WINDOW_M = 0.0015
+#: the travel within which a peak's force must fall to count as an event (``window_m``)
+PUNCTURE_WINDOW_M = 0.004
+#: a drop regained within this fraction of the travel that built its peak is a pre-drop, and within
+#: PRE_DROP_MIN_REGAIN_M at least
+PRE_DROP_REGAIN_FRACTION, PRE_DROP_MIN_REGAIN_M = 0.15, 3e-4
+#: the loading that built a peak starts at this fraction of its rise
+LOADING_START_FRACTION = 0.1
+#: an event's kinds
+PUNCTURE, PRE_DROP = 'puncture', 'pre-drop'
 
 
 @dataclass(frozen=True)
 class Puncture:
-    """A puncture: ``index`` and ``travel_m`` of the peak sample, ``force_n`` the smoothed force
-    at the peak, ``drop_n`` the smoothed fall after it [N]."""
+    """A drop of the force during insertion (module docstring): ``index`` and ``travel_m`` of the
+    peak sample, ``force_n`` the smoothed force at the peak, ``drop_n`` its smoothed fall [N];
+    ``kind`` 'puncture' or 'pre-drop'; ``fall_m``, the travel from the peak to the lowest point of
+    the fall; ``regained_m``, the travel after the peak at which the force climbs back above it
+    (inf: not within the stretch); ``built_m``, the travel of the loading that built the peak;
+    ``layer``: the layer it punctures, counted from the outer one, when known (-1: not known)."""
 
     index: int
     travel_m: float
     force_n: float
     drop_n: float
+    kind: str = PUNCTURE
+    fall_m: float = 0.0
+    regained_m: float = float('inf')
+    built_m: float = float('inf')
+    layer: int = -1
 
 
 def baseline_and_noise(force_n) -> tuple[float, float]:
@@ -86,6 +117,16 @@ def baseline_and_noise(force_n) -> tuple[float, float]:
         trend = np.polyval(np.polyfit(k, head, 2), k)
         noise = min(noise, MAD_TO_SIGMA * np.median(np.abs(head - trend)))
     return baseline, float(noise)
+
+
+def sample_noise_n(force_n) -> float:
+    """The sample-to-sample noise of a force record [N]: the robust standard deviation of its
+    second differences over sqrt(6) (module docstring)."""
+    force = sample_array('force_n', force_n, finite=True)
+    if len(force) < 3:
+        return 0.0
+    second = np.diff(force, 2)
+    return float(MAD_TO_SIGMA * np.median(np.abs(second - np.median(second))) / np.sqrt(6.0))
 
 
 def travel_noise_m(travel_m) -> float:
@@ -154,9 +195,19 @@ def _rises(travel: np.ndarray, min_rise: float) -> bool:
 def detect_punctures(travel_m, force_n, *, min_drop_fraction: float = 0.15,
                      min_drop_n: float | None = None, window_m: float = PUNCTURE_WINDOW_M,
                      inserting=None) -> list[Puncture]:
-    """The punctures of an insertion, in order of travel (rule in the module docstring).
-    ``inserting``: a boolean mask of the samples where the needle advances (default: those
-    before the deepest travel); peaks and drops are searched within each stretch of it."""
+    """The punctures of an insertion, in order of travel (rule in the module docstring): the
+    events of :func:`detect_drops` that are not pre-drops."""
+    return [event for event in detect_drops(travel_m, force_n, min_drop_fraction=min_drop_fraction,
+                                            min_drop_n=min_drop_n, window_m=window_m, inserting=inserting)
+            if event.kind == PUNCTURE]
+
+
+def detect_drops(travel_m, force_n, *, min_drop_fraction: float = 0.15, min_drop_n: float | None = None,
+                 window_m: float = PUNCTURE_WINDOW_M, inserting=None) -> list[Puncture]:
+    """Every drop of an insertion, punctures and pre-drops, in order of travel (rule in the module
+    docstring). ``inserting``: a boolean mask of the samples where the needle advances (default:
+    those before the deepest travel); peaks and drops are searched within each stretch of it.
+    ``min_drop_fraction`` 0 with ``min_drop_n`` 0 gives every local maximum that falls at all."""
     travel = sample_array('travel_m', travel_m, finite=True)
     force = sample_array('force_n', force_n, len(travel), finite=True)
     if not 0.0 <= min_drop_fraction < 1.0:
@@ -164,7 +215,8 @@ def detect_punctures(travel_m, force_n, *, min_drop_fraction: float = 0.15,
     if not (np.isfinite(window_m) and window_m > 0):
         raise ValueError(f'window_m = {window_m!r}; expected a finite distance > 0 m')
     if min_drop_n is None:
-        min_drop_n = PUNCTURE_NOISE_MULTIPLE * baseline_and_noise(force)[1] + PUNCTURE_FLOOR_N
+        noise = min(baseline_and_noise(force)[1], sample_noise_n(force))
+        min_drop_n = PUNCTURE_NOISE_MULTIPLE * noise + PUNCTURE_FLOOR_N
     elif not (np.isfinite(min_drop_n) and min_drop_n >= 0):
         raise ValueError(f'min_drop_n = {min_drop_n!r}; expected a finite force >= 0 N')
     if inserting is None:
@@ -174,14 +226,14 @@ def detect_punctures(travel_m, force_n, *, min_drop_fraction: float = 0.15,
         if mask.shape != travel.shape:
             raise ValueError(f'inserting has shape {mask.shape}; expected {travel.shape}')
     edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
-    punctures = []
+    events = []
     for start, stop in zip(edges[::2], edges[1::2]):
-        punctures += _punctures_in_stretch(travel[start:stop], force[start:stop], start,
-                                           min_drop_fraction, float(min_drop_n), window_m)
-    return punctures
+        events += _drops_in_stretch(travel[start:stop], force[start:stop], start, min_drop_fraction,
+                                    float(min_drop_n), window_m)
+    return events
 
 
-def _punctures_in_stretch(travel, force, offset, min_drop_fraction, min_drop_n, window_m):
+def _drops_in_stretch(travel, force, offset, min_drop_fraction, min_drop_n, window_m):
     n_samples = len(force)
     if n_samples < 3:
         return []
@@ -189,25 +241,43 @@ def _punctures_in_stretch(travel, force, offset, min_drop_fraction, min_drop_n, 
     half = 0 if travel_step <= 0 else int(min(MAX_SMOOTHING_HALF_WIDTH,
                                               PUNCTURE_SMOOTHING_M / travel_step // 2))
     smoothed = median_filter(force, size=2 * half + 1, mode='nearest')
-    peaks, _ = find_peaks(smoothed, prominence=min_drop_n)
-    found, fallen_at = [], -1
+    peaks, _ = find_peaks(smoothed, prominence=max(min_drop_n, 1e-12))
+    found, fallen_at, loading_since = [], -1, 0
     for peak in peaks:
         peak_force = smoothed[peak]
         after = slice(peak + 1, n_samples)
-        beyond = np.flatnonzero((travel[after] > travel[peak] + window_m)
-                                | (smoothed[after] > peak_force))
+        above = np.flatnonzero(smoothed[after] > peak_force)
+        regain = peak + 1 + int(above[0]) if above.size else None
+        beyond = np.flatnonzero((travel[after] > travel[peak] + window_m) | (smoothed[after] > peak_force))
         end = peak + 1 + (int(beyond[0]) if beyond.size else n_samples - peak - 1)
         if peak <= fallen_at or peak_force <= 0 or end == peak + 1:
             continue
         lowest = peak + 1 + int(np.argmin(smoothed[peak + 1:end]))
         drop = peak_force - smoothed[lowest]
-        if drop >= max(min_drop_fraction * peak_force, min_drop_n):
-            low = max(0, peak - half)
-            index = low + int(np.argmax(force[low:peak + half + 1]))
-            found.append(Puncture(offset + index, float(travel[index]), float(peak_force),
-                                  float(drop)))
-            fallen_at = lowest
+        if drop < max(min_drop_fraction * peak_force, min_drop_n):
+            continue
+        low = max(0, peak - half)
+        index = low + int(np.argmax(force[low:peak + half + 1]))
+        built = _loading_length(travel, smoothed, loading_since, peak)
+        regained = float('inf') if regain is None else float(travel[regain] - travel[peak])
+        kind = PRE_DROP if regained < max(PRE_DROP_REGAIN_FRACTION * built, PRE_DROP_MIN_REGAIN_M) else PUNCTURE
+        found.append(Puncture(offset + index, float(travel[index]), float(peak_force), float(drop), kind,
+                              float(travel[lowest] - travel[peak]), regained, built))
+        fallen_at = lowest
+        if kind == PUNCTURE:
+            loading_since = lowest
     return found
+
+
+def _loading_length(travel, smoothed, since, peak) -> float:
+    """The travel over which the loading built the peak at ``peak``: from the last sample before it
+    at LOADING_START_FRACTION of its rise above the lowest force since ``since``."""
+    before = smoothed[since:peak + 1]
+    floor = float(before.min())
+    level = floor + LOADING_START_FRACTION * (float(smoothed[peak]) - floor)
+    low = np.flatnonzero(before <= level)
+    start = since + (int(low[-1]) if low.size else 0)
+    return float(travel[peak] - travel[start])
 
 
 def segment_phases(time_s, travel_m, force_n, *, first_puncture: int | None = None,

@@ -90,15 +90,21 @@ def retraction_minimum(force_n, phases) -> float:
 
 def event_errors(measured_punctures: list[Puncture], simulated_punctures: list[Puncture], *,
                  measured_force_n=None, measured_phases=None, simulated_force_n=None,
-                 simulated_phases=None) -> dict:
+                 simulated_phases=None, pairs=None) -> dict:
     """Event errors, simulated minus measured (NaN where either side lacks the event):
     ``first_puncture_travel_error_m`` and ``first_puncture_force_error_n`` (both sides' travel
     must share an origin, e.g. travel since contact), ``measured_puncture_count``,
     ``simulated_puncture_count``; with the forces, ``peak_force_error_n`` (peak outside the
     retraction when phases are given, else over all samples); with forces and phases,
-    ``retraction_minimum_error_n``."""
+    ``retraction_minimum_error_n``. ``pairs``: (measured, simulated) punctures that are the same
+    layer's (default: the first of each); the first measured puncture's pair gives the first
+    puncture's errors, and ``puncture_errors`` lists every pair's (``layer``, ``travel_error_m``,
+    ``force_error_n``)."""
+    if pairs is None:
+        pairs = [(measured_punctures[0], simulated_punctures[0])] if measured_punctures and simulated_punctures \
+            else []
     first_measured = measured_punctures[0] if measured_punctures else None
-    first_simulated = simulated_punctures[0] if simulated_punctures else None
+    first_simulated = next((s for m, s in pairs if m is first_measured), None)
     both = first_measured is not None and first_simulated is not None
     result = {
         'measured_puncture_count': len(measured_punctures),
@@ -107,7 +113,9 @@ def event_errors(measured_punctures: list[Puncture], simulated_punctures: list[P
             first_simulated.travel_m - first_measured.travel_m if both else np.nan,
         'first_puncture_force_error_n':
             first_simulated.force_n - first_measured.force_n if both else np.nan,
-        'peak_force_error_n': np.nan, 'retraction_minimum_error_n': np.nan}
+        'peak_force_error_n': np.nan, 'retraction_minimum_error_n': np.nan,
+        'puncture_errors': [{'layer': m.layer, 'travel_error_m': s.travel_m - m.travel_m,
+                             'force_error_n': s.force_n - m.force_n} for m, s in pairs]}
     if measured_force_n is not None and simulated_force_n is not None:
         result['peak_force_error_n'] = (
             peak_force(simulated_force_n, _outside_retraction(simulated_phases))

@@ -16,10 +16,9 @@ Savitzky-Golay filter, order 2): a position sensor's noise, differentiated by th
 otherwise become velocity noise the viscous friction feels. The schedule runs ``END_HOLD_S``
 past the trial's last sample, the needle held where the data ends: a simulation is compared with
 every repeat of its speed, each on its own contact's clock, and a sample the simulation does not
-reach counts as a miss (the calibration's objective), so it must reach them all. Ending at the last
-whole tick before the last sample, as it did, it left the last sample of five trials in six out on
-the calibration benchmark (sampling jittered by up to 1 ms): a constant 0.0042 in an objective
-whose informative part was 0.0006, which stopped the search's relative tests early.
+reach counts as a miss (the calibration's objective), so it must reach them all: ended at the
+last whole tick before a jittered recording's last sample, it would leave that sample out, a
+constant miss in every evaluation that stops the search's relative tests early.
 """
 from __future__ import annotations
 

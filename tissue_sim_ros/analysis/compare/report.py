@@ -1,6 +1,6 @@
 """The outputs of ``tissue-sim compare`` in ``--out DIR``.
 
-``report.json`` (schema ``tissue_sim_ros/compare/1``; NaN written as null):
+``compare.json`` (schema ``tissue_sim_ros/compare/1``; NaN written as null):
 
 - ``trials``: one entry per data file: ``file``, ``speed_m_s``, ``repeat``, ``nrmse`` (the RMSE
   over the trial's measured axial-force range, 0.15 mm around each puncture left out: see
@@ -11,15 +11,19 @@
   ``rmse_n``, ``r2``, ``count``), ``peak_force_error_n``, ``first_puncture_depth_error_m``,
   ``first_puncture_force_error_n``, ``retraction_minimum_error_n``, ``measured_punctures`` and
   ``simulated_punctures`` (``depth_m`` since contact, ``force_n``), ``diverged`` ('' or why);
-- ``speeds``: per speed, ``speed_m_s``, ``trials``, ``nrmse_mean`` (the model), and
-  ``noise_floor_nrmse`` (the repeats against each other; null with one repeat);
+- ``speeds``: per speed, ``speed_m_s``, ``trials``, ``nrmse_mean`` (the model),
+  ``noise_floor_nrmse`` (the repeats against each other; null with one repeat), and
+  ``punctures``: per layer the repeats share, ``measured`` (``depth_m``, ``depth_sd_m``,
+  ``depth_min_m``, ``depth_max_m``, ``force_n``, ``force_sd_n``, ``found``, ``repeats``, ...),
+  ``simulated`` (``depth_m`` and ``force_n`` as ``mean``, ``sd``, ``count``; ``runs``: the
+  simulated repeats, 1 for the nominal scene) and ``within_spread``;
 - ``summary``: ``trials``, ``simulations``, ``nrmse_mean`` (over the trials),
   ``noise_floor_nrmse`` (mean over the speeds that have repeats; null without), ``wall_s``;
 - ``scene``, ``overrides``, ``align``, ``normaliser``, ``outputs``.
 
-``report.md``: the same in a table a person reads. ``comparison.csv``: every data sample with
+``compare.md``: the same in a table a person reads. ``compare.csv``: every data sample with
 the simulation aligned to it (``file, speed_mm_s, repeat, time_since_contact_s,
-depth_since_contact_m, phase, measured_n, simulated_n``). ``compare_depth.png`` and
+depth_since_contact_m, phase, measured_n, simulated_n``). ``compare.png`` and
 ``compare_time.png``: per speed the data (each repeat thin, the mean and one standard deviation
 as a band when there are repeats), the simulation line, punctures marked (circles: data,
 crosses: simulation).
@@ -81,8 +85,8 @@ def report_dict(study: dict, *, scene_label: str, overrides, align: str, outputs
     return _clean({
         'schema': SCHEMA, 'scene': scene_label, 'overrides': list(overrides), 'align': align,
         'normaliser': NORMALISER, 'trials': trials,
-        'speeds': [{k: s[k] for k in ('speed_m_s', 'trials', 'nrmse_mean', 'noise_floor_nrmse')}
-                   for s in study['speeds']],
+        'speeds': [dict({k: s[k] for k in ('speed_m_s', 'trials', 'nrmse_mean', 'noise_floor_nrmse')},
+                        punctures=s.get('punctures', [])) for s in study['speeds']],
         'summary': {'trials': len(trials), 'simulations': len(study['plan'].jobs),
                     'failed_simulations': sum(bool(r.diverged) for r in study['results']),
                     'nrmse_mean': float(np.mean(nrmse)) if nrmse else float('nan'),
@@ -106,6 +110,21 @@ def _markdown(report: dict) -> str:
     for sp in report['speeds']:
         lines.append(f"| {f(sp['speed_m_s'], 1e3)} | {sp['trials']} | {f(sp['nrmse_mean'])} | "
                      f"{f(sp['noise_floor_nrmse'])} |")
+    layered = [(sp, row) for sp in report['speeds'] for row in sp.get('punctures') or []]
+    if layered:
+        lines += ['', '## Punctures: the repeats\' spread and the simulation\'s', '',
+                  '| speed [mm/s] | layer | measured depth [mm] | simulated depth [mm] | measured force [N] | '
+                  'simulated force [N] | within the spread |', '|---|---|---|---|---|---|---|']
+        for sp, row in layered:
+            m, sim = row['measured'], row['simulated']
+
+            def both(mean, sd, scale=1.0, digits=2):
+                return 'none' if mean is None else f'{mean * scale:.{digits}f} ± {(sd or 0.0) * scale:.{digits}f}'
+            lines.append(f"| {f(sp['speed_m_s'], 1e3)} | {row['layer']} | {both(m['depth_m'], m['depth_sd_m'], 1e3)} "
+                         f"({m['found']}/{m['repeats']}) | {both(sim['depth_m']['mean'], sim['depth_m']['sd'], 1e3)} "
+                         f"({sim['runs']} run(s)) | {both(m['force_n'], m['force_sd_n'], digits=3)} | "
+                         f"{both(sim['force_n']['mean'], sim['force_n']['sd'], digits=3)} | "
+                         f"{'yes' if row['within_spread'] else 'no'} |")
     lines += ['', '| file | NRMSE | RMSE [N] | R² | peak error [N] | 1st puncture depth error [mm] | '
               'retraction min error [N] |', '|---|---|---|---|---|---|---|']
     for t in report['trials']:
@@ -132,6 +151,7 @@ def _write_csv(path: Path, comparisons) -> None:
 
 def study_panels(study: dict) -> list[dict]:
     """One panel per speed of a study: its title, its trials' comparisons, its simulations."""
+    from tissue_sim_ros.analysis.compare.simulated_curve import simulated_curve
     panels, plan, comparisons = [], study['plan'], study['comparisons']
     for group in study['speeds']:
         members = [i for i, c in enumerate(comparisons) if str(c.file) in group['files']]
@@ -141,8 +161,14 @@ def study_panels(study: dict) -> list[dict]:
                  f"trial(s), model NRMSE {group['nrmse_mean']:.3f}"
                  + (f", noise floor {group['noise_floor_nrmse']:.3f}"
                     if math.isfinite(group['noise_floor_nrmse']) else ''))
+        repeats = []
+        for j in jobs:
+            motion = plan.motions[plan.representative[j]]
+            repeats += [simulated_curve(r, plan.schedules[j], motion, study.get('scene_gap_m', 0.0))
+                        for r in (study.get('repeat_results') or [[]] * len(plan.jobs))[j] if not r.diverged]
         panels.append({'title': title, 'comparisons': [comparisons[i] for i in members],
-                       'simulations': [(study['curves'][j], comparisons[plan.representative[j]]) for j in jobs]})
+                       'simulations': [(study['curves'][j], comparisons[plan.representative[j]]) for j in jobs],
+                       'simulated_repeats': repeats})
     return panels
 
 
@@ -151,7 +177,7 @@ def plot_comparison(path, panels: list[dict], by: str, *, simulation_label: str 
     (``title``; ``comparisons``: the trials; ``simulations``: (SimulatedCurve, the comparison
     whose simulated punctures it shows)): each trial thin, with repeats their mean and one
     standard deviation as a band, the simulation line, punctures marked (circles: data, crosses:
-    simulation)."""
+    simulation), and a simulated study's repeats thin (``simulated_repeats``, when given)."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
@@ -178,6 +204,10 @@ def plot_comparison(path, panels: list[dict], by: str, *, simulation_label: str 
             ax.fill_between(grid * scale, mean - std, mean + std, color='C0', alpha=0.25,
                             label='data: mean ± 1 s.d.')
             ax.plot(grid * scale, mean, color='C0', lw=1.2)
+        for n, curve in enumerate(panel.get('simulated_repeats', [])):
+            x = curve.travel_since_contact_m if by == 'depth' else curve.time_since_contact_s
+            ax.plot(x * scale, curve.axial_force_n, color='C3', lw=0.5, alpha=0.35,
+                    label='simulated repeats (their spread drawn)' if n == 0 else None)
         for n, (curve, shown) in enumerate(panel['simulations']):
             x = curve.travel_since_contact_m if by == 'depth' else curve.time_since_contact_s
             ax.plot(x * scale, curve.axial_force_n, color='C3', lw=1.3, label=simulation_label if n == 0 else None)
@@ -197,13 +227,13 @@ def write_report(out, study: dict, *, scene_label: str, overrides=(), align: str
     """Write every output into ``out``; the report dict."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    names = ('report.json', 'report.md', 'comparison.csv', 'compare_depth.png', 'compare_time.png')
+    names = ('compare.json', 'compare.md', 'compare.csv', 'compare.png', 'compare_time.png')
     outputs = {name: str(out / name) for name in names}
     report = report_dict(study, scene_label=scene_label, overrides=overrides, align=align, outputs=outputs)
-    (out / 'report.json').write_text(json.dumps(report, indent=2))
-    (out / 'report.md').write_text(_markdown(report))
-    _write_csv(out / 'comparison.csv', study['comparisons'])
+    (out / 'compare.json').write_text(json.dumps(report, indent=2))
+    (out / 'compare.md').write_text(_markdown(report))
+    _write_csv(out / 'compare.csv', study['comparisons'])
     panels = study_panels(study)
-    plot_comparison(out / 'compare_depth.png', panels, 'depth')
+    plot_comparison(out / 'compare.png', panels, 'depth')
     plot_comparison(out / 'compare_time.png', panels, 'time')
     return report

@@ -9,6 +9,14 @@ the scenes it built (by their keys' hash) and resets them between jobs instead o
 again. A run that diverges, or whose keys the scene refuses, is a result too (``diverged``: the
 reason), never an exception that would stop a whole study.
 
+Each job runs on ``threads`` numba threads (default 1), set for the thread that runs it and
+restored after. The simulations are the parallelism: a process pool's workers start with one
+numba thread, but a Dask worker, or this process running a batch of one, has numba's whole pool
+(every core), and simulations side by side on it fight over the cores, each parallel region's
+threads spinning while the others wait (a Dask ``compare`` on 2 cores with 2 workers of one
+thread each: 10x the process pool's time per simulation, not a compile: the workers load the
+kernels from the per-user cache). Figures: docs/performance.md.
+
 :class:`ResultStore` keeps every result in ``DIR/simulations/<key>.npz`` as it arrives, so an
 interrupted study resumes where it stopped (the key hashes the job: scene keys and schedule).
 
@@ -62,8 +70,10 @@ def job_key(job: SimulationJob) -> str:
 class SimulationResult:
     """Per sample of the schedule: simulated time [s], the axial force [N] (positive while the
     tissue resists insertion), the tip depth below the entry point [m]; the punctures (travel
-    of the tip from the start [m] and axial force [N] at each); ``diverged``: the reason, or ''.
-    ``wall_s``, ``steps``: what it cost; ``mass_scaling`` and ``time_step_s``: what it ran with."""
+    of the tip from the start [m] and axial force [N] at each, and the layer each punctured: its
+    region's place among the scene's regions with a membrane, the outer one 0); ``diverged``: the
+    reason, or ''. ``wall_s``, ``steps``: what it cost; ``mass_scaling`` and ``time_step_s``: what it
+    ran with."""
 
     time_s: np.ndarray
     axial_force_n: np.ndarray
@@ -75,6 +85,17 @@ class SimulationResult:
     steps: int = 0
     mass_scaling: float = float('nan')
     time_step_s: float = float('nan')
+    puncture_layer: np.ndarray = None
+
+    def __post_init__(self):
+        if self.puncture_layer is None:
+            self.puncture_layer = np.full(len(self.puncture_travel_m), -1, dtype=np.int64)
+
+    @classmethod
+    def refused(cls, samples: int, reason) -> 'SimulationResult':
+        """A run whose scene keys the scene refuses: a failed run (every force NaN), not a crash."""
+        nan = np.full(samples, np.nan)
+        return cls(nan, nan, nan, np.zeros(0), np.zeros(0), diverged=f'scene refused: {reason}')
 
 
 _SCENES: dict = {}
@@ -101,17 +122,26 @@ def _scene(job: SimulationJob):
 
 
 def simulate(job: SimulationJob) -> SimulationResult:
-    """Run ``job`` (see the module docstring)."""
+    """Run ``job`` (see the module docstring) on ``job.threads`` numba threads, set for the
+    calling thread and restored after."""
+    import numba
+    previous = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(int(job.threads), numba.config.NUMBA_NUM_THREADS)))
+    try:
+        return _simulate(job)
+    finally:
+        numba.set_num_threads(previous)
+
+
+def _simulate(job: SimulationJob) -> SimulationResult:
     import time
 
     from tissue_sim_ros.engine.driver import SimulationDriver
-    from tissue_sim_ros.engine.scene.schema import SceneError
-    from tissue_sim_ros.engine.solver.explicit import SimulationDiverged
+    from tissue_sim_ros.errors import InputError, SimulationDiverged
     try:
         scene = _scene(job)
-    except SceneError as exc:            # parameters the scene refuses: a failed run, not a crash
-        nan = np.full(len(job.times_s), np.nan)
-        return SimulationResult(nan, nan, nan, np.zeros(0), np.zeros(0), diverged=f'scene refused: {exc}')
+    except InputError as exc:            # parameters the scene refuses: a failed run, not a crash
+        return SimulationResult.refused(len(job.times_s), exc)
     driver = SimulationDriver(scene, wrench_frame='world', on_divergence='raise')
     driver.reset()
     start, axis = scene.needle_pose[0], scene.needle.axis.copy()
@@ -126,10 +156,14 @@ def simulate(job: SimulationJob) -> SimulationResult:
     events = scene.puncture_events
     travel = (job.positions - start) @ axis
     puncture_travel = np.interp([e['time_s'] for e in events], samples.time, travel) if events else np.zeros(0)
+    layers = [k for k, region in enumerate(scene.spec['regions']) if region['membrane']['criterion'] != 'none']
+    names = scene.region_names
+    layer = [layers.index(names.index(e['region'])) if names.index(e['region']) in layers else -1 for e in events]
     return SimulationResult(samples.time, -(samples.force @ axis), samples.tip_depth,
                             np.asarray(puncture_travel, dtype=float),
                             np.array([e['axial_force_n'] for e in events], dtype=float),
-                            wall_s=time.perf_counter() - wall0, steps=samples.substeps, **_stepping(scene))
+                            wall_s=time.perf_counter() - wall0, steps=samples.substeps, **_stepping(scene),
+                            puncture_layer=np.array(layer, dtype=np.int64))
 
 
 def _stepping(scene) -> dict:
@@ -152,7 +186,8 @@ class ResultStore:
                 return SimulationResult(data['time_s'], data['axial_force_n'], data['tip_depth_m'],
                                         data['puncture_travel_m'], data['puncture_force_n'],
                                         str(data['diverged']), float(data['wall_s']), int(data['steps']),
-                                        float(data['mass_scaling']), float(data['time_step_s']))
+                                        float(data['mass_scaling']), float(data['time_step_s']),
+                                        data['puncture_layer'] if 'puncture_layer' in data else None)
         except (OSError, KeyError, ValueError):
             return None
 
@@ -163,5 +198,6 @@ class ResultStore:
                  tip_depth_m=result.tip_depth_m, puncture_travel_m=result.puncture_travel_m,
                  puncture_force_n=result.puncture_force_n, diverged=np.array(result.diverged),
                  wall_s=np.array(result.wall_s), steps=np.array(result.steps),
-                 mass_scaling=np.array(result.mass_scaling), time_step_s=np.array(result.time_step_s))
+                 mass_scaling=np.array(result.mass_scaling), time_step_s=np.array(result.time_step_s),
+                 puncture_layer=np.asarray(result.puncture_layer, dtype=np.int64))
         temporary.replace(path)         # whole or absent: an interruption leaves no half file

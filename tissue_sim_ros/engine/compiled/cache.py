@@ -19,11 +19,11 @@ load the code in about a second. This module
   kernels, the solver's, the linear pass of the critical time step) into the same cache, and the
   first process waits for it (``wait_for_helper``) before it runs those, which then load.
 
-Figures (default scene, 2 cores): python -m tissue_sim_ros.bench.cold_start.
+Figures (default scene, 2 cores): tissue-sim bench cold-start.
 
 Two processes must not compile different signatures of one function at the same time (numba's
 index of a function's cached signatures is one file: one entry can be lost, or point at the other
-process's code). Each model's element pass has its own index (``forces.element_kernel``), the
+process's code). Each model's element pass has its own index (``kernels.element_kernel``), the
 parts compiled per model are not cached on their own, and what both processes compile is the same
 (the same signature, the same code).
 
@@ -37,7 +37,6 @@ import sys
 import tempfile
 import time
 from contextlib import contextmanager
-from pathlib import Path
 
 from numba.core import config, event
 
@@ -65,7 +64,7 @@ def _say(text):
 
 
 def _label(dispatcher):
-    """A kernel's name for the progress lines, e.g. 'forces.reduce_buffers' or 'element pass,
+    """A kernel's name for the progress lines, e.g. 'kernels.reduce_buffers' or 'element pass,
     geometric_physical_viscous model'."""
     name = dispatcher.py_func.__qualname__
     if '<locals>.kernel_' in name:
@@ -104,7 +103,7 @@ class _Reporter(event.Listener):
     def on_start(self, ev):
         # numba calls on_end for every on_start, one that raises included (trigger_event pushes
         # the end before it starts), so the depth is counted before a refusal: counted after it,
-        # a refusal left the depth at -1 and the next probed kernel compiled here unseen.
+        # a refusal would leave the depth at -1 and the next probed kernel would compile here unseen.
         dispatcher = ev.data['dispatcher']
         self.depth += 1
         if self.depth != 1:
@@ -205,7 +204,7 @@ def _start_helper():
         return
     what = 'the needle, solver and linear kernels'
     try:
-        _State.helper = _Process(what, 'from tissue_sim_ros.engine.compiled.warm_up import warm_up; warm_up()')
+        _State.helper = _Process(what, 'from tissue_sim_ros.engine.warm_up import warm_up; warm_up()')
     except OSError as exc:
         _say(f'could not start a second compile process ({exc}); compiling here')
         return
@@ -244,38 +243,27 @@ def _from_cache(kernel, args, precision):
     return True, result
 
 
-def call_compiled_apart(kernel, args, model, precision='float64'):
+def call_compiled_apart(kernel, args, precision, what, compile_code, *, helper_compiles=False):
     """``kernel(*args)`` for an element pass not yet run in this process: loaded from the cache,
     or, when the cache lacks it, compiled first in a separate process (then loaded).
 
-    model: (geometric, physical, viscous), the pass's flags (forces.element_kernel); precision:
-    its constants' and arithmetic's (model.PRECISIONS), another signature of the same pass."""
+    ``precision``: the pass's constants and arithmetic (another signature of the same pass);
+    ``what``: its name in the progress lines; ``compile_code``: the Python statement that compiles
+    it in that process (the model's module names its own entry, so this module imports none);
+    ``helper_compiles``: the helper process started by :func:`start_up` compiles this one (the
+    linear pass): wait for it instead of starting another."""
     if _processes_allowed():
         found, result = _from_cache(kernel, args, precision)
         if found:
             return result
-        from tissue_sim_ros.engine.model.kernels import model_name
-        if model == (False, False, False) and precision == 'float64' and _State.helper is not None:
-            wait_for_helper()                    # the helper compiles the linear pass
+        if helper_compiles and _State.helper is not None:
+            wait_for_helper()
         else:
-            what = f'element pass, {model_name(*model)} model' + ('' if precision == 'float64' else f', {precision}')
             _say(f'compiling {what} in a separate process ...')
-            _Process(what, f'from tissue_sim_ros.engine.compiled.cache import compile_element_pass; '
-                           f'compile_element_pass{tuple(model) + (precision,)!r}').wait()
+            _Process(what, compile_code).wait()
     result = kernel(*args)           # loads it now, or compiles it here if that process failed
     LOADED.add((kernel, precision))
     return result
-
-
-def compile_element_pass(geometric, physical, viscous, precision='float64'):
-    """In a compile process: compile one model's element pass into the cache, on a one-element
-    model (the arrays it passes have the types every model's have)."""
-    from tissue_sim_ros.engine.model.material import Material, MeanRatioLaw, Viscosity
-    from tissue_sim_ros.engine.mesh.generators import box_mesh
-    from tissue_sim_ros.engine.model.tensor_mass import TensorMassModel
-    TensorMassModel(box_mesh((1.0, 1.0, 1.0), (1, 1, 1)), Material(1e4, 0.3, 1000.0), geometric=geometric,
-                    physical=MeanRatioLaw.exponential(mu_amplitude=1.0, mu_rate=1.0) if physical else None,
-                    viscosity=Viscosity(1.0, 1.0) if viscous else None, precision=precision)
 
 
 def _stop_helper():

@@ -1,11 +1,11 @@
 """Compiled functions called by address from compiled code, their types checked for nothing a call.
 
-A slice of substeps (:mod:`.compiled_substep`) calls the force kernel, the node update and the
+A slice of substeps (:mod:`.substeps`) calls the force kernel, the node update and the
 needle's step as the machine code a Python call of each runs (compiled into the slice, the
-element pass would be optimized again with it: compile_cache). Handed over as numba first-class
-function values, each call of the slice paid for them in Python: typing each value and unboxing
-it (``numba.experimental.function_type``: ``_get_wrapper_address`` and ``_get_jit_address`` per
-value) cost 11-13 us of the 15-19 us the slice's dispatch took, warm, where its ~100 arrays cost 4-6.
+element pass would be optimized again with it: :mod:`.cache`). Handed over as numba first-class
+function values, they would be paid for in Python at each call of the slice: typing each value
+and unboxing it (``numba.experimental.function_type``: ``_get_wrapper_address`` and
+``_get_jit_address`` per value) costs about twice what the slice's ~100 arrays cost.
 
 Here the address of a function's C wrapper (the one a first-class function value holds) is a
 plain integer, :func:`compiled_address`, and :func:`call_compiled` calls it with a tuple's

@@ -1,6 +1,6 @@
 """Clocks that compiled code reads without the GIL: the thread's CPU time and the monotonic clock.
 
-A slice of substeps run in one compiled call (:mod:`.compiled_substep`) must still say how much
+A slice of substeps run in one compiled call (:mod:`.substeps`) must still say how much
 of its time was the force kernel (``Simulation.kernel_s``: thread CPU seconds, what
 ``time.thread_time`` reads around the kernel in Python) and stop at the caller's wall-clock
 deadline (``time.perf_counter``). :func:`clock_ns` calls the C library's ``clock_gettime``

@@ -1,16 +1,15 @@
 """A scene's substeps in compiled slices while the needle is outside, at the membrane or inside.
 
-A substep of :meth:`.scene.Scene.advance` is the needle's pose for the step, the force kernel (the
-element pass, then the node update), the watchdog, and the needle's step after the tissue's,
-as Python around compiled calls (``NeedleTissue.set_pose``, ``Simulation.step``,
-``NeedleTissue.after_step``): Python that runs cold, after an element pass has been through the
-caches (issue 19 item 3: one call into compiled code per slice, the needle's bookkeeping inside
-it). Here :func:`run_slice` runs the substeps of an advance in one ``nogil`` call, as many as run
-the same way in a row, each the force kernel, timed on the thread's CPU clock into
-``Simulation.kernel_s`` as Python timed it (:mod:`.compiled_clock`), and then
+A substep of :meth:`~tissue_sim_ros.engine.scene.scene.Scene.advance` is the needle's pose for
+the step, the force kernel (the element pass, then the node update), the watchdog, and the
+needle's step after the tissue's: as Python around compiled calls (``NeedleTissue.set_pose``,
+``Simulation.step``, ``NeedleTissue.after_step``) it runs cold, after an element pass has been
+through the caches. Here :func:`run_slice` runs the substeps of an advance in one ``nogil``
+call, as many as run the same way in a row, each the force kernel, timed on the thread's CPU
+clock into ``Simulation.kernel_s`` as Python timed it (:mod:`.clock`), and then
 
 - the needle outside (phase ``approach``): :func:`after_approach_step`, the needle moved, the
-  watchdog, the needle's kinematics and the test for the surface (``needle_kernels.approach_hit``);
+  watchdog, the needle's kinematics and the test for the surface (``kernels.approach_hit``);
   a step that meets the surface goes on in ``NeedleTissue.after_kinematics``;
 - a sharp tip bonded to the outer membrane (phase ``contact``, before the first puncture):
   :func:`after_contact_step`, the needle moved, the watchdog, the bonds solved and applied, the
@@ -18,37 +17,30 @@ the same way in a row, each the force kernel, timed on the thread's CPU clock in
   end or the membrane may rupture goes on in ``NeedleTissue.after_kinematics``, one where samples
   touched in ``NeedleTissue.after_engaging``;
 - the needle inside (``inserted``, ``retracting``, no membrane): :func:`after_inside_step`, the
-  needle moved, the watchdog, the compiled inside step (``needle_step.inserted_step``) and the
-  outcome the Python would otherwise decide on (the apex still in its layer, no shaft point to
-  add, none to release); a step that needs more goes on in ``NeedleTissue.after_inserted_step``.
+  needle moved, the watchdog, the compiled inside step (``step.inserted_step``) and the outcome
+  the Python would otherwise decide on (the apex still in its layer, no shaft point to add, none
+  to release); a step that needs more goes on in ``NeedleTissue.after_inserted_step``. A flexible
+  needle's is :func:`.rod_substeps.after_rod_inside_step`, the same with its shaft's step.
 
 The slice calls the element pass, the node update and the step after them by the addresses of
-their compiled code (:mod:`.compiled_call`, each with a check of its types): the machine code a
-Python call runs, the element pass as compile_cache had it compiled (not optimized again inside
+their compiled code (:mod:`.call`, each with a check of its types): the machine code a Python
+call runs, the element pass as the compile cache had it compiled (not optimized again inside
 another function), one machine code of :func:`run_slice` for every model, cached, and a
-dispatch that types arrays and integers only (as numba first-class function values, the three
-cost 11-13 us of Python a slice). It stops at the target time, ``max_steps``, the deadline (by
+dispatch that types arrays and integers only (numba's first-class function values cost
+microseconds of Python a slice). It stops at the target time, ``max_steps``, the deadline (by
 its last substep's wall time, on the monotonic clock, as ``Scene.advance`` does), after a
 watchdog energy-check step (every ``check_interval``-th: the strain energy's element pass before
 it, called the same way, the test after the tissue's step as ``Simulation.step`` makes it) and
-at any outcome but DONE. On node-bench's insertions
-(default scene, in-process, 100 advances a second, thread time) a substep's work outside the
-force kernel fell from 15 / 47 / 50 / 43 us (outside / contact / inserted / retracting) to
-14 / 33 / 44 / 38 us, the kernel then 87 % of the engine's work (85.5 % before the slices); the
-kernel's time lost the calls' dispatch it used to include (about 8 us a substep). The work of the needle's
-forces (``needle_kernels.applied_work``) and the 3-vector dots a contact step decides on
-(``needle_kernels.dot3``) are one function for both paths: numpy's went through BLAS, whose
-kernels may sum in another order. What is left outside the kernel is mostly the needle's own
-physics: inside, about 35 us a step (the shaft's friction, 61 cutting samples found again and 61
-tip-face samples pushed out, after the element pass has been through the caches).
+at any outcome but DONE. The work of the needle's forces (``kernels.applied_work``) and the
+3-vector dots a contact step decides on (``kernels.dot3``) are one function for both paths:
+numpy's went through BLAS, whose kernels may sum in another order. Figures: docs/performance.md.
 
 The same kernels in the same order: a scene advanced this way gives the same state, to the last
 bit, as one advanced through the Python calls (``Scene.compiled_substeps = False``; tested), and
 the watchdog checks the energy at the same steps. It runs where that holds simply: one needle,
 translating (a turning needle's slerp stays in Python), the explicit integrator with no
-prescribed DOFs and no relaxation, the needle at no membrane but a sharp tip at the outer one;
-every other step is the general one. Where compiled code cannot read
-the clocks (not Linux), every step is the general one.
+prescribed DOFs and no relaxation, the needle at no membrane but a sharp tip at the outer one,
+on Linux (where compiled code reads the clocks); every other step is the general one.
 """
 import math
 
@@ -57,6 +49,9 @@ from numba import njit, types
 
 from tissue_sim_ros.engine.compiled.call import call_compiled, compiled_address, signature_check
 from tissue_sim_ros.engine.compiled.clock import MONOTONIC, THREAD_CPU, clock_ns
+from tissue_sim_ros.engine.compiled.outcomes import (CHECK, DIVERGED, DONE, ENGAGED, REFUSED, TAIL, energy_limit,
+                                                     move_and_watch)
+from tissue_sim_ros.engine.compiled.rod_substeps import after_rod_inside_step
 from tissue_sim_ros.engine.needle.kernels import (applied_work, approach_hit, dot3, needle_kinematics, patch_apply,
                                                   patch_solve, put_rigid_points, put_rows, wrench_about)
 from tissue_sim_ros.engine.needle.parameters import rupture_force_at
@@ -68,38 +63,9 @@ from tissue_sim_ros.engine.solver.explicit import _advance_free
 __all__ = ['after_approach_step', 'after_inside_step', 'after_contact_step', 'run_slice',
            'CompiledSubsteps', 'DONE', 'TAIL', 'DIVERGED', 'ENGAGED', 'REFUSED', 'CHECK']
 
-#: a compiled step's outcome: complete; the needle's Python must decide the rest; the watchdog
-#: tripped (the needle's step not run); (a contact step) samples touched: the Python takes them;
-#: (run_slice) no step run: a function's check is not that of its arguments' types; an
-#: energy-check step failed (the needle neither moved nor stepped)
-DONE, TAIL, DIVERGED, ENGAGED, REFUSED, CHECK = 0, 1, 2, 3, 4, 5
 _OUTSIDE, _INSIDE, _CONTACT = 'approach', 'inside', 'contact'
 _ADVANCE_RETURNS = types.Tuple((types.float64, types.float64, types.int64))     # solver._advance_free's
 _ENERGY_RETURNS = types.Tuple((types.float64, types.int64))                     # model._strain_energy's
-
-
-@njit(cache=True, inline='always')
-def _energy_limit(watch, work_put_in):
-    """``Simulation._energy_limit`` from ``watch`` (growth factor times swing, initial energy,
-    floor) and the work put in so far [J]."""
-    return watch[0] * (watch[1] + max(work_put_in, 0.0)) + watch[2]
-
-
-@njit(cache=True, inline='always')
-def _move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
-                    previous_axis, length, tip):
-    """The needle's base to ``start + s move`` (``NeedleTissue.set_pose`` with no rotation), the
-    step's work added to ``energy[0]``; whether the watchdog passes the step (``watch``: growth
-    factor times swing, initial energy, floor: ``Simulation._energy_limit``)."""
-    for r in range(3):
-        previous_position[r] = position[r]
-        previous_axis[r] = axis[r]
-        position[r] = move[r] * s
-        position[r] += start[r]
-        tip[r] = axis[r] * length
-        tip[r] += position[r]
-    energy[0] += work
-    return not bad and kinetic <= _energy_limit(watch, energy[0])
 
 
 @njit(cache=True, nogil=True)
@@ -110,8 +76,8 @@ def after_approach_step(s, work, kinetic, bad, start, move, energy, watch, rest,
     """The substep after the force kernel with the needle outside (module docstring): DONE (no
     contact, the wrench zero), TAIL (the tip met the surface: ``after_kinematics`` goes on) or
     DIVERGED."""
-    if not _move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
-                           previous_axis, length, tip):
+    if not move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
+                          previous_axis, length, tip):
         return DIVERGED
     needle_kinematics(position, axis, previous_position, previous_axis, length, dt, tip, travel, base_velocity,
                       axis_rate)
@@ -136,8 +102,8 @@ def after_inside_step(s, work, kinetic, bad, start, move, energy, watch, positio
     ``NeedleTissue.inserted_arguments``. Returns the outcome; ``results`` gets the inside step's
     nine values (friction, cutting, samples found, points of action, work, apex element, travel
     and deepest point along the axis, speed along it)."""
-    if not _move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
-                           previous_axis, length, tip):
+    if not move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
+                          previous_axis, length, tip):
         return DIVERGED
     (friction, cutting, n_tip, n_applied, needle_work, apex, travel_along, deepest,
      speed_along) = inserted_step(*needle, state[0], state[1] != 0)
@@ -176,8 +142,8 @@ def after_contact_step(s, work, kinetic, bad, start, move, energy, watch, positi
     reference speed [m/s]; the work that ruptures it under the energy criterion [J]):
     ``Membrane``'s, through the functions the Python uses. The patch's arrays are ContactPatch's (its work in
     ``patch_work``), the samples' the SharpTipContact's; the rest NeedleTissue's."""
-    if not _move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
-                           previous_axis, length, tip):
+    if not move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
+                          previous_axis, length, tip):
         return DIVERGED
     for r in range(3):
         contact_force[r] = 0.0
@@ -221,7 +187,7 @@ def _energy_check_fails(kinetic, strain, inverted, bad, work, energy, watch):
     initial energy, floor; ``energy[0]``: the work put in before the step), inverted elements
     where refused (``watch[3]`` 1)."""
     total = kinetic + strain
-    return (bad != 0 or not math.isfinite(total) or total > _energy_limit(watch, energy[0] + work)
+    return (bad != 0 or not math.isfinite(total) or total > energy_limit(watch, energy[0] + work)
             or (inverted != 0 and watch[3] != 0.0))
 
 
@@ -399,7 +365,7 @@ class CompiledSubsteps:
                               needle._applied_points, needle._applied_point_forces, needle.wrench_force,
                               needle.wrench_torque)
         else:
-            after_step = after_inside_step
+            after_step = after_inside_step if needle.rod is None else after_rod_inside_step
             selectors = needle.selectors
             kinds, params, tags = ((np.zeros(0, dtype=np.int64), np.zeros((0, 6)), np.zeros(0, dtype=np.int64))
                                    if selectors is None else (selectors.kinds, selectors.params, selectors.tags))
@@ -424,7 +390,7 @@ class CompiledSubsteps:
         clock[:6] = (sim.time, sim.dt, start_t, end_t, np.inf if deadline is None else deadline, step_wall)
         counters[:] = (sim.step_count, sim.check_interval, -1 if max_steps is None else max_steps, 0, 0)
         self.energy[0] = sim.input_work
-        inside = after_step is after_inside_step
+        inside = after_step is after_inside_step or after_step is after_rod_inside_step
         if inside:
             self.state[0], self.state[1] = needle.apex_element, needle._forces_applied
         elif after_step is after_contact_step:

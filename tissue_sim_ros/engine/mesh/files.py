@@ -4,9 +4,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tissue_sim_ros.engine.mesh.tetmesh import MeshError, TetMesh, make_mesh
+from tissue_sim_ros.engine.mesh.tetmesh import TetMesh, make_mesh
+from tissue_sim_ros.errors import MeshError
 
-__all__ = ['load_mesh', 'save_mesh', 'ELEMENT_TAG_NAMES']
+__all__ = ['load_mesh', 'load_point_sets', 'save_mesh', 'ELEMENT_TAG_NAMES']
 
 #: Cell-data names read as element (region) tags by :func:`load_mesh`, first found wins.
 ELEMENT_TAG_NAMES = ('gmsh:physical', 'medit:ref', 'tag', 'region')
@@ -84,6 +85,18 @@ def load_mesh(path) -> TetMesh:
         return make_mesh(points, tetrahedra, tags, source=f'{path}: tetrahedra')
     except MeshError as exc:
         raise MeshError(f'{path}: {exc}') from exc
+
+
+def load_point_sets(path) -> dict:
+    """{name: (n,) or (n, k) values} of a mesh file's point data (node sets: non-zero marks a
+    node), meshio's own ``gmsh:`` entries left out."""
+    import meshio
+
+    try:
+        source = meshio.read(Path(path))
+    except Exception as exc:       # meshio raises ReadError and others on unknown content
+        raise MeshError(f'{path}: meshio cannot read it ({exc})') from exc
+    return {name: np.asarray(values) for name, values in source.point_data.items() if not name.startswith('gmsh:')}
 
 
 def save_mesh(mesh: TetMesh, path, *, point_data=None, cell_data=None,

@@ -5,9 +5,10 @@ import math
 
 import numpy as np
 
-from tissue_sim_ros.engine.mesh.tetmesh import MeshError, TetMesh, make_mesh
+from tissue_sim_ros.engine.mesh.tetmesh import TetMesh, make_mesh
+from tissue_sim_ros.errors import MeshError
 
-__all__ = ['box_mesh', 'graded_box_mesh']
+__all__ = ['box_axes', 'box_mesh', 'graded_box_axes', 'graded_box_mesh', 'grid_elements', 'grid_mesh']
 
 
 def _as_float_triple(value, field: str, *, positive: bool) -> np.ndarray:
@@ -66,6 +67,11 @@ def _kuhn_template() -> np.ndarray:
 _KUHN_TEMPLATE = _kuhn_template()
 
 
+def grid_mesh(axes) -> TetMesh:
+    """The Kuhn-split grid on ``axes`` (the node coordinates along x, y, z)."""
+    return _kuhn_grid_mesh(*axes)
+
+
 def _kuhn_grid_mesh(x_nodes: np.ndarray, y_nodes: np.ndarray, z_nodes: np.ndarray) -> TetMesh:
     """The Kuhn-split tetrahedral mesh of the rectilinear grid with the given increasing node
     coordinates. Node (i, j, k) has index i + (nx+1) (j + (ny+1) k); hexahedron (i, j, k) has
@@ -92,13 +98,24 @@ def box_mesh(size=(0.1, 0.1, 0.05), divisions=(20, 20, 10), origin=(0.0, 0.0, 0.
     Node (i, j, k) has index i + (nx+1) (j + (ny+1) k); elements come hexahedron by hexahedron,
     x fastest. (nx+1)(ny+1)(nz+1) nodes, 6 nx ny nz elements.
     """
+    return _kuhn_grid_mesh(*box_axes(size, divisions, origin))
+
+
+def box_axes(size=(0.1, 0.1, 0.05), divisions=(20, 20, 10), origin=(0.0, 0.0, 0.0)) -> list:
+    """The node coordinates along x, y and z of :func:`box_mesh` (cheap: the mesh's size is
+    known from them before it is built, :func:`grid_elements`)."""
     size = _as_float_triple(size, 'size', positive=True)
     nx, ny, nz = _as_divisions(divisions)
     origin = _as_float_triple(origin, 'origin', positive=False)
     axes = [origin[a] + size[a] * (np.arange(n + 1) / n) for a, n in enumerate((nx, ny, nz))]
     for a, n in enumerate((nx, ny, nz)):
         axes[a][-1] = origin[a] + size[a]  # exact far face
-    return _kuhn_grid_mesh(*axes)
+    return axes
+
+
+def grid_elements(axes) -> int:
+    """The tetrahedra of the Kuhn-split grid on ``axes``: 6 per hexahedron."""
+    return 6 * int(np.prod([len(axis) - 1 for axis in axes], dtype=np.float64))
 
 
 def _graded_axis(lower: float, upper: float, focus: float, fine_size: float, growth: float,
@@ -171,6 +188,15 @@ def graded_box_mesh(size=(0.1, 0.1, 0.05), divisions=(20, 20, 10), origin=(0.0, 
     top face z = origin_z + size_z (fine layer of thickness ``focus_radius``).
     Node and element numbering as box_mesh, with nx, ny, nz the resulting cell counts.
     """
+    return _kuhn_grid_mesh(*graded_box_axes(size, divisions, origin, focus=focus, focus_radius=focus_radius,
+                                            growth=growth, fine_size=fine_size, grade_z=grade_z))
+
+
+def graded_box_axes(size=(0.1, 0.1, 0.05), divisions=(20, 20, 10), origin=(0.0, 0.0, 0.0), *,
+                    focus=None, focus_radius: float = 0.0, growth: float = 1.2,
+                    fine_size: float | None = None, grade_z: bool = False) -> list:
+    """The node coordinates along x, y and z of :func:`graded_box_mesh` (cheap, as
+    :func:`box_axes`)."""
     size = _as_float_triple(size, 'size', positive=True)
     divisions = _as_divisions(divisions)
     origin = _as_float_triple(origin, 'origin', positive=False)
@@ -209,4 +235,4 @@ def graded_box_mesh(size=(0.1, 0.1, 0.05), divisions=(20, 20, 10), origin=(0.0, 
             nodes = origin[a] + size[a] * (np.arange(n + 1) / n)
             nodes[-1] = upper[a]
             axes.append(nodes)
-    return _kuhn_grid_mesh(*axes)
+    return axes

@@ -1,22 +1,27 @@
 """Where each region of a scene is: its selector as a volume in the rest configuration.
 
 A region's ``select`` (scene key) is ``all``, ``{below_z_m: z}`` (the half-space under the plane
-z), ``{above_z_m: z}``, ``{box_m: [[x, y, z], [x, y, z]]}``, ``{sphere_m: [x, y, z, radius]}``
-or ``{tag: N}`` (the elements a mesh file tagged N). Later regions override earlier ones. Two
-uses, one rule:
+z), ``{above_z_m: z}``, ``{half_space_m: [x, y, z, nx, ny, nz]}`` (the points p with
+(p - x) . n <= 0: behind the plane, the normal pointing out of the half-space), ``{box_m: [[x, y,
+z], [x, y, z]]}``, ``{sphere_m: [x, y, z, radius]}`` or ``{tag: N}`` (the elements a mesh file
+tagged N). Later regions override earlier ones. Three uses, one language:
 
 - the material of each element is its centroid's region (:meth:`RegionSelectors.element_regions`);
 - the needle meets a layer where its tip's material point (the tip located in the deformed mesh,
   taken back to rest coordinates) enters another region (:meth:`RegionSelectors.region_at`): the
   layer boundary is the selector's surface, a plane, box or sphere in metres, wherever the
-  element faces happen to lie. A tagged region's boundary is the mesh's own tagged surface.
+  element faces happen to lie. A tagged region's boundary is the mesh's own tagged surface;
+- the nodes a support holds (``boundary.fixed``, ``boundary.springs``, :func:`node_mask`): a
+  volume's nodes (a tag's: its elements' nodes), and two selectors of nodes only: the surface
+  within a distance of a point (``{surface_near_m: [x, y, z, d]}``, a ligament's attachment) and a
+  mesh file's node set (``{node_set: NAME}``, point data marking the nodes non-zero).
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-__all__ = ['RegionSelectors']
+__all__ = ['RegionSelectors', 'node_mask']
 
 
 class RegionSelectors:
@@ -45,6 +50,9 @@ class RegionSelectors:
             return np.sum((points - centre) ** 2, axis=1) <= radius * radius
         if 'above_z_m' in select:
             return points[:, 2] >= select['above_z_m']
+        if 'half_space_m' in select:
+            plane = np.asarray(select['half_space_m'], dtype=float)
+            return (points - plane[:3]) @ plane[3:] <= 0.0
         return points[:, 2] <= select['below_z_m']
 
     def regions_of(self, rest_points, tags=None) -> np.ndarray:
@@ -68,7 +76,7 @@ class RegionSelectors:
                                    float(rest_point[1]), float(rest_point[2]), int(element)))
 
 
-ALL, TAG, BOX, SPHERE, ABOVE_Z, BELOW_Z = range(6)
+ALL, TAG, BOX, SPHERE, ABOVE_Z, BELOW_Z, HALF_SPACE = range(7)
 
 
 def _encoded(select):
@@ -83,6 +91,8 @@ def _encoded(select):
         return SPHERE, [float(v) for v in select['sphere_m'][:4]] + [0.0, 0.0]
     if 'above_z_m' in select:
         return ABOVE_Z, [float(select['above_z_m'])] + [0.0] * 5
+    if 'half_space_m' in select:
+        return HALF_SPACE, [float(v) for v in select['half_space_m']]
     return BELOW_Z, [float(select['below_z_m'])] + [0.0] * 5
 
 
@@ -106,8 +116,37 @@ def region_of_point(kinds, params, tags, x, y, z, element):
             inside = (x - p[0]) ** 2 + (y - p[1]) ** 2 + (z - p[2]) ** 2 <= p[3] * p[3]
         elif kind == ABOVE_Z:
             inside = z >= p[0]
+        elif kind == HALF_SPACE:
+            inside = (x - p[0]) * p[3] + (y - p[1]) * p[4] + (z - p[2]) * p[5] <= 0.0
         else:
             inside = z <= p[0]
         if inside:
             found = k
     return found
+
+
+def node_mask(select, mesh, point_sets=None, field='boundary.fixed') -> np.ndarray:
+    """(n,) the nodes of ``mesh`` (a TetMesh) that a support's selector holds (module docstring):
+    ``point_sets`` {name: (n,) values} of the mesh file, for ``node_set``. Raises SceneError
+    naming ``field`` for a node set the file does not have."""
+    from tissue_sim_ros.errors import SceneError
+    points = np.asarray(mesh.rest_positions)
+    if isinstance(select, dict) and 'surface_near_m' in select:
+        centre, distance = np.asarray(select['surface_near_m'][:3], dtype=float), float(select['surface_near_m'][3])
+        mask = np.zeros(len(points), dtype=bool)
+        surface = np.asarray(mesh.surface_nodes())
+        mask[surface[np.linalg.norm(points[surface] - centre, axis=1) <= distance]] = True
+        return mask
+    if isinstance(select, dict) and 'node_set' in select:
+        name = select['node_set']
+        if not point_sets or name not in point_sets:
+            known = ', '.join(point_sets or {}) or 'none'
+            raise SceneError(f"{field}.node_set = {name!r}: the mesh file has no point data of that name (it has: "
+                             f'{known})')
+        values = np.asarray(point_sets[name])
+        return (values.reshape(len(points), -1) != 0).any(axis=1)
+    if isinstance(select, dict) and 'tag' in select:
+        mask = np.zeros(len(points), dtype=bool)
+        mask[np.asarray(mesh.tetrahedra)[np.asarray(mesh.element_tags) == select['tag']].ravel()] = True
+        return mask
+    return RegionSelectors._inside(select, points, None)

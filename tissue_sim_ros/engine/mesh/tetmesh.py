@@ -1,11 +1,11 @@
 """Tetrahedral meshes: the validated :class:`TetMesh`, its quality measures and its faces.
 
-Generators (box_mesh, graded_box_mesh) are in :mod:`mesh_generators`, meshio files
-(load_mesh, save_mesh) in :mod:`mesh_io`. Every array is SI (metres) and every function is
+Generators (box_mesh, graded_box_mesh) are in :mod:`.generators`, meshio files
+(load_mesh, save_mesh) in :mod:`.files`. Every array is SI (metres) and every function is
 vectorised with numpy: no Python loop runs over elements, so meshes of 5e5 tetrahedra build and
 validate in a fraction of a second.
 
-Conventions (DESIGN.md):
+Conventions (docs/engine.md, "TetMesh"):
 
 - positions ``(n, 3)`` float64; tetrahedra ``(m, 4)`` int64 node indices, positively oriented,
   i.e. ``det([p1 - p0, p2 - p0, p3 - p0]) > 0``;
@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_sim_ros.errors import MeshError
+
 __all__ = [
-    'MeshError',
     'MeshOrientationWarning',
     'TetMesh',
     'make_mesh',
@@ -52,11 +53,6 @@ _FACE_VERTICES = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]], dtype=np
 _OPPOSITE_VERTEX = np.array([0, 1, 2, 3], dtype=np.int64)
 # The six edges of a tetrahedron as pairs of local vertex numbers.
 _EDGE_VERTICES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int64)
-
-
-class MeshError(ValueError):
-    """A mesh or a mesh parameter is invalid; the message names the field, the offending values
-    or element indices, and what was expected."""
 
 
 class MeshOrientationWarning(UserWarning):

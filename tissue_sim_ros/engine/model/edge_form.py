@@ -2,9 +2,10 @@
 
 f_i = -(K_ii u_i + sum_j K_ij u_j), with vertex tensors K_ii and edge tensors K_ij summed over the
 elements around a vertex or edge, lambda and mu parts stored separately (Cotin et al., seed
-section 3; FORMULAS.md). Linear only, as in the paper. The hot path is forces.element_kernel;
-the tests hold the two equal. The tensors also give the global stiffness matrix
-(model.stiffness_matrix), and cutting removes an element's share (accumulate_tensors, sign -1).
+section 3; docs/method.md, "Linear tensor-mass"). Linear only, as in the paper. The hot path is
+kernels.element_kernel; the tests hold the two equal. The tensors also give the global stiffness
+matrix (TensorMassModel.stiffness_matrix), and cutting removes an element's share
+(accumulate_tensors, sign -1).
 """
 import numpy as np
 from numba import njit, prange
@@ -17,8 +18,9 @@ def accumulate_tensors(tetrahedra, shape_gradients, volume_lambda, volume_mu, el
                        elements, sign, vertex_lambda, vertex_mu, edge_lambda, edge_mu):
     """Add (sign=+1) or remove (sign=-1) the given elements' K_jk = lambda A_jk + mu B_jk.
 
-    A_jk = V a_j a_k^T, B_jk = V [a_k a_j^T + (a_j . a_k) I] (FORMULAS.md). Vertex tensors get
-    K_jj; the edge tensor of edge (p, q), p < q, gets K_jk with j, k the local indices of p, q.
+    A_jk = V a_j a_k^T, B_jk = V [a_k a_j^T + (a_j . a_k) I] (docs/method.md, "Linear
+    tensor-mass"). Vertex tensors get K_jj; the edge tensor of edge (p, q), p < q, gets K_jk
+    with j, k the local indices of p, q.
     element_edges (m, 6): global edge of each local pair (0,1),(0,2),(0,3),(1,2),(1,3),(2,3).
     """
     a = np.empty((4, 3))

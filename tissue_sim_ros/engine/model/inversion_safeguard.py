@@ -1,4 +1,4 @@
-"""Inversion safeguard of the St Venant-Kirchhoff element force (numba), used by forces.py.
+"""Inversion safeguard of the St Venant-Kirchhoff element force (numba), used by kernels.py.
 
 Irving, Teran and Fedkiw, "Invertible finite elements for robust simulation of large
 deformation" (2004): only elements whose smallest principal stretch is below STRETCH_CLAMP, or

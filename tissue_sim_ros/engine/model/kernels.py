@@ -3,8 +3,9 @@
 Two formulations of the same forces, held equal by the tests:
 
 * ``element_kernel``: the element loop used on the hot path. For each tetrahedron the
-  displacement gradient H = sum_k u_k a_k^T (a_k: shape-function gradients, FORMULAS.md) gives
-  the stress, and the force on vertex j is f_j = -V P a_j, where P is
+  displacement gradient H = sum_k u_k a_k^T (a_k: shape-function gradients; docs/method.md,
+  "Shape-function gradients") gives the stress, and the force on vertex j is f_j = -V P a_j,
+  where P is
     - linear (Cotin et al., seed section 3/4.1):  sigma = lambda tr(eps) I + 2 mu eps, eps = sym(H)
     - physically non-linear (4.1): the same with lambda + dlambda(q), mu + dmu(q), q the element's
       Liu-Joe mean ratio relative to its rest value
@@ -13,7 +14,8 @@ Two formulations of the same forces, held equal by the tests:
     - Kelvin-Voigt viscosity (4.3): the same linear law on the rate of deformation, sym(dH/dt)
       (or sym(F^T dF/dt) with the geometric model, so rigid motion is force-free).
   A non-linearity threshold (seed section 6) sends elements whose |H|_F is below it down the
-  linear path. f_j = -V sigma a_j is the element form of -sum_k K_jk u_k (FORMULAS.md).
+  linear path. f_j = -V sigma a_j is the element form of -sum_k K_jk u_k (docs/method.md,
+  "Linear tensor-mass").
 * ``edge_form.edge_forces``: the paper's assembled form, f_i = -(K_ii u_i + sum_j K_ij u_j)
   (linear only, as in the paper).
 
@@ -85,8 +87,8 @@ def _product3(x00, x01, x02, x10, x11, x12, x20, x21, x22, y00, y01, y02, y10, y
 def gradient_of_differences(d1x, d1y, d1z, d2x, d2y, d2z, d3x, d3y, d3z,
                             a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z):
     """G = sum_{k=1..3} d_k a_k^T = D^T A (rows of D: d_k, of A: a_k), row-major as nine scalars,
-    from the differences d_k = w_k - w_0 of a nodal field w over one tetrahedron (FORMULAS.md:
-    G = sum_k w_k a_k^T, a_0 = -(a_1 + a_2 + a_3))."""
+    from the differences d_k = w_k - w_0 of a nodal field w over one tetrahedron (docs/method.md,
+    "Shape-function gradients": G = sum_k w_k a_k^T, a_0 = -(a_1 + a_2 + a_3))."""
     return _product3(d1x, d2x, d3x, d1y, d2y, d3y, d1z, d2z, d3z,
                      a1x, a1y, a1z, a2x, a2y, a2z, a3x, a3y, a3z)
 
@@ -207,12 +209,11 @@ def _shape_gradients(shape_gradients, e):
 # lane: each element's node differences are gathered into the chunk's row of a small work array
 # (simd_lanes: vector loads and a transpose), loops over the lanes do all the arithmetic on fixed
 # offsets of that one row (straight-line, branch-free code with no possible aliasing, which LLVM
-# vectorizes: AVX-512 does 8 lanes an instruction; lane loops reading the element constants in
-# place, not from a copy in the row, measured 2.5x slower, presumably as LLVM cannot tell the two
+# vectorizes: AVX-512 does 8 lanes an instruction; the element constants are copied into the row
+# because lane loops reading them in place run far slower, presumably as LLVM cannot tell the two
 # arrays apart), and the nodal forces are scattered back (simd_lanes). Field k of lane j sits at
-# k * BLOCK + j (_at). Measured on a first cut (St Venant-Kirchhoff without the safeguard, 98304
-# tetrahedra, 2 threads): 1.58 ms per force evaluation element by element, 0.96 ms in blocks of 8
-# (4: no gain; 16: 1.48 ms; 32: 1.30 ms).
+# k * BLOCK + j (_at). A block is 8 elements: the lanes of the gather's 8 x 8 transpose.
+# Figures: docs/performance.md.
 BLOCK = 8
 assert BLOCK == simd_lanes.LANES, 'the gather and scatter transpose 8 lanes'
 # per-element constants, stored block by block (pack_element_blocks) and copied into the work row
@@ -483,12 +484,9 @@ def element_kernel(geometric, physical, viscous):
     safeguard_counts, slow_elements, corrected_lambda, corrected_mu, shape_gradients,
     volume_lambda, volume_mu, viscous_lambda, viscous_mu, safeguard_scratch, node_state)``.
 
-    The parallel loop only calls each thread's pass (``_thread_pass_of``). Written inside the
-    prange loop, the pass went through numba's parallel passes, which copy and rewrite the whole
-    loop body, and it was typed and compiled twice (the loop, then its outlined body). With the
-    load/store helpers below as plain calls, compiling the full model (geometric + physical +
-    viscous) takes 18 s of CPU instead of 64 s; the machine code of the pass is the same but for
-    a few instructions (forces equal to 2e-16 of the largest, the order of fused products).
+    The parallel loop only calls each thread's pass (``_thread_pass_of``): written inside the
+    prange loop, the pass would go through numba's parallel passes, which copy and rewrite the
+    whole loop body, and be typed and compiled twice (the loop, then its outlined body).
     """
     geometric, physical, viscous = bool(geometric), bool(physical), bool(viscous)
 
@@ -716,9 +714,7 @@ def reduce_buffers(buffers, chunk_node_lo, chunk_node_hi, out):
 
 # Chunks per worker. A needle's non-linear elements (the law's pow and exp, the safeguard) sit in
 # one region of a spatially ordered mesh, which contiguous halves give to one thread. Workers take
-# every n_workers-th chunk instead, so the region is shared: 98304 tetrahedra with a needle dent
-# (5600 elements under the law, all in the second half), 2 threads, full model 1.32-1.38 ms with
-# halves, 1.21-1.30 ms with 32 chunks per worker.
+# every n_workers-th chunk instead, so the region is shared among them.
 CHUNKS_PER_WORKER = 32
 
 

@@ -8,10 +8,7 @@ import math
 import numpy as np
 
 from tissue_sim_ros.engine.model.kernels import LAW_EXPONENTIAL, LAW_NONE, LAW_POLYNOMIAL
-
-
-class MaterialError(ValueError):
-    """An impossible material parameter; the message names the field, value and allowed range."""
+from tissue_sim_ros.errors import MaterialError
 
 
 def _require(field, value, ok, expected):
@@ -70,7 +67,8 @@ class MeanRatioLaw:
     """Physically non-linear Lamé corrections (seed section 4.1) driven by element distortion.
 
     The distortion of an element is s = max(0, 1 - q / q_rest), q its Liu-Joe mean ratio
-    (FORMULAS.md); the element's coefficients become lambda (1 + g_lambda(s)), mu (1 + g_mu(s)).
+    (docs/method.md, "Liu-Joe mean ratio"); the element's coefficients become
+    lambda (1 + g_lambda(s)), mu (1 + g_mu(s)).
     Build one with ``MeanRatioLaw.none()``, ``.polynomial(...)`` or ``.exponential(...)``;
     ``kind`` and ``parameters`` are what the force kernel reads, and ``corrections(s)`` is the
     same law in numpy (for tests and fitting).

@@ -2,7 +2,8 @@
 
 Picinbono et al. (seed section 4.2) expand the St Venant-Kirchhoff energy in the vertex
 displacements with precomputed stiffness tensors K_jk, vectors c_jkl and scalars d_jklm
-(FORMULAS.md, with a_j the shape-function gradients and V the rest volume):
+(docs/method.md, "St Venant-Kirchhoff", with a_j the shape-function gradients and V the rest
+volume):
 
   K_jk   = V [lambda a_j a_k^T + mu a_k a_j^T + mu (a_j . a_k) I]
   c_jkl  = V [lambda/2 (a_k . a_l) a_j + mu/2 ((a_j . a_k) a_l + (a_j . a_l) a_k)]
@@ -12,7 +13,7 @@ displacements with precomputed stiffness tensors K_jk, vectors c_jkl and scalars
            + sum_klm d_pklm (u_l . u_m) u_k + sum_jlm d_jplm (u_l . u_m) u_j
            + sum_jkm d_jkpm (u_j . u_k) u_m + sum_jkl d_jklp (u_j . u_k) u_l ]
 
-The kernel in forces.py computes the same force as -V F S a_p; the tests hold the two equal.
+The kernel in kernels.py computes the same force as -V F S a_p; the tests hold the two equal.
 """
 import numpy as np
 

@@ -23,7 +23,8 @@ E_dev = E - tr(E) I / 3, and S0 = 2 mu E_dev the instantaneous deviatoric stress
   Q = sum_i h_i - (sum_i g_i) S0: Q = 0 right after a sudden strain (h_i = g_i S0), and
   Q -> -(sum_i g_i) S0 under a held strain (h_i -> 0): the deviatoric stress relaxes to
   (1 - sum_i g_i) S0.
-* Nodal force, added to the elastic one (FORMULAS.md, f_j = -V P a_j with P = F S):
+* Nodal force, added to the elastic one (docs/method.md, "St Venant-Kirchhoff": f_j = -V P a_j
+  with P = F S):
 
       f_j = -V F Q a_j = +V F ((sum_i g_i) S0 - sum_i h_i) a_j,   F = I for the linear model,
 
@@ -46,7 +47,7 @@ configured mu; the physically non-linear law's corrections stay elastic.
 Storage: per element V S0, V h_1, ..., V h_N (six numbers each: 00, 11, 22, 01, 02, 12), the
 volume folded in as the element pass folds it, kept in the element pass's SIMD blocks.
 
-The pass runs after the element pass (forces.py), into its per-chunk buffers, in its blocks of
+The pass runs after the element pass (kernels.py), into its per-chunk buffers, in its blocks of
 BLOCK elements with the lanes vectorized. Its cost is mostly what it repeats of that pass (gather
 the displacements, the gradient, scatter the forces): on the default scene (13872 tetrahedra, one
 thread) one term takes about 280-300 us, as much as the element pass, about 250 us (65 %) more
@@ -61,11 +62,11 @@ from numba.extending import register_jitable
 from tissue_sim_ros.engine.model.kernels import (BLOCK, FASTMATH, MU, _at, _element_nodes, _first_piola,
                                           _gather_differences, _get9, _lane_gradient, _piola_forces,
                                           _scatter_forces, _set9, element_gradient, green_strain)
-from tissue_sim_ros.engine.model.material import MaterialError
+from tissue_sim_ros.errors import MaterialError
 
 _SYMMETRIC = 6     # components of a symmetric 3x3 tensor: 00, 11, 22, 01, 02, 12
-# Fields of a work row (forces.py's block layout: field k of lane j at k * BLOCK + j). The first
-# MU + 1 are the element constants the element pass packs (forces.pack_element_blocks: a_1..a_3,
+# Fields of a work row (kernels.py's block layout: field k of lane j at k * BLOCK + j). The first
+# MU + 1 are the element constants the element pass packs (kernels.pack_element_blocks: a_1..a_3,
 # V lambda, V mu), copied as they are.
 _DU = MU + 1                     # 9: u_k - u_0, k = 1..3
 _FORCE = _DU + 9                 # 9: f_1, f_2, f_3
@@ -223,7 +224,7 @@ def _deviatoric(geometric, h00, h01, h02, h10, h11, h12, h20, h21, h22):
 def relaxation_pass(tetrahedra, element_blocks, displacement, geometric, modulus_sum, decay, gain,
                     advance, state, chunk_bounds, work, buffers):
     """f_j = -V F Q a_j of every element into the per-chunk ``buffers``, in the element pass's
-    layout (forces.element_kernel: worker t takes chunks t, t + n_workers, ... into buffers[t],
+    layout (kernels.element_kernel: worker t takes chunks t, t + n_workers, ... into buffers[t],
     so no two threads write one row) and its SIMD blocks. With ``advance``, each element's S0 and
     h_i move to ``displacement`` first. decay, gain: tuples (one entry per term, so the term loop
     is unrolled and the lane loop vectorizes) of exp(-dt / tau_i) and g_i (1 - exp(-dt / tau_i)) /
@@ -236,7 +237,7 @@ def relaxation_pass(tetrahedra, element_blocks, displacement, geometric, modulus
 @njit(cache=True, inline='always')
 def _thread_pass(t, tetrahedra, element_blocks, displacement, geometric, modulus_sum, decay, gain,
                  advance, state, chunk_bounds, work, buffers):
-    """Worker t's chunks, block by block: gather, the lanes, scatter (as forces.py's pass)."""
+    """Worker t's chunks, block by block: gather, the lanes, scatter (as kernels.py's pass)."""
     n_chunks = chunk_bounds.shape[0] - 1
     n_workers = buffers.shape[0]
     n_state = _SYMMETRIC * (len(decay) + 1) * BLOCK

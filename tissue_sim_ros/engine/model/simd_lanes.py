@@ -1,11 +1,11 @@
 """The element pass's gather and scatter for a whole block of lanes, written as LLVM vector code.
 
-The element pass (forces.py) does its arithmetic on a block of BLOCK = 8 elements at once, field k
+The element pass (kernels.py) does its arithmetic on a block of BLOCK = 8 elements at once, field k
 of lane j at k * 8 + j of a work row. Moving node values in and forces out goes through memory a
 scalar at a time: per element 24 loads, 18 subtractions and 18 stores for the displacement and
 velocity differences, and 12 read-modify-writes for the forces. numba leaves those loops scalar
 (the loads are indirect: LLVM vectorizes them only with hardware gathers, which it does not pick
-here, and which measured slower still when written by hand: 15 ns an element against 8.8 scalar).
+here, and which are slower than scalar loads here even when written by hand).
 
 Written here instead as vector code on each node's row: one load brings a node's displacement and
 velocity ([ux uy uz 0 vx vy vz 0], the ``node_state`` rows ``pack_node_state`` fills, in the
@@ -16,11 +16,8 @@ work row's fields. The scatter runs the other way: the force fields transposed i
 the scalar loop's order. With float64 state the arithmetic and its order are the scalar loops'
 (test_simd_lanes). A float32 model keeps its node state in float32: the differences are taken
 after rounding u and v, not before (the full model's forces within 4.9e-7 of float64's largest
-on tissue-sim bench's dent, 1.6e-7 before), and the state moves half the bytes.
-
-Measured on 98304 tetrahedra, one thread, with a lane loop reading the fields after it: the gather
-of both fields 8.9 -> 6.0 ns an element (float32 work rows, float64 state; 8.0 -> 6.0 in
-float64), the scatter 4.3 -> 3.2 (Zen 4).
+on tissue-sim bench's dent, against 1.6e-7 with the differences taken before rounding), and the
+state moves half the bytes. Figures: docs/performance.md.
 
 The code is plain LLVM IR (vector loads, shufflevector, fptrunc/fpext), so every target numba
 supports lowers it; only its speed is measured on x86-64 with AVX-512.
@@ -30,7 +27,7 @@ from numba import njit, prange, types
 from numba.core import errors
 from numba.extending import intrinsic
 
-LANES = 8            # forces.BLOCK; the transpose below is 8 x 8
+LANES = 8            # kernels.BLOCK; the transpose below is 8 x 8
 STATE_WIDTH = 8      # node_state row: [ux uy uz 0 vx vy vz 0]
 BUFFER_WIDTH = 4     # force buffer row: [fx fy fz 0]
 
@@ -38,7 +35,7 @@ _I64 = ir.IntType(64)
 _I32 = ir.IntType(32)
 
 
-# not cached on its own: compiled into each element pass that calls it (compile_cache)
+# not cached on its own: compiled into each element pass that calls it (engine.compiled.cache)
 @njit(parallel=True, boundscheck=False, nogil=True)
 def pack_node_state(displacement, velocity, with_velocity, node_state):
     """node_state[i] = [u_i, 0, v_i, 0] in node_state's precision (v left as it is when not

@@ -14,51 +14,13 @@ from tissue_sim_ros.engine.model import critical_step
 from tissue_sim_ros.engine.model import edge_form
 from tissue_sim_ros.engine.model import kernels as forces
 from tissue_sim_ros.engine.model import simd_lanes
-from tissue_sim_ros.engine.model.material import Material, MaterialError, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.mesh.tetmesh import TetMesh, make_mesh, mean_ratio
+from tissue_sim_ros.engine.model.elements import LOCAL_EDGES, element_geometry, per_element_material
+from tissue_sim_ros.engine.model.material import Material, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.model.relaxation import relaxation_for
 
-_LOCAL_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
 #: the element constants' storage in the element pass (the arithmetic is float64 either way)
 PRECISIONS = ('float64', 'float32')
-
-
-def element_geometry(rest_positions, tetrahedra):
-    """Shape-function gradients (m, 3, 3) (rows a_1..a_3), rest volumes (m,), edge Gram (m, 6).
-
-    With D = [P1 - P0, P2 - P0, P3 - P0] (columns), the rows of D^-1 are a_1, a_2, a_3 and
-    V = det(D) / 6 (FORMULAS.md).
-    """
-    corners = rest_positions[tetrahedra]                        # (m, 4, 3)
-    columns = (corners[:, 1:, :] - corners[:, :1, :]).transpose(0, 2, 1)
-    volumes = np.linalg.det(columns) / 6.0
-    shape_gradients = np.ascontiguousarray(np.linalg.inv(columns))
-    gram = np.zeros((len(tetrahedra), 6))
-    for j, k in _LOCAL_EDGES:
-        edge = corners[:, k, :] - corners[:, j, :]
-        gram[:, 0] += edge[:, 0] ** 2
-        gram[:, 1] += edge[:, 1] ** 2
-        gram[:, 2] += edge[:, 2] ** 2
-        gram[:, 3] += edge[:, 0] * edge[:, 1]
-        gram[:, 4] += edge[:, 0] * edge[:, 2]
-        gram[:, 5] += edge[:, 1] * edge[:, 2]
-    return shape_gradients, volumes, gram
-
-
-def _per_element_material(mesh, material):
-    """Material of each element: one Material, or a {region tag: Material} mapping."""
-    if isinstance(material, Material):
-        return [material], np.zeros(mesh.n_elements, dtype=np.int64)
-    if isinstance(material, dict) and all(isinstance(m, Material) for m in material.values()):
-        tags = np.unique(mesh.element_tags)
-        missing = sorted(set(tags.tolist()) - set(material))
-        if missing:
-            raise MaterialError(f'material: no Material for element tag(s) {missing}; '
-                                f'expected a key for every tag in the mesh {tags.tolist()}')
-        keys = sorted(material)
-        index_of = {k: i for i, k in enumerate(keys)}
-        return [material[k] for k in keys], np.array([index_of[t] for t in mesh.element_tags.tolist()])
-    raise MaterialError(f'material = {material!r}: expected a Material or a dict of tag -> Material')
 
 
 class TensorMassModel:
@@ -93,7 +55,7 @@ class TensorMassModel:
             raise ValueError(f'precision = {precision!r}: expected one of {", ".join(PRECISIONS)}')
         self.precision = precision
         self.mesh = mesh
-        self.materials, self.element_material = _per_element_material(mesh, material)
+        self.materials, self.element_material = per_element_material(mesh, material)
         self.element_tags = np.asarray(mesh.element_tags)
         self.tetrahedra = np.ascontiguousarray(mesh.tetrahedra, dtype=np.int32)  # halves index traffic
         for name, values in self._element_data(self.tetrahedra, self.element_material).items():
@@ -247,7 +209,7 @@ class TensorMassModel:
     def _assemble_tensors(self):
         """Vertex tensors (n, 3, 3) and edge tensors (E, 3, 3), lambda and mu parts apart."""
         n = self.mesh.n_nodes
-        pairs = np.stack([np.sort(self.tetrahedra[:, [j, k]], axis=1) for j, k in _LOCAL_EDGES], axis=1)
+        pairs = np.stack([np.sort(self.tetrahedra[:, [j, k]], axis=1) for j, k in LOCAL_EDGES], axis=1)
         self.edges, inverse = np.unique(pairs.reshape(-1, 2), axis=0, return_inverse=True)
         self.element_edges = inverse.reshape(-1, 6).astype(np.int64)
         self.edges = self.edges.astype(np.int64)
@@ -305,7 +267,7 @@ class TensorMassModel:
         tags = np.zeros(len(new), dtype=self.element_tags.dtype) if tags is None else np.asarray(tags)
         make_mesh(self.mesh.rest_positions, new, fix_orientation=False)   # refuses bad elements
         added = self._element_data(new, material_index)
-        pairs = np.sort(np.stack([new[:, [j, k]] for j, k in _LOCAL_EDGES], axis=1), axis=2).reshape(-1, 2)
+        pairs = np.sort(np.stack([new[:, [j, k]] for j, k in LOCAL_EDGES], axis=1), axis=2).reshape(-1, 2)
         new_edges = self._edge_indices(pairs).reshape(-1, 6)
         edge_form.accumulate_tensors(new, added['shape_gradients'], added['volume_lambda'],
                                      added['volume_mu'], new_edges, np.arange(len(new)), 1.0,
@@ -385,7 +347,13 @@ class TensorMassModel:
         if (kernel, self.precision) in compile_cache.LOADED:
             kernel(*args)
         else:     # first use in this process: the cached code, compiled apart if need be
-            compile_cache.call_compiled_apart(kernel, args, (geometric, physical, viscous), self.precision)
+            what = (f'element pass, {forces.model_name(geometric, physical, viscous)} model'
+                    + ('' if self.precision == 'float64' else f', {self.precision}'))
+            code = (f'from {__name__} import compile_element_pass; '
+                    f'compile_element_pass{(geometric, physical, viscous, self.precision)!r}')
+            compile_cache.call_compiled_apart(
+                kernel, args, self.precision, what, code,
+                helper_compiles=(geometric, physical, viscous) == (False, False, False) and self.precision == 'float64')
 
     def _kernel_call(self, geometric, physical, viscous, displacement, velocity, threshold_squared, safeguard):
         kernel = forces.element_kernel(geometric, physical, viscous)
@@ -514,3 +482,12 @@ def _strain_energy(tetrahedra, shape_gradients, volume_lambda, volume_mu, displa
         if forces.deformation_determinant(h00, h01, h02, h10, h11, h12, h20, h21, h22) <= 0.0:
             inverted += 1
     return energy, inverted
+
+
+def compile_element_pass(geometric, physical, viscous, precision='float64'):
+    """In a compile process (engine.compiled.cache): compile one model's element pass into the
+    cache, on a one-element model (the arrays it passes have the types every model's have)."""
+    from tissue_sim_ros.engine.mesh.generators import box_mesh
+    TensorMassModel(box_mesh((1.0, 1.0, 1.0), (1, 1, 1)), Material(1e4, 0.3, 1000.0), geometric=geometric,
+                    physical=MeanRatioLaw.exponential(mu_amplitude=1.0, mu_rate=1.0) if physical else None,
+                    viscosity=Viscosity(1.0, 1.0) if viscous else None, precision=precision)

@@ -1,7 +1,8 @@
 """A rigid needle against the tissue: contact, puncture, cutting, friction, reaction wrench.
 
 The needle is a straight rigid cylinder given by the pose of its base frame (position, unit
-quaternion x y z w); its axis is the frame's +z and the tip is at +z * length (DESIGN.md). The
+quaternion x y z w); its axis is the frame's +z and the tip is at +z * length
+(docs/scene-guide.md, "Needle and tip shapes"). The
 tissue is a :class:`~tissue_sim_ros.engine.solver.explicit.Simulation`. Each time step the scene moves the needle
 (:meth:`NeedleTissue.set_pose`), calls ``Simulation.step`` and then
 :meth:`NeedleTissue.after_step`, which applies the needle's constraints and forces as follows
@@ -18,34 +19,9 @@ Contact and puncture (phase ``contact``): :mod:`~tissue_sim_ros.engine.needle.me
 end touches the surface (or, inside, a layer with a membrane) and holds it until the membrane
 ruptures by the region's criterion; then the needle is inside.
 
-Inside (phases ``inserted``, ``retracting``). Shaft points are material points created at the
-tip each ``shaft_point_spacing_m`` of advance. Each is held on the needle axis (lateral
-constraint, so the tissue follows the needle sideways) and dragged along it by friction: a
-modified Karnopp law per unit length (Okamura et al. 2004), each point standing for its
-trapezoid share of the inserted length, plus constant terms for a pull that does not scale
-with it. Relative velocity v (needle minus tissue, along the axis): inside
-the stick band |v| <= stick_band / 2 the impulse that stops the relative motion is applied, up
-to the static limit D; outside, the slip force (C + b |v|) opposes v. The slip force is solved
-implicitly (the tissue point's velocity after the impulse enters b |v|), so it is stable for any
-step. Insertion uses the ``insertion`` coefficients, retraction the ``retraction`` ones
-(magnitudes). A shaft point the tip has passed back over is released; the needle is out when
-none is left.
-
-Cutting. The material points under the needle end (samples over the end's disc or a sharp tip's
-faces, found again every step) are pushed along the axis by the same velocity-level solve with a one-sided limit:
-the tip carries the tissue in front of it at its own speed until that takes more than the
-region's ``cutting_force_n`` (shared between the samples); then the tissue is cut and the force
-is the cutting force. It never pulls, so retraction has no cutting force, and a needle stopped
-inside still feels the compressed tissue push back (up to the cutting force). A sharp tip's
-faces also push the tissue they displace sideways out of the tip, frictionless (a bevel's face
-pushes it sideways and the tissue pushes the needle toward the sharp point).
-
-Layers are surfaces, not element sets. Every step the tip's apex is found in the deformed mesh
-(a walk from where it was) and taken back to rest coordinates; when that material point enters
-another region (its selector: a plane, box or sphere in metres, :mod:`.region_selectors`), the
-needle meets that layer there, wherever the element faces lie. A region with a membrane starts
-a new contact (a flat end bonded to the material in front of it, a sharp tip touching it point
-by point) that must be punctured in turn; one without switches the friction and cutting laws.
+Inside (phases ``inserted``, ``retracting``): :mod:`~tissue_sim_ros.engine.needle.inside`.
+Shaft points carried by the tissue hold it on the axis and drag it by friction; the end cuts its
+way in; the tip's apex meets the layers, which are surfaces.
 
 Reaction wrench. Every force the needle puts on the tissue is recorded with its point of action
 on the needle; the wrench on the needle is their negative sum, and the torque about the base
@@ -55,6 +31,7 @@ The other needle modules: :mod:`~tissue_sim_ros.engine.needle.pose` (pose maths,
 :mod:`~tissue_sim_ros.engine.needle.parameters` (geometry, membrane, friction),
 :mod:`~tissue_sim_ros.engine.needle.kernels` (numba kernels),
 :mod:`~tissue_sim_ros.engine.needle.membrane` (contact and puncture),
+:mod:`~tissue_sim_ros.engine.needle.inside` (shaft points, friction, cutting, layers),
 :mod:`~tissue_sim_ros.engine.needle.contact` (a flat end's bonded contact) and
 :mod:`~tissue_sim_ros.engine.needle.tip` (sharp tips). Their public names are re-exported here.
 """
@@ -65,25 +42,28 @@ import numpy as np
 from tissue_sim_ros.engine.solver.implicit_bonds import BondRows
 from tissue_sim_ros.engine.mesh.tetmesh import element_neighbours, face_elements
 from tissue_sim_ros.engine.needle.contact import disc_offsets
-from tissue_sim_ros.engine.needle.kernels import (applied_work, cell_boxes, first_surface_hit, follow_rigid_samples,
-                                                  locate_point, locate_walk, needle_kinematics, put_axis_points,
-                                                  put_rigid_points, put_rows, shaft_solve, wrench_about)
+from tissue_sim_ros.engine.needle.kernels import (applied_work, cell_boxes, first_surface_hit, locate_point,
+                                                  needle_kinematics, put_axis_points, put_rigid_points, put_rows,
+                                                  shaft_solve, wrench_about)
+from tissue_sim_ros.engine.needle.inside import InsideTissue
 from tissue_sim_ros.engine.needle.membrane import MembraneContact
+from tissue_sim_ros.engine.needle.rod_coupling import RodState, add_tip_loads
+from tissue_sim_ros.engine.needle.shaft import NeedleShaft
 from tissue_sim_ros.engine.needle.parameters import (Friction, Membrane, NeedleGeometry, RegionInteraction,
                                                      TipShape)
-from tissue_sim_ros.engine.needle.step import inserted_step
 from tissue_sim_ros.engine.needle.tip import SharpTipContact, tip_length, tip_samples
-from tissue_sim_ros.engine.needle.pose import (QUATERNION_NORM_TOLERANCE, NeedleInputError, needle_axis, pose_jump,
-                                        rotation_matrix, slerp, validate_pose)
+from tissue_sim_ros.engine.needle.pose import (QUATERNION_NORM_TOLERANCE, needle_axis, pose_jump,
+                                               rotation_matrix, slerp, validate_pose)
+from tissue_sim_ros.errors import PoseError
 
-__all__ = ['PHASES', 'NeedleTissue', 'NeedleInputError', 'Friction', 'Membrane', 'RegionInteraction',
+__all__ = ['PHASES', 'NeedleTissue', 'PoseError', 'Friction', 'Membrane', 'RegionInteraction',
            'NeedleGeometry', 'TipShape', 'QUATERNION_NORM_TOLERANCE', 'rotation_matrix', 'slerp', 'validate_pose',
            'first_surface_hit', 'locate_point']
 
 PHASES = ('approach', 'contact', 'inserted', 'retracting')
 
 
-class NeedleTissue(MembraneContact):
+class NeedleTissue(NeedleShaft, InsideTissue, MembraneContact):
     """The needle-tissue interaction state of one scene (see the module docstring).
 
     simulation: the tissue's Simulation. element_region: (m,) region index of each element.
@@ -114,6 +94,10 @@ class NeedleTissue(MembraneContact):
         self.point_depths = np.zeros(capacity)
         self.point_offsets = np.zeros((capacity, 3))   # lateral, needle frame (shaft_solve)
         self.point_shares = np.zeros(capacity)
+        #: the elastic shaft (engine.needle.rod_coupling), or None: rigid and straight
+        self.rod = None if geometry.shaft is None else RodState(geometry.diameter_m, geometry.length_m,
+                                                                geometry.shaft, capacity, self.mesh.n_nodes)
+        self._rod_rows = 0                     # the shaft points' rows of the applied lists this step
         self.applied_forces = np.zeros((self.mesh.n_nodes, 3))
         n_disc = len(self.disc_offsets)
         self.tip_nodes = np.zeros((n_disc, 4), dtype=np.int64)     # cutting: material points at the tip
@@ -163,6 +147,20 @@ class NeedleTissue(MembraneContact):
         self.reset()
         self._check_outside(*self._initial_pose, f'{name}.initial_pose')
 
+    def set_start(self, position, orientation, field_name='start'):
+        """Make (position, orientation) the pose the needle starts from and resets to, and put it
+        there (a registration: the needle starts where the robot holds it). PoseError unless the
+        needle is out of the tissue now (phase ``approach``, touching nothing) and the new pose lies
+        outside the (deformed) tissue: a needle cannot be put into or taken out of tissue."""
+        position, orientation = validate_pose(position, orientation, field_name)
+        if self.phase != 'approach' or self.n_points or self.patch is not None:
+            raise PoseError(field_name, {'position': position.tolist(), 'orientation': orientation.tolist()},
+                            f'the needle is in contact with the tissue (phase {self.phase}); a needle is '
+                            'placed only while it is out of the tissue: ~/reset first')
+        self._check_outside(position, orientation, field_name)
+        self._initial_pose = (position, orientation)
+        self.reset()
+
     # -- set-up --------------------------------------------------------------------------------
     def _surface_owner(self):
         """Surface triangles and the element each belongs to (for the membrane of the region hit)."""
@@ -182,6 +180,8 @@ class NeedleTissue(MembraneContact):
         self.axis = self.rotation[:, 2].copy()
         self._previous_position = self.position.copy()
         self._previous_axis = self.axis.copy()
+        if self.rod is not None:
+            self.rod.straighten(self.position, self.rotation)
         self.phase = 'approach'
         self.patch = None
         if self.tip_contact is not None:
@@ -232,8 +232,12 @@ class NeedleTissue(MembraneContact):
         return start
 
     def _update_tip(self):
+        if self.rod is not None and self.n_points:
+            return                              # the rod's tip, until its next step
         np.multiply(self.axis, self.geometry.length_m, out=self._tip)
         self._tip += self.position
+        if self.rod is not None:
+            self.rod.straighten(self.position, self.rotation)
 
     @property
     def tip(self):
@@ -249,7 +253,7 @@ class NeedleTissue(MembraneContact):
             point = position + s * self.geometry.length_m * axis
             element, _ = locate_point(self.rest, disp, self.tetrahedra, point, 1e-9 * size)
             if element >= 0:
-                raise NeedleInputError(field_name, {'position': position.tolist(), 'orientation': orientation.tolist()},
+                raise PoseError(field_name, {'position': position.tolist(), 'orientation': orientation.tolist()},
                                        f'the needle starts inside the tissue (point {np.round(point, 6).tolist()} m '
                                        f'lies in element {element}); start it outside')
 
@@ -260,7 +264,7 @@ class NeedleTissue(MembraneContact):
         position, orientation = validate_pose(position, orientation, field_name)
         jump = pose_jump(self.position, self.orientation, position, orientation, self.geometry.length_m)
         if jump.exceeds(self.geometry.max_jump_m):
-            raise NeedleInputError(f'{field_name}.position', position.tolist(),
+            raise PoseError(f'{field_name}.position', position.tolist(),
                                    f'moves the needle by {jump.distance_m * 1e3:.4g} mm in one call, more than '
                                    f'max_jump_m = {self.geometry.max_jump_m * 1e3:.4g} mm')
         return position, orientation
@@ -313,6 +317,8 @@ class NeedleTissue(MembraneContact):
         self.n_applied = 0
         needle_kinematics(self.position, self.axis, self._previous_position, self._previous_axis,
                            self.geometry.length_m, dt, self._tip, self._travel, self._base_velocity, self._axis_rate)
+        if self.rod is not None:
+            self._rod_shaft(inverse_mass, dt)
         self.after_kinematics(inverse_mass, dt)
 
     def after_kinematics(self, inverse_mass, dt):
@@ -342,7 +348,7 @@ class NeedleTissue(MembraneContact):
         """The step after the membrane contact: the shaft and cutting, the work of the needle's
         forces, the phase, the wrench."""
         sim = self.simulation
-        if self.n_points:
+        if self.n_points and self.rod is None:        # (a flexible shaft's points: _rod_shaft)
             n = self.n_points
             self.friction_force = shaft_solve(
                 self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.point_nodes,
@@ -353,6 +359,7 @@ class NeedleTissue(MembraneContact):
             start = self._add_applied(n)
             put_axis_points(self.position, self.axis, self.point_depths, n, self._applied_points, start)
             put_rows(self.point_forces, n, self._applied_point_forces, start)
+        if self.n_points:
             touching = self._touching()
             if not touching:
                 self._follow_tip_samples()
@@ -362,62 +369,26 @@ class NeedleTissue(MembraneContact):
                 self._cutting_law[0] = self.regions[self.region].cutting_force_n / self.n_tip
                 self.cutting_force = shaft_solve(
                     self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.tip_nodes,
-                    self.tip_weights, self.n_tip, self.position, self.axis, self.rotation, self._base_velocity,
-                    self._axis_rate, dt, 0.0, self._cutting_law, 0, math.inf, 0.0, self._no_offsets, self.tip_forces,
-                    self.tip_depths, self._unit_shares, self.applied_forces)
+                    self.tip_weights, self.n_tip, *self._cutting_frame(), dt, 0.0, self._cutting_law, 0, math.inf,
+                    0.0, self._no_offsets, self.tip_forces, self.tip_depths, self._unit_shares, self.applied_forces)
                 start = self._add_applied(self.n_tip)
-                put_rigid_points(self._tip, self.rotation, self.tip_offsets, self.n_tip, self._applied_points, start)
+                put_rigid_points(self._tip, self.tip_rotation, self.tip_offsets, self.n_tip, self._applied_points,
+                                 start)
                 put_rows(self.tip_forces, self.n_tip, self._applied_point_forces, start)
             self._release_passed_points()
             if not self._touching() and self.n_points:
                 self._track_apex(inverse_mass)
+        if self.rod is not None and self._rod_rows:     # the tip's loads on the rod, for its next step
+            rod = self.rod
+            add_tip_loads(rod.nodes, rod.loads, self._applied_points, self._applied_point_forces, self._rod_rows,
+                          self.n_applied, rod.scratch)
+            self._rod_rows = 0
         self._forces_applied = self.n_applied > 0
         if self._forces_applied:         # work of the needle's forces, for the energy watchdog
             sim.input_work += applied_work(self.applied_forces, sim.velocity) * dt
         self._update_phase(dt)
         wrench_about(self._applied_points, self._applied_point_forces, self.n_applied, self.position,
                 self.wrench_force, self.wrench_torque)
-
-    def _inserted_step(self, inverse_mass, dt):
-        """after_step inside the tissue, not touching a membrane: the same kernels in the same
-        order as the general path, in one compiled call (engine.needle_step)."""
-        (self.friction_force, self.cutting_force, self.n_tip, self.n_applied, work, apex, travel_along, deepest,
-         speed_along) = inserted_step(*self.inserted_arguments(inverse_mass, dt), self.apex_element,
-                                      self._forces_applied)
-        self.simulation.input_work += work
-        self.after_inserted_step(inverse_mass, dt, apex, travel_along, deepest, speed_along)
-
-    def inserted_arguments(self, inverse_mass, dt):
-        """The arguments of ``needle_step.inserted_step`` but the last two (the apex's element to
-        walk from, whether to clear the applied forces first), as a tuple; valid until the needle's
-        state changes outside that call (the compiled substep keeps it over a slice)."""
-        sim, geometry, faces = self.simulation, self.geometry, self._faces
-        return (self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self.tetrahedra,
-                self._neighbours, self.element_boxes, self.mesh_nodes, self.position, self.axis,
-                self._previous_position, self._previous_axis, self.rotation, geometry.length_m, dt, self._tip,
-                self._travel, self._base_velocity, self._axis_rate, self.point_nodes, self.point_weights,
-                self.n_points, self._friction_laws[self.region], self._free_beyond, self._closing_m,
-                self.point_offsets, self.point_forces, self.point_depths, self.point_shares, self.disc_offsets,
-                self.tip_elements, self.tip_offsets, self.tip_nodes, self.tip_weights, self._weights,
-                self._candidates, self._near_boxes, self.regions[self.region].cutting_force_n, self._cutting_law,
-                self.tip_forces, self.tip_depths, self._unit_shares, self._no_offsets,
-                self.sharp and self.tip_contact.cutting, faces.engaged, faces.new, faces.nodes, faces.weights,
-                faces.params, faces.forces, faces.points, faces.total, self.applied_forces, self._applied_points,
-                self._applied_point_forces, self.wrench_force, self.wrench_torque, self._apex_weights,
-                self._apex_rest, sim.integrator == 'explicit')
-
-    def after_inserted_step(self, inverse_mass, dt, apex, travel_along, deepest, speed_along):
-        """What the Python decides after the compiled inside step, from the floats it returned:
-        points released behind a retracting tip, the apex's layer and a new shaft point, the phase.
-        (Under the explicit integrator the step zeroed what it applied; the implicit integrators'
-        after_step needs the forces after it, the work over the needle's own moves.)"""
-        self._forces_applied = self.n_applied > 0 and self.simulation.integrator != 'explicit'
-        if travel_along < 0.0 and deepest > self._release_beyond:
-            self._release_passed_points()
-            deepest = None
-        if not self._touching() and self.n_points:
-            self._track_apex(inverse_mass, apex, deepest)
-        self._update_phase(dt, speed_along)
 
     def implicit_bonds(self):
         """The bonds an implicit step holds inside its solve (engine.implicit_bonds): the bonded
@@ -429,7 +400,7 @@ class NeedleTissue(MembraneContact):
         patch = self._bonds_in_solve = self.patch
         if patch is None:
             return ()
-        put_rigid_points(self._tip, self.rotation, patch.offsets, len(patch.offsets), patch.targets, 0)
+        put_rigid_points(self._tip, self.tip_rotation, patch.offsets, len(patch.offsets), patch.targets, 0)
         if self._patch_rows_of is not patch:          # made once a patch, its targets set each step
             self._patch_rows = BondRows.along_axes(np.broadcast_to(patch.nodes, patch.weights.shape),
                                                    patch.weights, patch.targets)
@@ -446,116 +417,6 @@ class NeedleTissue(MembraneContact):
             self._mass_version = (sim.mass_version, sim.dt)
             self._mass_generation += 1
         return self._inverse_mass_dofs
-
-    # -- inside the tissue -------------------------------------------------------------------------
-    def _enter(self, region, nodes, weights):
-        """Puncture done (or no membrane): the needle is inside ``region``; first shaft point."""
-        self.region = region
-        self._add_point(nodes, weights)
-        self.tip_elements[:] = -1
-        self._follow_tip_samples()
-        if self.sharp:
-            self.tip_contact.follow()
-        self.phase = 'inserted'
-
-    def _push_with_tip_faces(self, inverse_mass, dt):
-        """A sharp tip cutting its way in: the material it reaches is taken at the tip's samples
-        and pushed sideways out of the tip until it passes the heel (needle_tip)."""
-        contact, sim = self.tip_contact, self.simulation
-        contact.engage_found(self.tip_elements, self.tip_nodes, self.tip_weights)
-        contact.solve(self.rest, sim.displacement, sim.velocity, inverse_mass, self._force_scale, self._tip,
-                      self.rotation, dt, self.applied_forces,
-                      self.regions[self.region].cutting_force_n / len(contact.offsets))
-        n = len(contact.offsets)
-        start = self._add_applied(n)
-        put_rows(contact.points, n, self._applied_points, start)
-        put_rows(contact.forces, n, self._applied_point_forces, start)
-
-    def _add_point(self, nodes, weights):
-        if self.n_points == len(self.point_nodes):
-            return
-        k = self.n_points
-        self.point_nodes[k] = 0
-        self.point_weights[k] = 0.0
-        self.point_nodes[k, :len(nodes)] = nodes
-        self.point_weights[k, :len(weights)] = weights
-        self.point_depths[k] = self.geometry.length_m
-        self.point_offsets[k] = 0.0
-        self.n_points += 1
-
-    def _track_apex(self, inverse_mass, walked=None, deepest=None):
-        """The tip's apex found in the deformed mesh (a walk from where it was): the layer it is
-        in (its material point's region: layers are surfaces) and a new shaft point each spacing
-        of advance. Entering a region with a membrane not yet punctured starts a contact with that
-        layer (one punctured stays open: just after a layer's puncture the apex's material point
-        can lie on the near side of the plane, and the layer left was met, and punctured, again:
-        six punctures in 0.04 mm). ``walked``, ``deepest``: the walk's element (its rest point in
-        ``_apex_rest``) and the deepest shaft point, when the compiled inside step has them."""
-        disp = self.simulation.displacement
-        element = walked
-        if element is None:
-            element = -2 if self.apex_element < 0 else locate_walk(
-                self.rest, disp, self.tetrahedra, self._neighbours, self.apex_element, self._tip, 64,
-                self._apex_weights)
-        if element == -2:
-            element, weights = locate_point(self.rest, disp, self.tetrahedra, self._tip, 0.0)
-            self._apex_weights[:] = weights
-            walked = None
-        self.apex_element = element
-        if element < 0:                     # the tip has left the mesh
-            self.n_tip = 0
-            return
-        nodes = self.tetrahedra[element]
-        region = self._region_of(self._apex_weights @ self.rest[nodes] if walked is None else self._apex_rest,
-                                 element)
-        if region != self.region:
-            if self.regions[region].membrane is not None and region not in self.punctured_regions:
-                if self.sharp:
-                    self.tip_contact.begin(region, on_surface=False)
-                    self.phase = 'contact'
-                else:
-                    n = self.n_tip
-                    self.n_tip = 0
-                    self._begin_patch(self.tip_offsets[:n].copy(), self.tip_nodes[:n].copy(),
-                                      self.tip_weights[:n].copy(), region, inverse_mass)
-                return
-            self.region = region
-        if deepest is None:
-            deepest = float(self.point_depths[:self.n_points].max())
-        if self.geometry.length_m - deepest >= self.geometry.shaft_point_spacing_m:
-            self._add_point(nodes, self._apex_weights.copy())
-
-    def _follow_tip_samples(self):
-        """The cutting samples are the material under the needle end now: found again every step
-        (walking from where each was found last), so the cutting force moves with the tip from
-        element to element continuously (barycentric weights agree across a shared face). Found
-        only at each new shaft point, they stayed with the tissue in between and the force built
-        up again after each: a dip of up to 9 % every shaft point spacing."""
-        self.n_tip = follow_rigid_samples(self.rest, self.simulation.displacement, self.tetrahedra,
-                                          self._neighbours, self.element_boxes, self.mesh_nodes, self._tip,
-                                          self.rotation, self.disc_offsets,
-                                          self.tip_elements, self.tip_offsets, self.tip_nodes,
-                                          self.tip_weights, self._weights, self._candidates, self._near_boxes)
-
-    def _release_passed_points(self):
-        """Shaft points the tip has gone back over leave the needle (retraction). Only while it
-        goes back: advancing, the cutting push can carry the first point (a surface node of a
-        coarse element) ahead of the tip, and releasing it took the needle out, so the same
-        membrane was punctured again at once (three times in 1 mm at 10 mm/s on 2 mm cells)."""
-        limit = self._release_beyond
-        if float(self._travel @ self.axis) >= 0.0 or self.point_depths[:self.n_points].max() <= limit:
-            return
-        keep = self.point_depths[:self.n_points] <= limit
-        n = int(keep.sum())
-        for arr in (self.point_nodes, self.point_weights, self.point_depths, self.point_offsets):
-            arr[:n] = arr[:self.n_points][keep]
-        self.n_points = n
-        if n == 0:
-            self.region = -1
-            self.n_tip = 0
-            self.punctured_regions.clear()
-            if self.sharp:
-                self.tip_contact.release()
 
     def _update_phase(self, dt, speed=None):
         if self._touching():
@@ -582,4 +443,4 @@ class NeedleTissue(MembraneContact):
             return self.wrench_force.copy(), self.wrench_torque.copy()
         if frame == 'needle':
             return self.rotation.T @ self.wrench_force, self.rotation.T @ self.wrench_torque
-        raise NeedleInputError('frame', frame, "expected 'world' or 'needle'")
+        raise PoseError('frame', frame, "expected 'world' or 'needle'")

@@ -4,7 +4,7 @@ Geometric queries (:func:`first_surface_hit`, :func:`locate_point`) run when the
 the surface or adds a shaft point; the constraint kernels run every step and allocate nothing:
 the bonded-contact solve (:func:`patch_solve`, :func:`patch_apply`), the shaft's lateral hold and
 modified-Karnopp friction (:func:`shaft_solve`, Okamura et al. 2004), and the reaction wrench
-(:func:`wrench_about`). The physics they implement is described in :mod:`.needle`.
+(:func:`wrench_about`). The physics they implement is described in :mod:`.interaction`.
 """
 import math
 
@@ -14,13 +14,13 @@ from numba import njit
 __all__ = ['dot3', 'applied_work', 'first_surface_hit', 'near_surface_hit', 'approach_hit', 'cell_boxes',
            'locate_point', 'locate_walk', 'cells_near', 'follow_rigid_samples', 'patch_solve', 'patch_apply',
            'needle_kinematics', 'put_rigid_points', 'put_axis_points', 'put_rows', 'wrench_about',
-           'length_shares', 'shaft_solve']
+           'length_shares', 'karnopp_impulse', 'shaft_solve']
 
 
 @njit(cache=True)
 def dot3(a, b):
     """a . b of two 3-vectors, summed in order: the Python that decides a contact step and the
-    compiled contact step (engine.compiled_substep) call this one function, so they agree to the
+    compiled contact step (engine.compiled.substeps) call this one function, so they agree to the
     last bit (numpy's dot of 3-vectors goes through BLAS, whose kernels may fuse and reorder)."""
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
@@ -77,8 +77,8 @@ def near_surface_hit(rest, displacement, triangles, boxes, surface_nodes, origin
     """:func:`first_surface_hit`, the same result, testing only the triangles whose rest box
     (``cell_boxes``) grown by the surface's largest displacement component (over
     ``surface_nodes``) meets the segment's box: a deformed triangle lies inside its grown box.
-    The needle's test for the surface every step of its approach: on the default scene (2244
-    triangles) 37 us a step tested whole, the step's largest cost outside the force kernel."""
+    The needle's test for the surface every step of its approach: tested whole, the default
+    scene's 2244 triangles would be the step's largest cost outside the force kernel."""
     return _nearest_crossing(rest, displacement, triangles, boxes, _grown(displacement, surface_nodes), origin,
                              direction, t_min, t_max)
 
@@ -257,7 +257,7 @@ def cells_near(rest, displacement, cells, boxes, nodes, centre, reach, candidate
     of the cells) is not within reach is skipped unread: its deformed box lies inside that one,
     so the answer is the same as testing every cell's deformed box, read through its nodes
     (4 gathers of 3 coordinates a tetrahedron against 6 contiguous values; in a retracting
-    needle's step the test of all 13872 elements of the default scene was 35 of its 75 us)."""
+    needle's step, testing all 13872 elements of the default scene would be half of its cost)."""
     grown = _grown(displacement, nodes)
     n = 0
     for k in range(cells.shape[0]):
@@ -296,10 +296,10 @@ def follow_rigid_samples(rest, displacement, tetrahedra, neighbours, boxes, node
     each candidate tried only where its deformed box, padded, holds the point (the containment
     test accepts a point 1e-9 of a barycentric coordinate outside: within 4e-9 of the box's
     extent; the pad is 1e-6 of it and 1e-12 m): the same element as trying every candidate, for
-    6 comparisons instead of 12 gathers. (A needle leaving the tissue has most samples outside
-    and no walk to start from: each tried all ~340 candidates, 300-500 us a step on the default
-    scene, 85 % of this function's time over a retraction.) Samples in the hole behind a sharp tip
-    searched the whole mesh every step, which made the step 80 % dearer. Writes the found points'
+    6 comparisons instead of 12 gathers, which counts where a needle leaves the tissue: most
+    samples are outside there, with no walk to start from, and each tries all ~340 candidates on
+    the default scene. The search is near ``origin`` only, not over the whole mesh, so that the
+    samples in the hole behind a sharp tip do not make every step dearer. Writes the found points'
     offsets, element nodes and weights compactly; returns how many were inside the mesh."""
     n = 0
     n_near = -1
@@ -451,7 +451,7 @@ def length_shares(depths, n, tip_depth, shares):
     half the way to each neighbour, the deepest one to the tip at ``tip_depth``. The shares sum
     to the inserted length, tip_depth - depths[0], whatever the points: a new point at the tip
     takes its share from the one before it, so the total friction does not jump when points are
-    added (it did with equal shares: a dip every spacing)."""
+    added (equal shares would make it dip at every spacing)."""
     if n == 1:
         shares[0] = max(tip_depth - depths[0], 0.0)
         return
@@ -459,6 +459,33 @@ def length_shares(depths, n, tip_depth, shares):
     for k in range(1, n - 1):
         shares[k] = max(0.5 * (depths[k + 1] - depths[k - 1]), 0.0)
     shares[n - 1] = max(tip_depth - 0.5 * (depths[n - 2] + depths[n - 1]), 0.0)
+
+
+@njit(cache=True, inline='always')
+def karnopp_impulse(relative, inverse_effective, scale, segment, inserted, friction, stick_half, dt):
+    """The friction impulse along the needle at one point (:func:`shaft_solve`'s law): ``relative``
+    the needle's speed past the tissue point [m/s], ``inverse_effective`` the point's inverse mass
+    along the needle, ``scale`` its force per impulse / dt, ``segment`` the length it stands for
+    [m], ``inserted`` the inserted length (the constant terms' share), ``friction`` the law's
+    coefficients, ``stick_half`` half the stick band. Inside the band the impulse that stops the
+    slip, within the static limit; outside it the slip force, solved implicitly in the viscous
+    term and never past the impulse that stops the slip."""
+    stop = relative / inverse_effective                    # impulse that ends the slip
+    if relative >= 0.0:
+        static, coulomb, viscous, constant = friction[0], friction[1], friction[2], friction[7]
+    else:
+        static, coulomb, viscous, constant = friction[3], friction[4], friction[5], friction[8]
+    fixed = constant * segment / inserted if inserted > 0.0 else 0.0   # the constant's share
+    if abs(relative) <= stick_half:
+        limit = (static * segment + fixed) * dt / scale
+        impulse = min(max(stop, -limit), limit)
+    else:
+        magnitude = ((segment * (coulomb + viscous * abs(relative)) + fixed) * dt
+                     / (scale + segment * viscous * inverse_effective * dt))
+        impulse = magnitude if relative > 0.0 else -magnitude
+        if abs(impulse) > abs(stop):
+            impulse = stop
+    return impulse
 
 
 @njit(cache=True)
@@ -470,12 +497,12 @@ def shaft_solve(rest, displacement, velocity, inverse_mass, force_scale, point_n
 
     point_offsets: (n, 3) each point's lateral offset in the needle frame (0: on the axis). A
     point further than ``free_beyond`` from the base is along a sharp tip's faces, which push it
-    (needle_tip): it is not held, and its offset follows it, so once it passes the heel the shaft
+    (:mod:`.tip`): it is not held, and its offset follows it, so once it passes the heel the shaft
     holds the tissue where the faces put it (a bevel displaces the tissue to one side, and that
     tissue presses on the shaft, instead of being pulled back to the axis). Behind the heel the
     held offset tapers linearly to 0 over ``closing_m`` (the tissue closes around the shaft): held
-    along the whole shaft, the bevel's lateral force grew with the inserted length (1.2 N after
-    16 mm on the default scene, more than the axial force), which a cut that closes does not do.
+    along the whole shaft, the bevel's lateral force would grow with the inserted length (past the
+    axial force after 16 mm on the default scene), which a cut that closes does not do.
 
     force_scale: (n,) 1 + dt gamma_i. The solver's implicit damping divides whatever force acts
     in a step by it, so a correction Delta u made after the step stands for the force
@@ -565,22 +592,8 @@ def shaft_solve(rest, displacement, velocity, inverse_mass, force_scale, point_n
         for r in range(3):
             needle_velocity += (base_velocity[r] + along * axis_rate[r]) * axis[r]
         relative = needle_velocity - tissue_velocity
-        stop = relative / inverse_effective                    # impulse that ends the slip
-        if relative >= 0.0:
-            static, coulomb, viscous, constant = friction[0], friction[1], friction[2], friction[7]
-        else:
-            static, coulomb, viscous, constant = friction[3], friction[4], friction[5], friction[8]
-        segment = shares[s] if tip_depth > 0.0 else 1.0
-        fixed = constant * segment / inserted if inserted > 0.0 else 0.0   # the constant's share
-        if abs(relative) <= stick_half:
-            limit = (static * segment + fixed) * dt / scale
-            impulse = min(max(stop, -limit), limit)
-        else:
-            magnitude = ((segment * (coulomb + viscous * abs(relative)) + fixed) * dt
-                         / (scale + segment * viscous * inverse_effective * dt))
-            impulse = magnitude if relative > 0.0 else -magnitude
-            if abs(impulse) > abs(stop):
-                impulse = stop
+        impulse = karnopp_impulse(relative, inverse_effective, scale, shares[s] if tip_depth > 0.0 else 1.0,
+                                  inserted, friction, stick_half, dt)
         for k in range(4):
             i = point_nodes[s, k]
             for r in range(3):

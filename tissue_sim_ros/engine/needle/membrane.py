@@ -4,7 +4,7 @@ Contact (phase ``contact``). When the tip crosses the deformed surface, a flat e
 the surface under it as a hard constraint solved exactly each step
 (:mod:`~tissue_sim_ros.engine.needle.contact`); the contact lets go when the needle, not
 advancing, would pull the tissue (while it advances, a momentary pull from the tissue's rebound
-keeps the bond: letting go there made the contact chatter on visco-elastic tissue). A conical or
+keeps the bond: letting go there would make the contact chatter on visco-elastic tissue). A conical or
 bevelled tip touches the tissue point by point as it goes in and each point is bonded to the
 tip where it touched, so the loaded area grows with the indentation as under a real sharp tip
 (:mod:`~tissue_sim_ros.engine.needle.tip`); its contact ends when no point is pushed and the
@@ -22,9 +22,10 @@ law; a flat punch on a linear material is about neutral). At puncture the contac
 the tissue relaxes and the needle is inside (a sharp tip's faces go on pushing the tissue they
 displace, :meth:`~tissue_sim_ros.engine.needle.tip.SharpTipContact.follow`).
 
-Layers are surfaces, not element sets: a region's selector (:mod:`.region_selectors`) says which
-material point belongs to which layer, so :meth:`MembraneContact._region_of` reads the region of
-the material point itself, wherever the element faces lie.
+Layers are surfaces, not element sets: a region's selector
+(:mod:`~tissue_sim_ros.engine.mesh.selectors`) says which material point belongs to which layer,
+so :meth:`MembraneContact._region_of` reads the region of the material point itself, wherever the
+element faces lie.
 
 :class:`MembraneContact` is the part of :class:`~tissue_sim_ros.engine.needle.interaction.NeedleTissue` that
 does this; it reads and writes the needle's state (the arrays made in its constructor).
@@ -33,7 +34,7 @@ import math
 
 import numpy as np
 
-from tissue_sim_ros.engine.needle.contact import ContactPatch, end_samples
+from tissue_sim_ros.engine.needle.contact import ContactPatch, bond_offsets, end_samples
 from tissue_sim_ros.engine.needle.kernels import approach_hit, dot3, locate_point, put_rows
 
 __all__ = ['MembraneContact']
@@ -45,7 +46,7 @@ class MembraneContact:
     def _detect_surface_contact(self, inverse_mass):
         """Start a contact when the tip has crossed the deformed surface (not while the needle
         goes back: the tip coming up through the surface it left is not a new contact; a bevel
-        gripped the surface there and ruptured it again, at 2.4 N, on its way out)."""
+        would grip the surface there and rupture it again on its way out)."""
         # the tip is past the surface if the surface lies within the last step's travel or one
         # diameter behind the tip (the surface may have come up to a needle at rest)
         hit, t, w0, w1, w2, back = approach_hit(self.rest, self.simulation.displacement, self.surface_triangles,
@@ -92,9 +93,9 @@ class MembraneContact:
             patch.sample_forces[:] = self._patch_rows.forces.reshape(-1, 3)
             total = patch.sample_forces.sum(axis=0, out=patch.total)
         else:
-            total = patch.solve(self.rest, sim.displacement, self._tip, self.rotation, dt)
-        advancing = float(self._travel @ self.axis) > 0.0
-        if float(total @ self.axis) < 0.0 and not advancing:   # it would pull back: contact lost
+            total = patch.solve(self.rest, sim.displacement, self._tip, self.tip_rotation, dt)
+        advancing = float(self._travel @ self.tip_axis) > 0.0
+        if float(total @ self.tip_axis) < 0.0 and not advancing:   # it would pull back: contact lost
             self.patch = None
             if self.tip_contact is not None:
                 self.tip_contact.release()
@@ -108,7 +109,7 @@ class MembraneContact:
         start = self._add_applied(n)
         put_rows(patch.targets, n, self._applied_points, start)
         put_rows(patch.sample_forces, n, self._applied_point_forces, start)
-        axial = float(total @ self.axis)
+        axial = float(total @ self.tip_axis)
         if patch.ruptured(self.regions[patch.region].membrane, axial, self.geometry.diameter_m,
                           float(self._base_velocity @ self.axis)):
             self._punctured(axial, patch.work, patch.region)
@@ -129,16 +130,16 @@ class MembraneContact:
     def _engage_tip(self):
         """A sharp tip against a membrane: new points touch (at the outer surface, or in the layer
         met inside); :meth:`_take_engaged` takes them. Called after the patch's correction: a point
-        taken before it was off by the step's rebound of the nodes it shares with the bonds (0.36 mm
-        under a cone's apex), and the exact solve moved their other nodes by 2.3 mm to agree."""
+        taken before it would be off by the step's rebound of the nodes it shares with the bonds,
+        and the exact solve would move their other nodes by much more to agree."""
         contact, disp = self.tip_contact, self.simulation.displacement
         if contact.on_surface:
             back = math.sqrt(dot3(self._travel, self._travel)) + self.geometry.diameter_m
             contact.engage_on_surface(self.rest, disp, self.surface_triangles, self.surface_boxes,
-                                      self.surface_nodes, self._tip, self.rotation, self.axis, back)
+                                      self.surface_nodes, self._tip, self.tip_rotation, self.tip_axis, back)
         else:
             contact.engage_in_region(self.rest, disp, self.tetrahedra, self._neighbours, self.element_boxes,
-                                     self.mesh_nodes, self._tip, self.rotation, self.selectors,
+                                     self.mesh_nodes, self._tip, self.tip_rotation, self.selectors,
                                      self.mesh.element_tags)
 
     def _take_engaged(self, inverse_mass):
@@ -149,15 +150,24 @@ class MembraneContact:
         if contact.take_new():
             first = self.patch is None
             work = 0.0 if first else self.patch.work
-            self.patch = ContactPatch.from_samples(*contact.engaged_samples(), inverse_mass, contact.region)
+            offsets, nodes, weights = contact.engaged_samples()
+            offsets = bond_offsets(offsets, self.rest, self.simulation.displacement, nodes, weights, self._tip,
+                                   self.rotation, self._crossing_tolerance())
+            self.patch = ContactPatch.from_samples(offsets, nodes, weights, inverse_mass, contact.region)
             self.patch.work = work
             self._reserve_applied(len(contact.offsets) + len(self.point_nodes) + len(self.disc_offsets))
             return first
-        elif self.patch is None and float(self._travel @ self.axis) <= 0.0:
+        elif self.patch is None and float(self._travel @ self.tip_axis) <= 0.0:
             contact.release()
             if self.n_points == 0:
                 self.phase = 'approach'
         return False
+
+    def _crossing_tolerance(self):
+        """How far past the surface a sharp tip's sample may be and still be pulled onto the
+        needle: this step's travel along the axis, and a hundredth of the diameter
+        (contact.bond_offsets)."""
+        return max(float(self._travel @ self.axis), 0.0) + 0.01 * self.geometry.diameter_m
 
     def _region_of(self, rest_point, element):
         """The region of a material point (layers as surfaces), or its element's when the needle

@@ -12,7 +12,8 @@ from numba import njit
 
 from tissue_sim_ros.engine.needle.pose import DEFAULT_MAX_JUMP_M
 
-__all__ = ['Friction', 'MIN_RATE_SPEED_M_S', 'Membrane', 'RegionInteraction', 'NeedleGeometry', 'TipShape']
+__all__ = ['Friction', 'MIN_RATE_SPEED_M_S', 'Membrane', 'RegionInteraction', 'FlexibleShaft', 'NeedleGeometry',
+           'TipShape']
 
 
 @dataclass(frozen=True)
@@ -34,7 +35,7 @@ class Friction:
     retraction_constant_n: float = 0.0
 
     def as_array(self):
-        """(9,) the coefficients in the order :func:`~.needle_kernels.shaft_solve` reads them."""
+        """(9,) the coefficients in the order :func:`~.kernels.shaft_solve` reads them."""
         return np.array([self.insertion_static_n_per_m, self.insertion_coulomb_n_per_m,
                          self.insertion_viscous_n_s_per_m2, self.retraction_static_n_per_m,
                          self.retraction_coulomb_n_per_m, self.retraction_viscous_n_s_per_m2,
@@ -63,8 +64,8 @@ class Membrane:
     decade or more, the force falling with speed in soft tissue (Mahvash and Dupont 2010 explain
     the fall by the tissue's fracture toughness and viscoelasticity: the 'energy' criterion is
     that mechanism; the power law is the empirical form such data are fitted with). Exponent 0:
-    the force does not depend on speed (the criterion as it was). The speed is held to at least
-    ``MIN_RATE_SPEED_M_S`` (a needle stopped at the membrane would make the law 0 or infinite)."""
+    the force does not depend on speed. The speed is held to at least ``MIN_RATE_SPEED_M_S`` (a
+    needle stopped at the membrane would make the law 0 or infinite)."""
     criterion: str = 'force'
     rupture_force_n: float = 1.0
     toughness_j_per_m2: float = 0.0
@@ -88,7 +89,7 @@ MIN_RATE_SPEED_M_S = 1e-5
 @njit(cache=True)
 def rupture_force_at(rupture_force_n, rate_exponent, reference_speed_m_s, speed_m_s):
     """:meth:`Membrane.rupture_force` (the rate law) with the membrane's numbers: one function
-    for the Python and the compiled contact step (engine.compiled_substep)."""
+    for the Python and the compiled contact step (engine.compiled.substeps)."""
     if rate_exponent == 0.0:
         return rupture_force_n
     return rupture_force_n * (max(abs(speed_m_s), MIN_RATE_SPEED_M_S) / reference_speed_m_s) ** rate_exponent
@@ -116,12 +117,24 @@ class RegionInteraction:
 
 
 @dataclass(frozen=True)
+class FlexibleShaft:
+    """A shaft that bends (:mod:`~tissue_sim_ros.engine.needle.rod`): the tube's inner diameter
+    [m] (0: a solid rod; the outer one is the needle's), its Young's modulus [Pa] and the
+    segments the rod is divided into."""
+    inner_diameter_m: float = 0.0
+    young_modulus_pa: float = 200e9
+    segments: int = 60
+
+
+@dataclass(frozen=True)
 class NeedleGeometry:
-    """The rigid needle: outer diameter and length [m] (base to the tip's apex), the spacing of
-    the shaft's material points along the inserted length [m], the largest base or tip move one
-    ``advance`` accepts [m], and its tip."""
+    """The needle: outer diameter and length [m] (base to the tip's apex), the spacing of the
+    shaft's material points along the inserted length [m], the largest base or tip move one
+    ``advance`` accepts [m], its tip, and its shaft: None, rigid and straight, or a
+    :class:`FlexibleShaft`."""
     diameter_m: float = 0.0024
     length_m: float = 0.15
     shaft_point_spacing_m: float = 0.001
     max_jump_m: float = DEFAULT_MAX_JUMP_M
     tip: TipShape = field(default_factory=TipShape)
+    shaft: FlexibleShaft | None = None

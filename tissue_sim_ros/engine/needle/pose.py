@@ -1,8 +1,9 @@
 """Needle pose maths and the rules a pose must meet, shared by the engine and the node's input.
 
 A pose is the position of the needle's base frame and its orientation as a unit quaternion
-(x, y, z, w); the needle axis is that frame's +z (DESIGN.md, Frames). Pure numpy, no numba and
-no ROS, so :mod:`tissue_sim_ros.ros.loop.pose_input` and ``tissue-sim drive`` import it cheaply.
+(x, y, z, w); the needle axis is that frame's +z (docs/scene-guide.md, "Needle and tip shapes").
+Pure numpy, no numba and no ROS, so :mod:`tissue_sim_ros.ros.loop.pose_input` and
+``tissue-sim drive`` import it cheaply.
 
 Each rule has one home here:
 
@@ -22,8 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tissue_sim_ros.errors import PoseError
+
 __all__ = ['QUATERNION_NORM_TOLERANCE', 'DEFAULT_MAX_JUMP_M', 'DEFAULT_MAX_JUMP_RAD',
-           'NeedleInputError', 'rotation_matrix', 'needle_axis', 'slerp', 'rotation_angle',
+           'rotation_matrix', 'needle_axis', 'slerp', 'rotation_angle',
            'unit_quaternion', 'validate_pose', 'PoseJump', 'pose_jump']
 
 _log = logging.getLogger('tissue_sim_ros.needle')
@@ -34,15 +37,6 @@ QUATERNION_NORM_TOLERANCE = 0.01
 DEFAULT_MAX_JUMP_M = 0.005
 #: Largest rotation [rad] between successive received poses accepted by default (node input).
 DEFAULT_MAX_JUMP_RAD = 0.5
-
-
-class NeedleInputError(ValueError):
-    """A needle pose or parameter the engine refuses; names the field and the value."""
-
-    def __init__(self, field_name, value, expected):
-        self.field = field_name
-        self.value = value
-        super().__init__(f'{field_name} = {value!r}: {expected}')
 
 
 def rotation_matrix(quaternion):
@@ -96,7 +90,7 @@ _normalised_once = False
 
 
 def validate_pose(position, orientation, field_name='pose'):
-    """(position (3,), unit quaternion (4,)) as float arrays, or NeedleInputError naming the field.
+    """(position (3,), unit quaternion (4,)) as float arrays, or PoseError naming the field.
 
     A quaternion whose norm is within QUATERNION_NORM_TOLERANCE of 1 is normalised (said once in
     the log); farther from unit it is refused.
@@ -106,15 +100,15 @@ def validate_pose(position, orientation, field_name='pose'):
         p = np.array(position, dtype=np.float64).reshape(-1)
         q = np.array(orientation, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
-        raise NeedleInputError(field_name, (position, orientation), 'expected numbers') from None
+        raise PoseError(field_name, (position, orientation), 'expected numbers') from None
     if p.shape != (3,) or not all(map(math.isfinite, p.tolist())):
-        raise NeedleInputError(f'{field_name}.position', p.tolist(), 'expected 3 finite numbers [m]')
+        raise PoseError(f'{field_name}.position', p.tolist(), 'expected 3 finite numbers [m]')
     if q.shape != (4,) or not all(map(math.isfinite, q.tolist())):
-        raise NeedleInputError(f'{field_name}.orientation', q.tolist(),
+        raise PoseError(f'{field_name}.orientation', q.tolist(),
                                'expected 4 finite numbers (quaternion x, y, z, w)')
     unit, norm = unit_quaternion(q)
     if unit is None:
-        raise NeedleInputError(f'{field_name}.orientation', q.tolist(),
+        raise PoseError(f'{field_name}.orientation', q.tolist(),
                                f'quaternion norm {norm:.6g}, expected 1 within {QUATERNION_NORM_TOLERANCE}')
     if unit is not q and not _normalised_once:
         _log.warning('%s.orientation: quaternion norm %.9g normalised to 1 (said once)', field_name, norm)
@@ -139,7 +133,7 @@ def pose_jump(position0, orientation0, position1, orientation1, length_m=0.0) ->
     """The jump from pose 0 to pose 1 (validated arrays): the larger of the base's move and, for
     ``length_m`` > 0, the move of the point at +z * length_m (the tip), and the rotation angle."""
     # plain floats: this runs on every advance of every caller, and numpy's per-call cost on
-    # 3-vectors made it 10 us (3 us so)
+    # 3-vectors would make it three times dearer
     x0, y0, z0 = _floats(position0)
     x1, y1, z1 = _floats(position1)
     dx, dy, dz = x1 - x0, y1 - y0, z1 - z0

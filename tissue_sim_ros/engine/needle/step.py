@@ -1,19 +1,18 @@
 """The step of a needle inside the tissue in one compiled call.
 
 Once the needle is in (phases ``inserted`` and ``retracting``, no membrane contact), every step
-runs the same sequence, :meth:`.needle.NeedleTissue.after_step` in order: the needle's kinematics,
-the shaft's lateral hold and friction (:func:`~.needle_kernels.shaft_solve`), the cutting samples
-found again under the end (:func:`~.needle_kernels.follow_rigid_samples`), a sharp tip's faces
-pushing the displaced tissue aside (:func:`~.needle_tip.tip_contact_solve`), the cutting law on
-the samples, the reaction wrench with the work the needle put in, and the walk that finds the
-tip's apex in the deformed mesh. As a dozen Python calls into numba that sequence cost 63-71 us
-a step on the default scene (the kernels about 42 us of it, the calls and the Python between
-them the rest), 30 % of a coarse calibration run (issue 19 item 3, issue 16); here it is one
+runs the same sequence, :meth:`.interaction.NeedleTissue.after_step` in order: the needle's
+kinematics, the shaft's lateral hold and friction (:func:`~.kernels.shaft_solve`), the cutting
+samples found again under the end (:func:`~.kernels.follow_rigid_samples`), a sharp tip's faces
+pushing the displaced tissue aside (:func:`~.tip.tip_contact_solve`), the cutting law on the
+samples, the reaction wrench with the work the needle put in, and the walk that finds the tip's
+apex in the deformed mesh. As a dozen Python calls into numba, the calls and the Python between
+them would cost about half as much again as the kernels themselves; here the sequence is one
 call to the same kernels in the same order, so the forces are the same to the last bit. What
 the Python after it decides on the outcome (shaft points released behind the tip, the layer of
 the apex's material point, a new membrane met, a new shaft point) reads the floats returned;
-:mod:`~.compiled_substep` calls it from compiled code and decides the common outcome (nothing
-to do) there, handing the other steps to that Python.
+:mod:`~tissue_sim_ros.engine.compiled.substeps` calls it from compiled code and decides the
+common outcome (nothing to do) there, handing the other steps to that Python.
 """
 import numpy as np
 from numba import njit
@@ -23,7 +22,7 @@ from tissue_sim_ros.engine.needle.kernels import (follow_rigid_samples, locate_w
                                                   wrench_about)
 from tissue_sim_ros.engine.needle.tip import take_found, tip_contact_solve
 
-__all__ = ['inserted_step']
+__all__ = ['inserted_step', 'take_work']
 
 
 @njit(cache=True)
@@ -46,9 +45,9 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
     without, it keeps the forces and the work is a dot product over the whole array. The tip's
     apex is walked to from element ``apex_start`` (< 0: not walked), its weights in
     ``apex_weights`` and its rest coordinates in ``apex_rest``. (The two arguments that change
-    from step to step come last: the rest are :meth:`.needle.NeedleTissue.inserted_arguments`.) Returns
-    (friction force, cutting force, cutting samples found, points of action written, work of the
-    needle's forces over the step [J], the apex's element (locate_walk: -1 outside, -2 not
+    from step to step come last: the rest are :meth:`.interaction.NeedleTissue.inserted_arguments`.)
+    Returns (friction force, cutting force, cutting samples found, points of action written, work
+    of the needle's forces over the step [J], the apex's element (locate_walk: -1 outside, -2 not
     found), the tip's travel along the axis [m], the deepest shaft point's axial coordinate [m],
     the base's speed along the axis [m/s]): what the Python that follows decides on."""
     if clear_first:
@@ -84,10 +83,10 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
         put_rows(tip_forces, n_tip, applied_point_forces, n_applied)
         n_applied += n_tip
     if sparse:
-        work = _take_work(applied_forces, velocity, point_nodes, n_points)
+        work = take_work(applied_forces, velocity, point_nodes, n_points)
         if faces_cut:
-            work += _take_work(applied_forces, velocity, face_nodes, face_nodes.shape[0])
-        work += _take_work(applied_forces, velocity, tip_nodes, n_tip)
+            work += take_work(applied_forces, velocity, face_nodes, face_nodes.shape[0])
+        work += take_work(applied_forces, velocity, tip_nodes, n_tip)
     else:
         work = np.vdot(applied_forces.reshape(-1), velocity.reshape(-1))
     wrench_about(applied_points, applied_point_forces, n_applied, position, wrench_force, wrench_torque)
@@ -112,7 +111,7 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
 
 
 @njit(cache=True)
-def _take_work(applied_forces, velocity, nodes, n_rows):
+def take_work(applied_forces, velocity, nodes, n_rows):
     """Sum of f . v over the nodes of ``nodes[:n_rows]``, each node's force zeroed once counted
     (a node in several rows counts once)."""
     work = 0.0

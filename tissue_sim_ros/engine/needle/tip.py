@@ -3,7 +3,7 @@
 Shapes (``needle.tip`` in the scene), in the needle frame with the apex at the origin and the
 needle behind it (-z), radius r:
 
-- ``flat``: the end face z = 0, ρ <= r (the needle as before; its contact is the bonded patch of
+- ``flat``: the end face z = 0, ρ <= r (a blunt needle; its contact is the bonded patch of
   :mod:`~tissue_sim_ros.engine.needle.contact`);
 - ``conical``: a cone of half-angle θ, ρ = -z tan θ, back to z = -h, h = r / tan θ; outward normal
   (cos θ cos φ, cos θ sin φ, sin θ);
@@ -20,13 +20,13 @@ real sharp tip (Sneddon: a cone's force grows as the square of its depth, a flat
 linearly). Before the puncture each point is bonded to its sample's place on the tip, as a flat
 end's samples are (the caller's ContactPatch, an exact solve, rebuilt as points join; one bond
 per triangle, the first to touch it): held by a Gauss-Seidel push out of the tip's solid with
-friction instead, the force chattered by 10-50 % from substep to substep and a spike ruptured
-the membrane at 1.48 N while the curve was at 1.15 N. A point-like first bond strains the
-elements under it far more than a flat end does, and a stiffening law takes them past the
-critical step estimated at rest: the default scene runs at 0.65 of it (config/liver_sample.yaml). The
-puncture criteria read the patch's axial force. After the puncture the faces push the tissue
-they displace out of the tip's solid sideways (the axial load is the cutting law's), frictionless and within the cutting
-force (:func:`tip_contact_solve`, :class:`SharpTipContact`).
+friction instead, the force would chatter from substep to substep and a spike could rupture the
+membrane early. A point-like first bond strains the elements under it far more than a flat end
+does, and a stiffening law takes them past the critical step estimated at rest: the default
+scene runs at 0.65 of it (config/liver_sample.yaml). The puncture criteria read the patch's
+axial force. After the puncture the faces push the tissue they displace out of the tip's solid
+sideways (the axial load is the cutting law's), frictionless and within the cutting force
+(:func:`tip_contact_solve`, :class:`SharpTipContact`).
 """
 from __future__ import annotations
 
@@ -103,15 +103,13 @@ def engage_samples(rest, displacement, triangles, rest_boxes, surface_nodes, tip
     """Samples not yet engaged that lie past the deformed surface (the surface within ``back``
     behind them along the axis, or the sample inside it since the last step) take the material
     point there: its triangle's nodes (4th node weight 0) and weights, and are marked ``new``.
-    Only the triangles within ``reach`` of the apex are tried (:func:`.needle_kernels.cells_near`
+    Only the triangles within ``reach`` of the apex are tried (:func:`.kernels.cells_near`
     with the triangles' rest boxes ``rest_boxes`` and the ``surface_nodes``; ``candidates``,
     ``near_boxes``: room for every triangle), and for each sample only those whose box across the
     axis holds the sample: a ray along the axis meets a triangle only where its projection does,
     so the answer is the one all near triangles give (the boxes are padded well past round-off),
-    for a tenth of the ray tests
-    (60 samples x 106 near triangles on the default scene: 59 -> 27 us a step). Scratch with room
-    for every triangle: ``boxes`` (n, 4), ``subset`` (n, 3), ``subset_cells`` (n,). Returns how
-    many took a point."""
+    for a tenth of the ray tests. Scratch with room for every triangle: ``boxes`` (n, 4),
+    ``subset`` (n, 3), ``subset_cells`` (n,). Returns how many took a point."""
     count = 0
     n_near = cells_near(rest, displacement, triangles, rest_boxes, surface_nodes, tip, reach, candidates,
                         near_boxes)
@@ -308,8 +306,8 @@ def tip_contact_solve(rest, displacement, velocity, inverse_mass, force_scale, s
             depth = _push_out(p, params, n_local)
             if depth <= 0.0:
                 continue
-            # sideways only: the cutting law carries the axial load at the same samples (the
-            # faces' axial share made the axial force jump by 0.12 N whenever points crossed from
+            # sideways only: the cutting law carries the axial load at the same samples (an
+            # axial share of the faces would make the axial force jump whenever points cross from
             # the face to the cylinder's side together); moving along the face normal's lateral
             # part by depth / |n_lateral| takes the point out just the same
             lateral = math.sqrt(n_local[0] * n_local[0] + n_local[1] * n_local[1])
@@ -407,8 +405,8 @@ class SharpTipContact:
     def engaged_samples(self):
         """(offsets, nodes, weights) of the touching samples, for the bonded patch: the first to
         touch each triangle (or element) only. Two bonds on one coarse triangle a tenth of its
-        size apart clamp its rotation with that short lever: they held each other with +-2 N
-        and the next point to join gave 21 N at once."""
+        size apart clamp its rotation with that short lever: they hold each other with large
+        forces, and the force jumps when the next point joins."""
         engaged = np.flatnonzero(self.engaged)
         engaged = engaged[np.argsort(self.touch_order[engaged], kind='stable')]
         _, first = np.unique(np.sort(self.nodes[engaged], axis=1), axis=0, return_index=True)

@@ -23,42 +23,27 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from tissue_sim_ros.system.paths import shared_file
 from tissue_sim_ros.engine.compiled.clock import AVAILABLE as CLOCKS_IN_COMPILED_CODE
 from tissue_sim_ros.engine.compiled.substeps import CompiledSubsteps
-from tissue_sim_ros.engine.model.material import Material, MaterialError, MeanRatioLaw, Viscosity
-from tissue_sim_ros.engine.mesh.tetmesh import make_mesh
-from tissue_sim_ros.engine.mesh.generators import box_mesh, graded_box_mesh
-from tissue_sim_ros.engine.mesh.files import load_mesh
-from tissue_sim_ros.engine.model.tensor_mass import TensorMassModel
-from tissue_sim_ros.engine.needle.interaction import (Friction, Membrane, NeedleGeometry, NeedleTissue,
-                                          RegionInteraction, TipShape, slerp)
 from tissue_sim_ros.engine.mesh.selectors import RegionSelectors
+from tissue_sim_ros.engine.mesh.tetmesh import make_mesh
+from tissue_sim_ros.engine.needle.interaction import NeedleTissue, slerp
 from tissue_sim_ros.engine.needle.pose import needle_axis
-from tissue_sim_ros.engine.scene.keys import apply_overrides
-from tissue_sim_ros.engine.scene.schema import SCHEMA, SceneError, apply_schema, describe_keys  # noqa: F401
-from tissue_sim_ros.engine.solver.explicit import Simulation
+from tissue_sim_ros.engine.scene.build import (build_gravity, build_material, build_mesh, build_model,
+                                               build_simulation, build_supports, check_combinations, check_time_step,
+                                               needle_geometry, point_sets_of, region_interaction)
+from tissue_sim_ros.engine.scene.checks import apply_schema
+from tissue_sim_ros.engine.scene.keys import apply_overrides, set_keys
+from tissue_sim_ros.engine.scene.schema import SCHEMA
 from tissue_sim_ros.engine.scene.targets import Targets
+from tissue_sim_ros.engine.scene.variation import drawn_regions
+from tissue_sim_ros.errors import SceneError
+from tissue_sim_ros.system.paths import shared_file
 
 
 def default_scene_path():
     """The packaged default scene, config/liver_sample.yaml (source tree or installed share/)."""
     return shared_file('config/liver_sample.yaml')
-
-
-# -- building ---------------------------------------------------------------------------------
-def _build_mesh(spec, base_dir):
-    if spec['generator'] == 'file':
-        if not spec['file']:
-            raise SceneError("mesh.file = '': expected a mesh file name with generator: file")
-        path = Path(spec['file'])
-        return load_mesh(path if path.is_absolute() else base_dir / path)
-    divisions = [int(round(d)) for d in spec['divisions']]
-    if spec['generator'] == 'box':
-        return box_mesh(spec['size_m'], divisions, spec['origin_m'])
-    return graded_box_mesh(spec['size_m'], divisions, spec['origin_m'], focus=spec['focus_xy_m'],
-                           focus_radius=spec['focus_radius_m'], growth=spec['growth'],
-                           fine_size=spec['fine_size_m'], grade_z=spec['grade_z'])
 
 
 def _element_regions(mesh, selectors):
@@ -70,199 +55,100 @@ def _element_regions(mesh, selectors):
     return index
 
 
-def _fixed_nodes(mesh, faces):
-    x = mesh.rest_positions
-    lo, hi = x.min(axis=0), x.max(axis=0)
-    tol = 1e-9 * float(np.max(hi - lo))
-    on = {'x_min': np.abs(x[:, 0] - lo[0]) <= tol, 'x_max': np.abs(x[:, 0] - hi[0]) <= tol,
-          'y_min': np.abs(x[:, 1] - lo[1]) <= tol, 'y_max': np.abs(x[:, 1] - hi[1]) <= tol,
-          'bottom': np.abs(x[:, 2] - lo[2]) <= tol, 'top': np.abs(x[:, 2] - hi[2]) <= tol}
-    on['walls'] = on['x_min'] | on['x_max'] | on['y_min'] | on['y_max']
-    mask = np.zeros(len(x), dtype=bool)
-    for f in faces:
-        mask |= on[f]
-    return mask
-
-
-def surface_gap(mesh, tip, axis):
-    """Distance [m] from ``tip`` along ``axis`` to the rest surface of ``mesh`` (inf: none)."""
+def surface_gap(mesh, tip, axis, displacement=None):
+    """Distance [m] from ``tip`` along ``axis`` to the surface of ``mesh`` at rest, or displaced
+    by ``displacement`` (a settled state) (inf: none)."""
     from tissue_sim_ros.engine.needle.kernels import first_surface_hit
-    hit, t, _, _, _ = first_surface_hit(mesh.rest_positions, np.zeros_like(mesh.rest_positions),
+    moved = np.zeros_like(mesh.rest_positions) if displacement is None else displacement
+    hit, t, _, _, _ = first_surface_hit(mesh.rest_positions, moved,
                                         np.ascontiguousarray(mesh.surface_triangles(), dtype=np.int64),
                                         np.asarray(tip, dtype=float), np.asarray(axis, dtype=float),
                                         0.0, np.inf)
     return float(t) if hit >= 0 else float('inf')
 
 
-def _start_position(mesh, needle):
+def _start_position(mesh, needle, displacement=None):
     """needle.initial_position_m, moved along the axis so that the tip is needle.start_gap_m
-    above the surface when that key is given."""
+    above the surface (settled, with ``displacement``) when that key is given."""
     position = np.asarray(needle['initial_position_m'], dtype=float)
     if needle['start_gap_m'] is None:
         return position
     from tissue_sim_ros.engine.needle.pose import validate_pose
     position, orientation = validate_pose(position, needle['initial_orientation_xyzw'], 'needle.initial_pose')
     axis = needle_axis(orientation)
-    gap = surface_gap(mesh, position + needle['length_m'] * axis, axis)
+    gap = surface_gap(mesh, position + needle['length_m'] * axis, axis, displacement)
     if not np.isfinite(gap):
         raise SceneError(f"needle.start_gap_m = {needle['start_gap_m']!r}: the needle's axis from "
                          f'initial_position_m {position.tolist()} meets no tissue surface')
     return position + (gap - needle['start_gap_m']) * axis
 
 
-def _region_material(k, region):
-    """The region's Material; an impossible value is refused with its path in the scene."""
-    try:
-        return Material(region['young_modulus_pa'], region['poisson_ratio'],
-                        region['density_kg_per_m3'])
-    except MaterialError as exc:
-        text = str(exc)
-        for field, key in (('young_modulus', 'young_modulus_pa'), ('poisson_ratio', 'poisson_ratio'),
-                           ('density', 'density_kg_per_m3')):
-            if text.startswith(field + ' ='):
-                text = f'regions[{k}].{key}' + text[len(field):]
-        raise SceneError(text) from None
-
-
-def _check_time_step(simulation, solver):
-    """A fixed time step above the estimated critical step diverges within steps: refused at load,
-    naming both (the node otherwise diverged and reset over and over)."""
-    dt = solver['time_step_s']
-    if solver['integrator'] != 'explicit':
-        return            # unconditionally stable: any step, accuracy is the user's choice
-    if dt is None and solver['time_step_safety'] > 1:
-        raise SceneError(f"solver.time_step_safety = {solver['time_step_safety']!r}: expected at most "
-                         f'1 (the step would be above the estimated critical step '
-                         f'{simulation.critical_time_step():.4g} s)')
-    if dt is not None and dt > simulation.critical_time_step():
-        raise SceneError(
-            f'solver.time_step_s = {dt!r}: above the estimated critical (largest stable) step '
-            f'{simulation.critical_time_step():.4g} s of this mesh and material (mass scaling '
-            f"{solver['mass_scaling']:g}); use at most that, raise solver.mass_scaling, or leave it "
-            f'null for time_step_safety x the critical step')
-
-
-def _physical_law(spec):
-    if spec['law'] == 'none':
-        return None
-    if spec['law'] == 'polynomial':
-        return MeanRatioLaw.polynomial(spec['lambda_coefficients'], spec['mu_coefficients'])
-    return MeanRatioLaw.exponential(spec['lambda_amplitude'], spec['lambda_rate'],
-                                    spec['mu_amplitude'], spec['mu_rate'])
-
-
-def _region_interaction(region):
-    membrane = region['membrane']
-    return RegionInteraction(
-        name=region['name'],
-        membrane=None if membrane['criterion'] == 'none' else Membrane(
-            membrane['criterion'], membrane['rupture_force_n'], membrane['toughness_j_per_m2'],
-            membrane['rate_exponent'], membrane['reference_speed_m_s']),
-        cutting_force_n=region['cutting_force_n'],
-        friction=Friction(**region['friction']))
-
-
-def _tip_shape(tip):
-    """The needle's TipShape; an angle out of (0, 90) degrees is refused by its key."""
-    for key in ('half_angle_deg', 'bevel_angle_deg'):
-        if not 0.0 < tip[key] < 90.0:
-            raise SceneError(f'needle.tip.{key} = {tip[key]!r}: expected an angle in (0, 90) degrees')
-    return TipShape(tip['shape'], tip['half_angle_deg'], tip['bevel_angle_deg'], tip['bevel_orientation_deg'])
-
-
 class Scene:
     """A ready-to-run needle insertion scene (see the module docstring)."""
 
-    def __init__(self, spec, text='', base_dir='.', mesh_frame_id='world'):
+    def __init__(self, spec, text='', base_dir='.', mesh_frame_id='world', auto_choices=None):
+        """``spec``: the scene's keys (checked here against the schema); ``auto_choices``: how the
+        layer above resolved ``model: auto`` and ``solver.mass_scaling: auto`` into these keys
+        (:meth:`from_file`'s ``resolve_auto``), kept for reports."""
         self.spec = apply_schema('', _auto_model_section(spec), SCHEMA)
-        self.recommended_from = None
-        if self.spec['model']['auto']:
-            # the one place the engine calls up into analysis: the recommendation runs the chart
-            from tissue_sim_ros.analysis.charting.recommend import auto_spec
-            self.recommended_from = self.spec
-            self.spec = apply_schema('', auto_spec(self.spec, base_dir), SCHEMA)
-        self.mass_scaling_rule = None
-        if self.spec['solver']['mass_scaling'] == 'auto':
-            # the rule probes the scene's insertion (analysis.mass_scaling_rule); cached
-            from tissue_sim_ros.analysis.charting.mass_scaling_rule import auto_mass_scaling
-            chosen, self.mass_scaling_rule = auto_mass_scaling(self.spec, base_dir)
-            self.spec['solver']['mass_scaling'] = chosen
+        _refuse_auto_keys(self.spec)
+        check_combinations(self.spec)
+        self.auto_choices = dict(auto_choices or {})
         self.text = text
         self.base_dir = Path(base_dir)
         self.mesh_frame_id = mesh_frame_id
         s = self.spec
-        try:
-            raw_mesh = _build_mesh(s['mesh'], Path(base_dir))
-            self.selectors = RegionSelectors(s['regions'], raw_mesh.element_tags)
-            element_region = _element_regions(raw_mesh, self.selectors)
-            self.mesh = make_mesh(raw_mesh.rest_positions, raw_mesh.tetrahedra, element_region)
-            materials = {k: _region_material(k, r) for k, r in enumerate(s['regions'])
-                         if np.any(element_region == k)}
-            m = s['model']
-            viscosity = None
-            if m['viscosity_lambda_pa_s'] > 0 or m['viscosity_mu_pa_s'] > 0:
-                viscosity = Viscosity(m['viscosity_lambda_pa_s'], m['viscosity_mu_pa_s'])
-            self.model = TensorMassModel(self.mesh, materials, geometric=m['geometric'],
-                                         physical=_physical_law(m['physical']), viscosity=viscosity,
-                                         nonlinearity_threshold=m['nonlinearity_threshold'],
-                                         inversion_safeguard=m['inversion_safeguard'],
-                                         relaxation=m['relaxation'], precision=m['precision'])
-            sol = s['solver']
-            self.simulation = Simulation(self.model, damping=sol['damping_per_s'],
-                                         fixed=_fixed_nodes(self.mesh, s['boundary']['fixed']),
-                                         dt=sol['time_step_s'], time_step_safety=sol['time_step_safety'],
-                                         mass_scaling=sol['mass_scaling'], integrator=sol['integrator'],
-                                         newton_tolerance=sol['newton_tolerance'])
-            _check_time_step(self.simulation, sol)
-            interactions = [_region_interaction(r) for r in s['regions']]
-            self.needle_names, self.needles = [], []
-            for i, (name, n) in enumerate(needle_sections(s)):
-                geometry = NeedleGeometry(n['diameter_m'], n['length_m'], n['shaft_point_spacing_m'],
-                                          n['max_jump_m'], _tip_shape(n['tip']))
-                self.needle_names.append(name)
-                self.needles.append(NeedleTissue(self.simulation, element_region, interactions, geometry,
-                                                 _start_position(self.mesh, n), n['initial_orientation_xyzw'],
-                                                 selectors=self.selectors,
-                                                 name=f'needles[{i}]' if s['needles'] else 'needle'))
-            self.needle = self.needles[0]
-            self.targets = Targets(self.mesh.rest_positions, self.mesh.tetrahedra, s['targets'])
-        except SceneError:
-            raise
-        except ValueError as exc:        # MaterialError, MeshError, NeedleInputError...
-            raise SceneError(str(exc)) from exc
+        #: this run's regions (the spread between repeats drawn: engine.scene.variation) and what was drawn
+        regions, self.drawn = drawn_regions(s)
+        raw_mesh = build_mesh(s['mesh'], self.base_dir)
+        self.selectors = RegionSelectors(regions, raw_mesh.element_tags)
+        element_region = _element_regions(raw_mesh, self.selectors)
+        self.mesh = make_mesh(raw_mesh.rest_positions, raw_mesh.tetrahedra, element_region)
+        materials = {k: build_material(r) for k, r in enumerate(regions) if np.any(element_region == k)}
+        self.model = build_model(self.mesh, materials, s['model'])
+        self.simulation = build_simulation(self.model, s['solver'])
+        build_supports(self.simulation, self.mesh, s['boundary'], point_sets_of(s, self.base_dir))
+        check_time_step(self.simulation, s['solver'])
+        #: how the tissue settled under gravity (engine.solver.settle), None without it
+        self.settled = build_gravity(self.simulation, s['solver'],
+                                     repr([s[k] for k in ('mesh', 'regions', 'model', 'boundary')]))
+        interactions = [region_interaction(r) for r in regions]
+        self.needle_names, self.needles = [], []
+        for i, (name, n) in enumerate(needle_sections(s)):
+            geometry = needle_geometry(n, f'needles[{i}]' if s['needles'] else 'needle')
+            self.needle_names.append(name)
+            self.needles.append(NeedleTissue(self.simulation, element_region, interactions, geometry,
+                                             _start_position(self.mesh, n, self.simulation.displacement),
+                                             n['initial_orientation_xyzw'],
+                                             selectors=self.selectors,
+                                             name=f'needles[{i}]' if s['needles'] else 'needle'))
+        self.needle = self.needles[0]
+        self.targets = Targets(self.mesh.rest_positions, self.mesh.tetrahedra, s['targets'],
+                               element_region=element_region, region_names=[r['name'] for r in s['regions']])
         self._target_time = 0.0
         #: run the substeps of a needle outside, at the outer membrane or inside in compiled
-        #: slices (engine.compiled_substep; False: the Python calls, the same arithmetic)
+        #: slices (engine.compiled.substeps; False: the Python calls, the same arithmetic)
         self.compiled_substeps = True
         self._compiled = None
         self.element_region = element_region
         self.region_names = [r['name'] for r in s['regions']]
-        from tissue_sim_ros.engine.compiled.warm_up import warm_up
-        warm_up()
 
     @classmethod
-    def from_file(cls, path=None, sets=(), **overrides):
-        """Load a scene YAML (default: the packaged liver sample); ``overrides`` replace top-level
-        sections key by key, e.g. model={'viscosity_mu_pa_s': 0.0}; ``sets``: ``KEY=VALUE``
-        strings applied after them (the ``--set`` of the commands, :mod:`.scene_overrides`)."""
-        path = Path(path) if path is not None else default_scene_path()
-        try:
-            text = path.read_text()
-        except OSError as exc:
-            raise SceneError(f'scene_file = {str(path)!r}: {exc.strerror}') from exc
-        try:
-            spec = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            raise SceneError(f'scene_file = {str(path)!r}: not valid YAML ({exc})') from exc
-        if spec is not None and not isinstance(spec, dict):
-            raise SceneError(f'scene_file = {str(path)!r}: expected a mapping of scene keys at the top '
-                             f'level, found a {type(spec).__name__}')
-        spec = apply_overrides(merge(_auto_model_section(spec or {}), overrides), sets)
-        return cls(spec, text=text, base_dir=path.parent)
+    def from_file(cls, path=None, sets=(), values=None, resolve_auto=None, **sections):
+        """Load a scene YAML (default: the packaged liver sample): :func:`read_scene_keys`, then
+        ``resolve_auto(spec, base_dir) -> (spec, choices)`` for ``model: auto`` and
+        ``solver.mass_scaling: auto``; the engine cannot choose them (the recommendation runs the
+        analysis layer's chart), so without it such a scene is refused naming the key."""
+        spec, text, base_dir = read_scene_keys(path, sets, values, **sections)
+        choices = None
+        if resolve_auto is not None and auto_keys(spec):
+            spec, choices = resolve_auto(spec, base_dir)
+        return cls(spec, text=text, base_dir=base_dir, auto_choices=choices)
 
     def copy(self):
         """A new scene from the same keys (at rest, its own arrays)."""
-        return Scene(self.spec, text=self.text, base_dir=self.base_dir, mesh_frame_id=self.mesh_frame_id)
+        return Scene(self.spec, text=self.text, base_dir=self.base_dir, mesh_frame_id=self.mesh_frame_id,
+                     auto_choices=self.auto_choices)
 
     # -- stepping ---------------------------------------------------------------------------------
     @property
@@ -284,7 +170,7 @@ class Scene:
         ``max_steps`` stops the same way after that many steps (a replay of a run that a deadline
         stopped). ``others``: with several needles, a (position, orientation) or None (held) for
         each of ``needles[1:]``, moved the same way.
-        Raises NeedleInputError (before any state changes) for a bad pose, SimulationDiverged if
+        Raises PoseError (before any state changes) for a bad pose, SimulationDiverged if
         the tissue diverges.
         """
         if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration >= 0):
@@ -313,7 +199,7 @@ class Scene:
         steps = 0
         step_wall = 0.0
         # one needle translating, explicit, nothing prescribed: the substeps it allows run in
-        # compiled slices (engine.compiled_substep); the same arithmetic
+        # compiled slices (engine.compiled.substeps); the same arithmetic
         compiled = None
         if self.compiled_substeps and CLOCKS_IN_COMPILED_CODE and len(moves) == 1 and not moves[0][7] \
                 and sim.integrator == 'explicit' and not sim.has_prescribed:
@@ -371,10 +257,16 @@ class Scene:
     def reset(self):
         """Rest state, needle at its initial pose, time 0."""
         self.simulation.reset()
-        self.simulation.external_forces[:] = 0.0
+        np.copyto(self.simulation.external_forces, self.simulation.body_forces)
         for needle in self.needles:
             needle.reset()
         self._target_time = 0.0
+
+    def place_needle(self, position, orientation, needle=0):
+        """Start needle ``needle`` (its index) at this pose from now on, resets included
+        (``NeedleTissue.set_start``: refused while it touches the tissue or inside it)."""
+        name = f'{self.needle_names[needle]}.start' if len(self.needles) > 1 else 'needle.start'
+        self.needles[needle].set_start(position, orientation, name)
 
     # -- state ----------------------------------------------------------------------------------
     def reaction_wrench(self, frame='world', needle=0):
@@ -389,8 +281,18 @@ class Scene:
     def tip_depth(self):
         return self.needle.tip_depth()
 
+    @property
+    def tip(self):
+        """The first needle's tip [m] (world): where its apex is, the rod's for a flexible one."""
+        return self.needle.tip.copy()
+
+    @property
+    def tip_deflection(self):
+        """The first needle's tip distance from its base frame's axis [m] (0 for a rigid one)."""
+        return self.needle.tip_deflection()
+
     def target_positions(self):
-        """(k, 3) where the scene's targets are now [m] (engine.targets)."""
+        """(k, 3) where the scene's targets are now [m] (engine.scene.targets)."""
         return self.targets.positions(self.simulation.displacement)
 
     def targets_relative_to_needle(self):
@@ -402,7 +304,8 @@ class Scene:
         """Tip to tissue surface along the axis at the needle's initial pose [m] (rest mesh)."""
         position, orientation = self.initial_needle_pose
         axis = needle_axis(orientation)
-        return surface_gap(self.mesh, position + self.needle.geometry.length_m * axis, axis)
+        return surface_gap(self.mesh, position + self.needle.geometry.length_m * axis, axis,
+                           self.simulation.initial_displacement)
 
     @property
     def initial_needle_pose(self):
@@ -443,6 +346,48 @@ def needle_sections(spec):
     return [(entry['name'], apply_schema(f'needles[{i}]', merge(spec['needle'], {k: v for k, v in entry.items()
                                                                              if k != 'name'}), SCHEMA['needle']))
             for i, entry in enumerate(spec['needles'])]
+
+
+def read_scene_keys(path=None, sets=(), values=None, **sections) -> tuple[dict, str, Path]:
+    """(checked scene keys, the file's text, its directory) of a scene YAML (default: the
+    packaged liver sample). ``sections`` replace top-level sections key by key
+    (``model={'viscosity_mu_pa_s': 0.0}``); then ``sets`` (``KEY=VALUE`` texts, the ``--set`` of
+    the commands) and ``values`` (``{key path: value}``) are set in order (:mod:`.keys`)."""
+    path = Path(path) if path is not None else default_scene_path()
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise SceneError(f'scene_file = {str(path)!r}: {exc.strerror}') from exc
+    try:
+        spec = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise SceneError(f'scene_file = {str(path)!r}: not valid YAML ({exc})') from exc
+    if spec is not None and not isinstance(spec, dict):
+        raise SceneError(f'scene_file = {str(path)!r}: expected a mapping of scene keys at the top '
+                         f'level, found a {type(spec).__name__}')
+    if not spec:
+        # the built-in defaults are not a tissue anyone measured: an empty file is a mistake
+        raise SceneError(f'scene_file = {str(path)!r}: no scene keys (an empty file runs every built-in '
+                         'default, a tissue with no membrane: the force stays 0 N); give the keys, start '
+                         'from config/liver_sample.yaml, or leave the scene out for that packaged scene')
+    spec = set_keys(apply_overrides(merge(_auto_model_section(spec), sections), sets), values)
+    return apply_schema('', spec, SCHEMA), text, path.parent
+
+
+def auto_keys(spec: dict) -> list[str]:
+    """The keys of checked scene keys ``spec`` that ask the layer above to choose
+    (``model.auto: true``, ``solver.mass_scaling: auto``)."""
+    return ((['model.auto'] if spec['model']['auto'] else [])
+            + (['solver.mass_scaling'] if spec['solver']['mass_scaling'] == 'auto' else []))
+
+
+def _refuse_auto_keys(spec: dict) -> None:
+    found = auto_keys(spec)
+    if found:
+        value = 'true' if found[0] == 'model.auto' else "'auto'"
+        raise SceneError(f'{found[0]} = {value}: chosen by measuring the scene (tissue-sim recommend, the '
+                         "mass-scaling rule), which the engine cannot do: load the scene through "
+                         'tissue-sim or tissue_sim_node (they resolve it) or give the concrete keys')
 
 
 def _auto_model_section(spec):

@@ -1,31 +1,14 @@
-"""Every key a scene file may hold, with its default, kind and meaning, and their validation.
+"""Every key a scene file may hold, with its default, kind and meaning: the one place.
 
-The one place scene keys are documented (``tissue-sim scene-keys`` prints :func:`describe_keys`).
-Units are SI and every dimensional key says its unit in its name. Unknown keys are refused with
-their dotted name; a bad value with its dotted path, the value and what was expected.
+``tissue-sim scene-keys`` prints :func:`describe_keys`; ``--markdown`` writes docs/scenes.md
+(:func:`keys_markdown`). The checks of each kind are :mod:`.checks`; units are SI and every
+dimensional key says its unit in its name (:func:`~.checks.unit_of`).
 """
-import copy
-import math
-from dataclasses import dataclass
-from typing import Callable
-
-from tissue_sim_ros.engine.needle.pose import DEFAULT_MAX_JUMP_M
 from tissue_sim_ros.engine.model.relaxation import PronySeries
+from tissue_sim_ros.engine.needle.pose import DEFAULT_MAX_JUMP_M
+from tissue_sim_ros.engine.scene.checks import MappingList, Range, apply_schema, unit_of
 
-__all__ = ['SCHEMA', 'SceneError', 'apply_schema', 'describe_keys']
-
-
-class SceneError(ValueError):
-    """A scene file or value the engine refuses; names the key and the value."""
-
-
-@dataclass(frozen=True)
-class MappingList:
-    """Kind of a key holding a list of mappings (default: none): each entry is checked against
-    the schema ``entry``, then the whole list by ``check(entries, dotted_name)``, which raises a
-    ValueError naming what it refuses."""
-    entry: dict
-    check: Callable
+__all__ = ['SCHEMA', 'apply_schema', 'describe_keys', 'keys_markdown']
 
 
 def check_targets(entries, name):
@@ -33,10 +16,17 @@ def check_targets(entries, name):
     check(entries, name)
 
 
+def check_springs(entries, name):
+    for i, entry in enumerate(entries):
+        if entry['select'] is None:
+            raise ValueError(f'{name}[{i}].select: required, the surface patch the foundation holds')
+        if entry['normal_n_per_m3'] == 0.0 and entry['tangential_n_per_m3'] == 0.0:
+            raise ValueError(f'{name}[{i}]: normal_n_per_m3 and tangential_n_per_m3 are both 0: the patch holds '
+                             'nothing; give a stiffness per area')
+
+
 # -- the schema: key -> (default, kind, meaning) -----------------------------------------------
-# kinds: 'float+' (> 0), 'float0' (>= 0), 'float', 'int+', 'bool', 'vec3', 'vec3+', 'quat',
-# 'str', 'scaling' (a number >= 1 or 'auto'), a tuple of allowed strings, 'floats' (list of
-# numbers), a MappingList, or a nested dict.
+# the kinds are those of .checks; a nested dict is a section, a list of one dict a list of them
 SCHEMA = {
     'mesh': {
         'generator': ('graded_box', ('box', 'graded_box', 'file'), 'how the tetrahedral mesh is made'),
@@ -49,17 +39,23 @@ SCHEMA = {
         'focus_xy_m': (None, 'vec2', 'graded_box: (x, y) the mesh is refined around; default the centre'),
         'growth': (1.3, 'float+', 'graded_box: width ratio of neighbouring cells (>= 1)'),
         'grade_z': (True, 'bool', 'graded_box: grade z toward the top face too'),
+        'max_elements': (None, 'float+', 'the largest mesh the scene may build, in tetrahedra, checked '
+                                         'before it is built; null: half this machine\'s memory at about '
+                                         '2 kB a tetrahedron'),
     },
     'regions': [{
         'name': ('tissue', 'str', 'region name (reported in puncture events)'),
         'select': ('all', 'select', "'all', {below_z_m: z}, {above_z_m: z} (half-spaces under and over the "
-                                   "plane z), {box_m: [[x,y,z], [x,y,z]]}, {sphere_m: [x, y, z, r]} or "
-                                   "{tag: N} (element tag of a mesh file), in rest coordinates [m]; later "
+                                   "plane z), {half_space_m: [x, y, z, nx, ny, nz]} (the side of the plane "
+                                   "through (x, y, z) that the normal n points away from), {box_m: [[x,y,z], "
+                                   "[x,y,z]]}, {sphere_m: [x, y, z, r]} or {tag: N} (element tag of a mesh "
+                                   "file: tissue-sim mesh tags the organ 1, its inclusions 2, 3, ...), in rest "
+                                   "coordinates [m]; later "
                                    "regions override earlier ones. Its surface is the layer boundary the "
                                    "needle meets (where its tip's material point enters); an element's "
                                    "material is its centroid's region"),
         'young_modulus_pa': (5000.0, 'float+', "Young's modulus [Pa]"),
-        'poisson_ratio': (0.45, 'float', 'Poisson ratio, in (-1, 0.5)'),
+        'poisson_ratio': (0.45, Range(-1.0, 0.5), 'Poisson ratio'),
         'density_kg_per_m3': (1060.0, 'float+', 'density [kg/m^3]'),
         'membrane': {
             'criterion': ('none', ('none', 'force', 'energy'), 'puncture criterion of the region boundary'),
@@ -70,7 +66,13 @@ SCHEMA = {
                                             "needle's axial speed v (0: the same at every speed; negative: "
                                             'falls with speed)'),
             'reference_speed_m_s': (0.001, 'float+', "criterion 'force': v0 of the rate law [m/s]"),
+            'rupture_force_spread_n': (0.0, 'float0', "criterion 'force': standard deviation of the rupture force "
+                                                      'between repeats [N]: a run with variation.seed k >= 1 draws '
+                                                      'its rupture force from it (0: the same in every run)'),
         },
+        'depth_spread_m': (0.0, 'float0', 'standard deviation of the depth of this layer\'s boundary between '
+                                          'repeats [m]: a run with variation.seed k >= 1 moves the selector '
+                                          'down by a drawn offset (a plane, box or sphere; 0: no offset)'),
         'cutting_force_n': (0.0, 'float0', 'cutting force at the tip while advancing inside [N]'),
         'friction': {
             'insertion_static_n_per_m': (0.0, 'float0', 'Karnopp static limit D per inserted length, insertion [N/m]'),
@@ -117,16 +119,37 @@ SCHEMA = {
     },
     'targets': ([], MappingList({
         'name': (None, 'str', 'the name planners use (topics, diagnostics, CSV columns); required'),
-        'position_m': (None, 'vec3', 'its position at rest [m], inside the mesh; required'),
+        'position_m': (None, 'vec3', 'its position at rest [m], inside the mesh; this or region'),
+        'region': (None, 'str', "a region's name: the target at the centroid of that region's elements "
+                                '(a tumour tagged by tissue-sim mesh); this or position_m'),
     }, check_targets), 'named points carried by the tissue (a tumour, a fiducial): embedded in the mesh at '
                        'rest, they move with its deformation; [] for none'),
     'needles': ([], 'needles', 'several needles or probes in the same tissue: a list of mappings, each '
                                "with a unique 'name' and any needle.* keys that differ from the needle "
                                'section (which gives the rest): initial_position_m at least. [] (default): '
                                "the needle section is the one needle, named 'needle'"),
+    'variation': {
+        'seed': (0, 'int0', 'which run of a simulated study this is: 0, the nominal scene (no spread '
+                            'drawn); k >= 1, the k-th draw of the regions\' rupture_force_spread_n and '
+                            'depth_spread_m (engine.scene.variation)'),
+    },
     'boundary': {
-        'fixed': (['bottom', 'walls'], 'faces', 'bounding-box faces held fixed: bottom, top, walls, '
-                                                'x_min, x_max, y_min, y_max'),
+        'fixed': (['bottom', 'walls'], 'supports', 'nodes held fixed: bounding-box faces (bottom, top, walls, '
+                                                   'x_min, x_max, y_min, y_max) and selectors: any region select '
+                                                   '(the nodes in its volume or of its tagged elements), '
+                                                   '{surface_near_m: [x, y, z, d]} (the surface nodes within d of '
+                                                   'the point: a ligament) or {node_set: NAME} (the nodes a mesh '
+                                                   "file's point data NAME marks non-zero); the supports must stop "
+                                                   'rigid motion (with the springs), else the scene is refused'),
+        'springs': ([], MappingList({
+            'select': (None, 'support', "the surface patch held: a boundary.fixed selector; the surface "
+                                        'triangles whose three nodes it selects (required)'),
+            'normal_n_per_m3': (0.0, 'float0', 'foundation stiffness along the surface normal, per area '
+                                               '(pressure per displacement) [N/m^3]'),
+            'tangential_n_per_m3': (0.0, 'float0', 'foundation stiffness along the surface, per area [N/m^3]'),
+        }, check_springs), 'elastic foundations (Winkler) holding surface patches, the way neighbouring '
+                           'organs hold one: each surface node takes k A (n n^T normal + (I - n n^T) '
+                           'tangential) of its share A of the patch; [] for none'),
     },
     'solver': {
         'integrator': ('explicit', ('explicit', 'implicit', 'quasi_static'),
@@ -140,11 +163,15 @@ SCHEMA = {
         'time_step_s': (None, 'float+', 'time step [s]; null: time_step_safety x the explicit critical step'),
         'time_step_safety': (0.8, 'float+', 'fraction of the critical step used when time_step_s is null'),
         'damping_per_s': (50.0, 'float0', 'mass-proportional damping rate [1/s]'),
+        'gravity_m_s2': ([0.0, 0.0, 0.0], 'vec3', 'gravitational acceleration in the mesh frame [m/s^2] (e.g. '
+                                                  '[0, 0, -9.81]); the tissue is settled under it (with its '
+                                                  'supports, a static solve, cached per scene) before the needle '
+                                                  'moves, and a reset returns there'),
         'mass_scaling': (1.0, 'scaling', 'factor on node masses for quasi-static runs (>= 1; every run '
                                          'prints its estimated inertia error); auto: the largest whose '
                                          "force NRMSE on the scene's insertion at design_speed_m_s, "
                                          'against 4x, is within inertia_error_bound (probed once, '
-                                         'cached; analysis.mass_scaling_rule)'),
+                                         'cached; analysis.charting.mass_scaling_rule)'),
         'inertia_error_bound': (0.02, 'float+', 'mass_scaling auto: the force NRMSE the mass scaling may add'),
         'design_speed_m_s': (0.005, 'float+', 'mass_scaling auto: the needle speed it is chosen for [m/s] '
                                               '(tissue-sim insert sets its own)'),
@@ -157,154 +184,31 @@ SCHEMA = {
         'start_gap_m': (None, 'float0', 'tip distance above the tissue surface along the axis at start '
                                         'and reset [m]; null: initial_position_m as given, else that '
                                         'position moved along the axis to this gap'),
+        'planned_travel_m': (None, 'float+', 'the insertion the scene is for: tip travel along the axis from '
+                                             'the start pose [m] (tissue-sim insert\'s default travel; chart, '
+                                             'recommend and the mass-scaling rule score this insertion); null: '
+                                             "the commands' own defaults"),
         'shaft_point_spacing_m': (0.001, 'float+', 'tissue points along the shaft, one per this advance [m]'),
         'max_jump_m': (DEFAULT_MAX_JUMP_M, 'float+', 'largest base or tip move accepted in one advance() call [m]'),
+        'flexible': (False, 'bool', 'the shaft as an elastic rod that the tissue and the tip bend (a bevel '
+                                    'steers it); false: rigid and straight'),
+        'inner_diameter_m': (0.0, 'float0', 'flexible: the tube\'s inner diameter [m] (diameter_m is the outer '
+                                            'one; 0: a solid rod)'),
+        'young_modulus_pa': (200e9, 'float+', "flexible: the shaft's Young's modulus [Pa] (steel 200 GPa, "
+                                              'nitinol 50-75 GPa)'),
+        'rod_segments': (60, 'int+', 'flexible: segments the rod is divided into, equal along its length'),
         'tip': {
             'shape': ('flat', ('flat', 'conical', 'bevel'), 'the tip: flat end (bonded at first contact), '
                                                           'cone or bevel (bonded point by point as the indentation '
                                                           'grows; after puncture the faces push the tissue aside)'),
-            'half_angle_deg': (30.0, 'float+', 'conical: the cone half-angle [deg]'),
-            'bevel_angle_deg': (20.0, 'float+', 'bevel: the angle between the bevel face and the axis [deg]'),
+            'half_angle_deg': (30.0, Range(0.0, 90.0), 'conical: the cone half-angle [deg]'),
+            'bevel_angle_deg': (20.0, Range(0.0, 90.0), 'bevel: the angle between the bevel face and the axis [deg]'),
             'bevel_orientation_deg': (0.0, 'float', 'bevel: direction of the sharp point about the axis, from '
                                                     "the needle frame's +x [deg]; the lateral force points "
                                                     'that way'),
         },
     },
 }
-_FACES = ('bottom', 'top', 'walls', 'x_min', 'x_max', 'y_min', 'y_max')
-
-
-def _numeric_string(value):
-    """A string that is a plain decimal number (1e-5, 2.5E3) as that float, anything else as it
-    is: YAML 1.1 reads an exponent without a dot as a string."""
-    if isinstance(value, str) and value.isascii():
-        try:
-            return float(value)
-        except ValueError:
-            return value
-    return value
-
-
-def _check_value(name, value, kind):
-    """Validate one value against its kind; return it normalised (floats, lists)."""
-    def fail(expected):
-        raise SceneError(f'{name} = {value!r}: expected {expected}')
-
-    def number(v):
-        v = _numeric_string(v)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            fail('a finite number')
-        return float(v)
-
-    if isinstance(kind, tuple):
-        if value not in kind:
-            fail('one of ' + ', '.join(kind))
-        return value
-    if kind == 'str':
-        if not isinstance(value, str):
-            fail('a string')
-        return value
-    if kind == 'bool':
-        if not isinstance(value, bool):
-            fail('true or false')
-        return value
-    if kind == 'scaling':
-        if value == 'auto':
-            return value
-        value = _numeric_string(value)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 1:
-            fail("a factor >= 1 or 'auto'")
-        kind = 'float+'
-    if kind in ('float', 'float+', 'float0'):
-        v = number(value)
-        if kind == 'float+' and not v > 0:
-            fail('a number > 0')
-        if kind == 'float0' and not v >= 0:
-            fail('a number >= 0')
-        return v
-    if kind in ('vec3', 'vec3+', 'vec2', 'quat', 'floats'):
-        if not isinstance(value, (list, tuple)):
-            fail('a list of numbers')
-        v = [number(x) for x in value]
-        size = {'vec3': 3, 'vec3+': 3, 'vec2': 2, 'quat': 4}.get(kind)
-        if size is not None and len(v) != size:
-            fail(f'{size} numbers')
-        if kind == 'vec3+' and min(v) <= 0:
-            fail('3 numbers > 0')
-        return v
-    if kind == 'needles':
-        if not isinstance(value, (list, tuple)):
-            fail("a list of mappings, each with a 'name'")
-        names = []
-        for i, entry in enumerate(value):
-            if not isinstance(entry, dict) or not isinstance(entry.get('name'), str) or not entry['name'].strip():
-                raise SceneError(f'{name}[{i}] = {entry!r}: expected a mapping with a non-empty name')
-            if entry['name'] in names or not entry['name'].replace('_', 'a').isalnum():
-                raise SceneError(f"{name}[{i}].name = {entry['name']!r}: expected a unique name of letters, "
-                                 'digits and _ (it names the topics needle/<name>/pose and /wrench)')
-            names.append(entry['name'])
-        return [dict(entry) for entry in value]
-    if kind == 'faces':
-        if not isinstance(value, (list, tuple)) or any(f not in _FACES for f in value):
-            fail('a list of ' + ', '.join(_FACES))
-        return list(value)
-    if isinstance(kind, MappingList):
-        if not isinstance(value, (list, tuple)):
-            fail('a list of mappings')
-        entries = [apply_schema(f'{name}[{i}]', entry, kind.entry) for i, entry in enumerate(value)]
-        try:
-            kind.check(entries, name)
-        except ValueError as exc:
-            raise SceneError(str(exc)) from None
-        return entries
-    if kind == 'select':
-        if value == 'all':
-            return value
-        if isinstance(value, dict) and len(value) == 1:
-            (key, v), = value.items()
-            if key == 'tag' and isinstance(v, int) and not isinstance(v, bool):
-                return value
-            if key in ('above_z_m', 'below_z_m'):
-                return {key: number(v)}
-            if key == 'sphere_m':
-                sphere = _check_value(f'{name}.sphere_m', v, 'floats')
-                if len(sphere) != 4 or not sphere[3] > 0:
-                    fail('{sphere_m: [x, y, z, r]} with r > 0')
-                return {key: sphere}
-            if key == 'box_m' and isinstance(v, (list, tuple)) and len(v) == 2:
-                return {key: [_check_value(f'{name}.box_m', c, 'vec3') for c in v]}
-        fail("'all', {tag: N}, {box_m: [[x,y,z],[x,y,z]]}, {sphere_m: [x,y,z,r]}, {above_z_m: z} or "
-             "{below_z_m: z}")
-    raise AssertionError(kind)
-
-
-def apply_schema(name, data, schema):
-    """Fill defaults and validate ``data`` against ``schema``; unknown keys refused by name."""
-    if data is None:
-        data = {}
-    if not isinstance(data, dict):
-        raise SceneError(f'{name or "scene"} = {data!r}: expected a mapping of keys')
-    unknown = sorted(set(data) - set(schema))
-    if unknown:
-        where = f'{name}.' if name else ''
-        raise SceneError(f'unknown scene key {where}{unknown[0]!s}; known keys here: {", ".join(schema)}')
-    out = {}
-    for key, spec in schema.items():
-        dotted = f'{name}.{key}' if name else key
-        if isinstance(spec, dict):
-            out[key] = apply_schema(dotted, data.get(key), spec)
-        elif isinstance(spec, list):
-            items = data.get(key, [{}])
-            if not isinstance(items, list) or not items:
-                raise SceneError(f'{dotted} = {items!r}: expected a non-empty list')
-            out[key] = [apply_schema(f'{dotted}[{i}]', item, spec[0]) for i, item in enumerate(items)]
-        else:
-            default, kind, _ = spec
-            value = data.get(key, copy.deepcopy(default))
-            out[key] = None if value is None and default is None else _check_value(dotted, value, kind)
-    return out
-
-
 def describe_keys(schema=SCHEMA, prefix=''):
     """Every scene key with its default and meaning, one per line (``tissue-sim scene-keys``)."""
     lines = []
@@ -320,3 +224,54 @@ def describe_keys(schema=SCHEMA, prefix=''):
             if isinstance(spec[1], MappingList):
                 lines += describe_keys(spec[1].entry, dotted + '[].')
     return lines
+
+
+def _rows(schema, prefix=''):
+    """(dotted key, default, kind, meaning) of every key, depth first."""
+    for key, spec in schema.items():
+        dotted = f'{prefix}{key}'
+        if isinstance(spec, dict):
+            yield from _rows(spec, dotted + '.')
+        elif isinstance(spec, list):
+            yield from _rows(spec[0], dotted + '[].')
+        else:
+            yield dotted, spec[0], spec[1], spec[2]
+            if isinstance(spec[1], MappingList):
+                yield from _rows(spec[1].entry, dotted + '[].')
+
+
+def _kind_text(kind) -> str:
+    if isinstance(kind, tuple):
+        return ', '.join(kind)
+    if isinstance(kind, Range):
+        return kind.text().replace('a number in ', '')
+    if isinstance(kind, MappingList):
+        return 'list of mappings'
+    return {'float+': '> 0', 'float0': '>= 0', 'int+': 'integer >= 1', 'int0': 'whole number >= 0', 'float': 'number',
+            'vec3+': '3 numbers > 0',
+            'vec3': '3 numbers', 'vec2': '2 numbers', 'quat': 'x, y, z, w', 'floats': 'numbers',
+            'scaling': ">= 1 or auto", 'faces': 'box faces',
+            'supports': 'box faces, selectors', 'support': 'a selector', 'select': 'a region shape',
+            'needles': 'list of needles'}.get(kind, kind)
+
+
+def keys_markdown() -> str:
+    """docs/scenes.md: every scene key as a table row (key, default, unit, values, meaning),
+    one table per top-level section."""
+    lines = ['# Scene keys', '',
+             'Generated by `tissue-sim scene-keys --markdown` from the schema '
+             '(`tissue_sim_ros/engine/scene/schema.py`); a test fails when this page is stale. '
+             'How a scene is put together: [scene-guide.md](scene-guide.md).', '',
+             'A key path picks list entries by index or name (`regions[0]`, `regions[liver]`, '
+             '`model.relaxation[0]`); `--set KEY=VALUE` and `calibrate --fit` take any of them. '
+             'A number may carry another unit of its quantity as text (`young_modulus_pa: 22 kPa`).']
+    section = None
+    for dotted, default, kind, meaning in _rows(SCHEMA):
+        top = dotted.split('.')[0].split('[')[0]
+        if top != section:
+            section = top
+            lines += ['', f'## {section}', '', '| key | default | unit | values | meaning |', '|---|---|---|---|---|']
+        unit = unit_of(dotted.rsplit('.', 1)[-1])
+        shown = '[]' if isinstance(kind, MappingList) and default == [] else repr(default)
+        lines.append(f'| `{dotted}` | `{shown}` | {unit} | {_kind_text(kind)} | {meaning.replace("|", "/")} |')
+    return '\n'.join(lines) + '\n'

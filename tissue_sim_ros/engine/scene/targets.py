@@ -1,6 +1,7 @@
-"""Named points carried by the tissue: a tumour a planner aims at, a fiducial (issue 18 item 2).
+"""Named points carried by the tissue: a tumour a planner aims at, a fiducial.
 
-A target is given at rest (``targets: [{name, position_m}]`` in a scene) and embedded in the
+A target is given at rest (``targets: [{name, position_m}]`` in a scene, or ``{name, region}``:
+the volume-weighted centroid of a region's elements, a tumour's centre) and embedded in the
 element that contains it by its barycentric weights, so it moves with the deformation exactly as
 the finite-element field does: x(t) = sum_k w_k (X_k + u_k(t)) over the element's four nodes (an
 affine displacement field moves it exactly). What a planner asks of it: where it is now, how far
@@ -8,9 +9,11 @@ the needle tip is from it, and how far the needle's line passes beside it (the l
 """
 import numpy as np
 
+from tissue_sim_ros.errors import SceneError
+
 from tissue_sim_ros.engine.needle.kernels import locate_point
 
-__all__ = ['Targets', 'check_targets']
+__all__ = ['Targets', 'check_targets', 'region_centroid']
 
 
 def check_targets(entries, name='targets'):
@@ -19,25 +22,43 @@ def check_targets(entries, name='targets'):
     seen = set()
     for i, entry in enumerate(entries):
         if not entry.get('name'):
-            raise ValueError(f'{name}[{i}].name = {entry.get("name")!r}: expected a non-empty name')
-        if entry.get('position_m') is None:
-            raise ValueError(f'{name}[{i}].position_m: required, the rest position [x, y, z] in metres')
+            raise SceneError(f'{name}[{i}].name = {entry.get("name")!r}: expected a non-empty name')
+        if (entry.get('position_m') is None) == (entry.get('region') is None):
+            raise SceneError(f'{name}[{i}]: give one of position_m (the rest position [x, y, z] in metres) and '
+                             "region (a region's name: its centroid)")
         if entry['name'] in seen:
-            raise ValueError(f'{name}[{i}].name = {entry["name"]!r}: another target has this name')
+            raise SceneError(f'{name}[{i}].name = {entry["name"]!r}: another target has this name')
         seen.add(entry['name'])
+
+
+def region_centroid(rest_positions, tetrahedra, element_region, region_names, region, field):
+    """The volume-weighted centroid [m] of the elements of the region named ``region``."""
+    if region not in region_names:
+        raise SceneError(f'{field} = {region!r}: no region of that name; the regions are {", ".join(region_names)}')
+    elements = np.flatnonzero(np.asarray(element_region) == region_names.index(region))
+    if len(elements) == 0:
+        raise SceneError(f'{field} = {region!r}: the region holds no element of the mesh')
+    corners = np.asarray(rest_positions)[np.asarray(tetrahedra)[elements]]
+    volumes = np.abs(np.einsum('ij,ij->i', np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
+                               corners[:, 3] - corners[:, 0]))
+    return (corners.mean(axis=1) * volumes[:, None]).sum(axis=0) / volumes.sum()
 
 
 class Targets:
     """The targets of a mesh: ``names`` (k,), ``rest`` (k, 3), ``elements`` (k,), ``weights`` (k, 4).
 
     ``entries``: the scene's ``targets`` (checked by :func:`check_targets`); a position outside
-    the mesh is refused naming its entry.
+    the mesh is refused naming its entry. ``element_region`` (m,) and ``region_names``: where a
+    target given by ``region`` is (:func:`region_centroid`).
     """
 
-    def __init__(self, rest_positions, tetrahedra, entries, name='targets'):
+    def __init__(self, rest_positions, tetrahedra, entries, name='targets', element_region=None, region_names=()):
         k = len(entries)
         self.names = [e['name'] for e in entries]
-        self.rest = np.array([e['position_m'] for e in entries], dtype=float).reshape(k, 3)
+        self.rest = np.array([e['position_m'] if e.get('position_m') is not None else
+                              region_centroid(rest_positions, tetrahedra, element_region, list(region_names),
+                                              e['region'], f'{name}[{i}].region')
+                              for i, e in enumerate(entries)], dtype=float).reshape(k, 3)
         self.elements = np.zeros(k, dtype=np.int64)
         self.weights = np.zeros((k, 4))
         self._nodes = np.zeros((k, 4), dtype=np.int64)
@@ -47,8 +68,9 @@ class Targets:
         for i in range(k):
             element, weights = locate_point(rest_positions, zero, tetrahedra, self.rest[i], tolerance)
             if element < 0:
-                raise ValueError(f'{name}[{i}].position_m = {self.rest[i].tolist()}: outside the tissue mesh; '
-                                 'a target must lie inside it')
+                key = 'position_m' if entries[i].get('position_m') is not None else 'region'
+                raise SceneError(f'{name}[{i}].{key} = {self.rest[i].tolist()}: outside the tissue mesh; '
+                                 'a target must lie inside it (a curved region\'s centroid may not: give position_m)')
             self.elements[i] = element
             self.weights[i] = weights
             self._nodes[i] = tetrahedra[element]

@@ -1,6 +1,6 @@
 """Explicit time integration of the lumped-mass tensor-mass model, with a stability watchdog.
 
-Each node obeys m_i a_i + gamma_i v_i - f_i(u, v) = f_ext,i (DESIGN.md). We integrate with
+Each node obeys m_i a_i + gamma_i v_i - f_i(u, v) = f_ext,i (docs/method.md). We integrate with
 symplectic (semi-implicit) Euler, velocity first:
 
     v_{n+1} = (v_n + dt (f_n + f_ext) / m) / (1 + dt gamma / m),   u_{n+1} = u_n + dt v_{n+1}
@@ -18,32 +18,20 @@ from numba import njit, prange
 
 from tissue_sim_ros.engine.model.kernels import FASTMATH, take_node_force
 from tissue_sim_ros.engine.solver.implicit import INTEGRATORS, ImplicitStep
+from tissue_sim_ros.errors import SimulationDiverged
 
 FREE, FIXED, PRESCRIBED = 0, 1, 2
 _AXES = {'x': 0, 'y': 1, 'z': 2}
 
 
-class SimulationDiverged(RuntimeError):
-    """The watchdog stopped a run: what diverged, at which step, with which time step."""
-
-    def __init__(self, reason, step, time, time_step, critical_time_step):
-        self.reason = reason
-        self.step = step
-        self.time = time
-        self.time_step = time_step
-        self.critical_time_step = critical_time_step
-        super().__init__(
-            f'simulation diverged at step {step} (t = {time:.6g} s): {reason}; time step '
-            f'{time_step:.4g} s against the estimated critical step {critical_time_step:.4g} s '
-            f'({time_step / critical_time_step:.2f}x)')
-
-
 @njit(cache=True, parallel=True, fastmath=FASTMATH, boundscheck=False, nogil=True)
 def _advance_free(displacement, velocity, buffers, chunk_node_lo, chunk_node_hi, force, external,
-                  inverse_mass, damping_rate, dof_kind, dt, displacement_limit):
+                  inverse_mass, damping_rate, dof_kind, dt, displacement_limit, support_rows, support_stiffness):
     """Gather each node's force from the element pass's buffers (into ``force``) and advance its
-    free DOFs by symplectic Euler; returns (external work, kinetic energy, count of components
-    that are not finite or whose displacement exceeds ``displacement_limit``)."""
+    free DOFs by symplectic Euler, with the foundations' force -K_i u_i of the nodes they hold
+    (``support_rows`` (n,): the node's row of ``support_stiffness`` (r, 6), -1 for none;
+    supports.py); returns (external work, kinetic energy, count of components that are not
+    finite or whose displacement exceeds ``displacement_limit``)."""
     work = 0.0
     kinetic = 0.0
     bad = 0
@@ -51,10 +39,19 @@ def _advance_free(displacement, velocity, buffers, chunk_node_lo, chunk_node_hi,
         force[i, 0], force[i, 1], force[i, 2] = take_node_force(buffers, chunk_node_lo, chunk_node_hi, i)
         inv_m = inverse_mass[i]
         damping_factor = 1.0 / (1.0 + dt * damping_rate[i])
+        sx, sy, sz = 0.0, 0.0, 0.0
+        row = support_rows[i]
+        if row >= 0:
+            k = support_stiffness[row]
+            ux, uy, uz = displacement[i, 0], displacement[i, 1], displacement[i, 2]
+            sx = -(k[0] * ux + k[3] * uy + k[4] * uz)
+            sy = -(k[3] * ux + k[1] * uy + k[5] * uz)
+            sz = -(k[4] * ux + k[5] * uy + k[2] * uz)
         for r in range(3):
             if dof_kind[i, r] == FREE:
                 v_old = velocity[i, r]
-                v = (v_old + dt * inv_m * (force[i, r] + external[i, r])) * damping_factor
+                support = sx if r == 0 else (sy if r == 1 else sz)
+                v = (v_old + dt * inv_m * (force[i, r] + support + external[i, r])) * damping_factor
                 velocity[i, r] = v
                 displacement[i, r] += dt * v
                 work += external[i, r] * dt * v
@@ -144,6 +141,13 @@ class Simulation:
         self.mass_scaling = float(mass_scaling)
         n = model.mesh.n_nodes
         self.dof_kind = np.zeros((n, 3), dtype=np.int8)
+        #: the foundations (supports.py): each node's row of support_stiffness (-1: none)
+        self.support_rows = np.full(n, -1, dtype=np.int64)
+        self.support_stiffness = np.zeros((0, 6))
+        #: constant loads (gravity) a reset puts back in external_forces; the state a reset
+        #: returns to (None: rest)
+        self.body_forces = np.zeros((n, 3))
+        self.initial_displacement = None
         self._update_masses()
         damping_arr = np.asarray(damping, dtype=float)
         if damping_arr.ndim == 0:
@@ -188,7 +192,7 @@ class Simulation:
     def _warm_up(self):
         """Compile (or load from numba's cache) the step kernels at start-up: one step from rest
         with no input changes nothing, then the state is reset. On a first start a second process
-        may be compiling them (compile_cache): wait for it, then they load."""
+        may be compiling them (engine.compiled.cache): wait for it, then they load."""
         from tissue_sim_ros.engine.compiled import cache as compile_cache
         compile_cache.wait_for_helper()
         saved = self._prescribed
@@ -215,6 +219,34 @@ class Simulation:
         self.dof_kind[np.ix_(idx, np.flatnonzero(_axes_mask(axes, 'fixed')))] = FIXED
         self.mass_version += 1          # the held DOFs changed: what depends on them rebuilds
 
+    def set_supports(self, rows, stiffness):
+        """Hold nodes by elastic foundations: ``rows`` (n,) each node's row of ``stiffness`` (r,
+        6) (-1: none), the symmetric K_i as xx, yy, zz, xy, xz, yz [N/m] (supports.py)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        stiffness = np.ascontiguousarray(stiffness, dtype=np.float64).reshape(-1, 6)
+        if rows.shape != self.support_rows.shape or rows.max(initial=-1) >= len(stiffness) \
+                or not np.isfinite(stiffness).all():
+            raise ValueError(f'supports: rows must be ({len(self.support_rows)},) indices into finite (r, 6) stiffness')
+        self.support_rows, self.support_stiffness = rows, stiffness
+        self._critical = None
+
+    def set_body_forces(self, forces):
+        """Constant loads [N] (n, 3) (gravity: m_i g with the unscaled masses), in external_forces
+        now and after each reset (Scene.reset)."""
+        self.body_forces = np.array(forces, dtype=float).reshape(self.displacement.shape)
+        np.copyto(self.external_forces, self.body_forces)
+
+    def set_initial_state(self, displacement):
+        """The displacement a reset returns to (a settled state), at rest; set now."""
+        self.initial_displacement = None if displacement is None else np.array(displacement, dtype=float)
+        self.reset()
+
+    def add_support_forces(self, displacement, out):
+        """out += the foundations' forces -K_i u_i at ``displacement`` (the implicit steps' force)."""
+        if len(self.support_stiffness):
+            from tissue_sim_ros.engine.solver.supports import add_support_forces
+            add_support_forces(self.support_rows, self.support_stiffness, displacement, out)
+
     def prescribe(self, nodes, displacement_at, axes='xyz'):
         """Drive nodes along ``axes``: displacement_at(t) gives (3,) or (k, 3) metres at time t."""
         idx = _node_indices(nodes, self.model.mesh.n_nodes, 'prescribed')
@@ -229,11 +261,10 @@ class Simulation:
         square root, so the step keeps its fraction of the critical step (which grows as
         sqrt(mass)). The damping force is kept: the rate falls by the same ratio, so gamma_i =
         m_i rate_i is the one the scene was set up (and calibrated) with and only the added
-        inertia changes the response. Scaled with the masses, as it was, the mass-proportional
-        damping dominated the change: on the default insertion (3 mm/s, 30 mm) mass scaling x16
-        moved the axial force by 0.117 of its range from the scene's own, with the damping kept
-        by 0.038 (x4: 0.075 and 0.035). Velocities are kept; the kinetic energy this changes
-        counts as work put in (the watchdog's budget)."""
+        inertia changes the response. Scaled with the masses, the mass-proportional damping would
+        dominate the change (on the default insertion at x16 it would move the axial force three
+        times as far as the added inertia alone does). Velocities are kept; the kinetic energy this
+        changes counts as work put in (the watchdog's budget)."""
         if not (isinstance(mass_scaling, (int, float)) and math.isfinite(mass_scaling) and mass_scaling >= 1.0):
             raise ValueError(f'mass_scaling = {mass_scaling!r}: expected a finite factor >= 1')
         ratio = float(mass_scaling) / self.mass_scaling
@@ -247,10 +278,10 @@ class Simulation:
 
     def advance_arguments(self):
         """The arguments of the node update ``_advance_free`` after the element pass (the explicit
-        step's, and a compiled substep's, engine.compiled_substep)."""
+        step's, and a compiled substep's, engine.compiled.substeps)."""
         return (self.displacement, self.velocity, *self.model.force_buffers, self.internal_force,
                 self.external_forces, self.inverse_mass, self.damping_rate, self.dof_kind, self.dt,
-                self.displacement_limit)
+                self.displacement_limit, self.support_rows, self.support_stiffness)
 
     @property
     def has_prescribed(self):
@@ -280,6 +311,13 @@ class Simulation:
         """
         if self._critical is None:
             elastic = self.model.critical_time_step() * math.sqrt(self.mass_scaling)
+            supported = np.flatnonzero(self.support_rows >= 0)
+            if len(supported):       # lambda_max(M^-1 (K + K_s)) <= omega^2 + max_i |K_i|_inf / m_i
+                rows = np.abs(self.support_stiffness[self.support_rows[supported]])
+                bound = np.max(np.stack([rows[:, 0] + rows[:, 3] + rows[:, 4], rows[:, 3] + rows[:, 1] + rows[:, 5],
+                                         rows[:, 4] + rows[:, 5] + rows[:, 2]]), axis=0)
+                omega_squared = (2.0 / elastic) ** 2 + float(np.max(bound * self.inverse_mass[supported]))
+                elastic = 2.0 / math.sqrt(omega_squared)
             tau = self.model.viscous_time_constant()
             omega = 2.0 / elastic
             zeta = 0.5 * omega * tau
@@ -289,7 +327,10 @@ class Simulation:
     def reset(self):
         """Back to the rest state at t = 0 (the model's relaxation history forgotten too)."""
         self.model.reset_relaxation()
-        self.displacement[:] = 0.0
+        if getattr(self, 'initial_displacement', None) is None:
+            self.displacement[:] = 0.0
+        else:
+            self.displacement[:] = self.initial_displacement
         self.velocity[:] = 0.0
         self.internal_force[:] = 0.0
         self.time = 0.0
@@ -314,6 +355,7 @@ class Simulation:
             check = (self.step_count + 1) % self.check_interval == 0
             if check:   # energy at u_n, matched with the velocity at t_n from the advance
                 strain, inverted = model.strain_energy(self.displacement)
+                strain += self.support_energy()
             t_next = self.time + dt
             if self._implicit is not None:
                 kernel0 = time.thread_time()
@@ -351,7 +393,7 @@ class Simulation:
     def watch(self, bad, free_kinetic):
         """The watchdog after a step: raise SimulationDiverged for ``bad`` components (not
         finite, or past the displacement limit) or, unless None, free DOFs' kinetic energy above
-        the limit (``_energy_limit``; a compiled substep, engine.compiled_substep, tests the same)."""
+        the limit (``_energy_limit``; a compiled substep, engine.compiled.substeps, tests the same)."""
         if bad:
             self._diverged(f'{bad} displacement or velocity components became NaN or infinite, '
                            f'or a displacement passed {self.displacement_limit:.3g} m (100 body sizes)')
@@ -413,6 +455,13 @@ class Simulation:
         return self.internal_force[_node_indices(nodes, self.model.mesh.n_nodes, 'nodes')].sum(axis=0)
 
     def energy(self):
-        """(kinetic, strain) energy [J] of the current state."""
+        """(kinetic, strain) energy [J] of the current state (strain: the foundations' too)."""
         kinetic = 0.5 * float(np.sum(self.mass[:, None] * self.velocity ** 2))
-        return kinetic, self.model.strain_energy(self.displacement)[0]
+        return kinetic, self.model.strain_energy(self.displacement)[0] + self.support_energy()
+
+    def support_energy(self):
+        """The foundations' stored energy [J] (supports.py)."""
+        if not len(self.support_stiffness):
+            return 0.0
+        from tissue_sim_ros.engine.solver.supports import support_energy
+        return support_energy(self.support_rows, self.support_stiffness, self.displacement)

@@ -1,5 +1,5 @@
 """Backward Euler and quasi-static steps of the tensor-mass model: Newton with a matrix-free,
-Jacobi-preconditioned conjugate-gradient solve (issue 17 item 1).
+Jacobi-preconditioned conjugate-gradient solve.
 
 The explicit solver's step is bounded by dt_crit = 2 / omega_max; these are not. With x the
 displacement at the end of the step and v = (x - u_n) / dt, a step solves for the free DOFs
@@ -24,58 +24,41 @@ residual (Eisenstat & Walker 1996), and a backtracking line search on |R| keeps 
 overshooting where the law stiffens.
 
 A needle's bonded contact (a flat end or a sharp tip against a membrane) is held inside the
-step, as linear equality constraints of Newton's step (engine/solver/implicit_bonds.py: a projected
-conjugate gradient), and its force is the constraint's exact reaction. On the coarse default
-scene at 5 mm/s the quasi-static and implicit steps at 2 ms without mass scaling load the
-capsule as the explicit solver without mass scaling does (axial force before the puncture within
-1e-4 of its range, puncture at 7.59 mm of tip travel in all three; applied after the step, as
-the rest of the needle still is, the bonds ruptured it at 2.8 mm).
+step, as linear equality constraints of Newton's step (engine/solver/implicit_bonds.py: a
+projected conjugate gradient), and its force is the constraint's exact reaction, so these steps
+load the capsule as the explicit solver does; applied after the step, as the rest of the needle
+still is, the bonds would rupture it early.
 
 The needle's other constraints (the shaft's lateral hold and friction, the cutting samples, a
 sharp tip's faces) act after the step as with the explicit solver, through each DOF's
 compliance in this step (``constraint_inverse_mass``): 1 / (m + dt gamma + dt^2 k_jj + dt c_jj),
 the uncoupled constraint correction SOFA uses with its implicit solvers. That compliance is the
-node's own with its neighbours held, stiffer than the body's: after the puncture the same runs
-read the axial force 0.20-0.22 of its range above the explicit solver's (0.94-0.96 N against
-0.66 N at 4 s) and a lateral force of 0.87-1.14 N rms where the explicit one has 0.085 N. Where
-they come from, measured on that scene: holding the shaft's points laterally inside the solve
-(springs, k = 100x each point's own stiffness) left the shaft's share at 0.005 N and the lateral
-force at 1.6 N, so the lateral force is the bevel's faces pushing the tissue after the step (a
-conical tip reads 0.17 N against the explicit 0.22 N); the axial excess is friction over a longer
-length, the tissue having sprung back at the rupture at once, without inertia (the first shaft
-point 7.75 mm behind the tip against 5.95 mm; 0.65 against 0.47 N of friction just after, and a
-steady 0.3 N more). Both need the contact itself in the solve (the faces as one-sided
-constraints, friction as a law of the slip velocity); until then the explicit solver is the one
-for needle forces after a puncture.
+node's own with its neighbours held, stiffer than the body's, so after a puncture these steps
+read the axial force high and a lateral force the explicit solver does not have: the lateral
+force is the bevel's faces pushing the tissue after the step, and the axial excess is friction
+over a longer length, the tissue having sprung back at the rupture at once, without inertia.
+Both need the contact itself in the solve (the faces as one-sided constraints, friction as a law
+of the slip velocity); until then the explicit solver is the one for needle forces after a
+puncture. Figures: docs/performance.md.
 
-On the full default scene (bevel tip, 13872 tetrahedra, 5 mm/s) the quasi-static step at 20 ms,
-one step a node tick, goes through the capsule as the explicit solver without mass scaling does
-(1.104 against 1.105 N at 3.6 s, puncture at 10.40 against 10.38 mm) in 39 s of wall time for 6 s
-against its 253 s; after the puncture it reads the axial force 17 % high at 6 s (1.40 against
-1.20 N) and a lateral 0.68 N where the explicit run has 0.05-0.09 N (the shaft and the tip after
-the step, as above). Two safeguards got it there. The conjugate gradient stops when its
-residual stagnates (STAGNATION): its products are differences of the element pass, and with the
-bevel's bond at 1.2 N the residual fell 30x then grew, so every Newton iteration ran to the
-2000-iteration cap and Newton stalled at 3.73 s. And a step that reaches the Newton iteration
-limit with its residual under STALL_TOLERANCE of the forces is kept, as a stall (1e-7 N against
-a 1e-8 N goal at 3.6 s, the same floor).
+Two safeguards keep a long run going. The conjugate gradient stops when its residual stagnates
+(STAGNATION): its products are differences of the element pass, whose rounding sets a floor,
+and under a stiff bond the residual can fall, then grow, with every Newton iteration running to
+the iteration cap. And a step that reaches the Newton iteration limit with its residual under
+STALL_TOLERANCE of the forces is kept, as a stall (the same floor).
 
-Where Newton's matrix is not positive definite, its direction can lead nowhere: 1.5 s into the
-retraction of that run the surface elements around the needle were crushed, the direction was
-40 mm long at a surface node and no fraction of it reduced the 0.75 N residual, and the run
-stopped. Such a step now goes on by pseudo-transient continuation (``_continue``): J + D / delta
-with the rest stiffness's diagonal D, delta growing as the residual falls, so it follows the
-residual's gradient flow through the indefinite region and ends as Newton on the same root.
-That step took one continuation iteration, and the run went through the retraction (10 s in 42 s
-at the default Newton tolerance).
+Where Newton's matrix is not positive definite (surface elements crushed around a retracting
+needle), its direction can lead nowhere: no fraction of it reduces the residual. Such a step
+goes on by pseudo-transient continuation (``_continue``): J + D / delta with the rest
+stiffness's diagonal D, delta growing as the residual falls, so it follows the residual's
+gradient flow through the indefinite region and ends as Newton on the same root.
 
 The non-linearity threshold makes the residual jump where an element's |H| crosses it, and an
-equilibrium can fall in the jump: then there is no root, and the coarse scene with a conical tip
-stopped at first contact with 9e-5 N left on the four nodes of an element at |H| = 0.0199999. A
-residual under the jump that the elements at the threshold (|H| within THRESHOLD_BAND of t) can
-make by switching, 2 t^2 (lambda + 2 mu) V^(2/3) the largest of them, is kept as a stall (the
-test measures the jump: 6e-5 N against that estimate's 2e-4 N); with no element there the floor
-is 0. A step with less left that finds no descent is kept without trying continuation.
+equilibrium can fall in the jump: then there is no root. A residual under the jump that the
+elements at the threshold (|H| within THRESHOLD_BAND of t) can make by switching,
+2 t^2 (lambda + 2 mu) V^(2/3) the largest of them, is kept as a stall (an upper estimate of the
+jump, which the test measures); with no element there the floor is 0. A step with less left
+that finds no descent is kept without trying continuation.
 """
 import math
 
@@ -215,11 +198,12 @@ class ImplicitStep:
         self._diagonal_key = key
 
     def _forces(self, x, v, out, smooth=False):
-        """out = f(x, v), the internal force (elastic + viscous) at displacement x, velocity v;
+        """out = f(x, v), the internal force (elastic + viscous, and the foundations') at displacement x, velocity v;
         ``smooth``: without the non-linearity threshold (every element non-linear)."""
         model = self.sim.model
         model.accumulate_forces(x, v, time_step=None, threshold_squared=0.0 if smooth else None)
         forces.reduce_buffers(*model.force_buffers, out)
+        self.sim.add_support_forces(x, out)
         self.force_evaluations += 1
 
     def _unbalanced(self, x, force, out):
@@ -270,9 +254,8 @@ class ImplicitStep:
         returns the iterations. Stops early on a direction of non-positive curvature (the
         material's tangent lost definiteness), keeping what it has, and when the residual has
         not reached a new low for STAGNATION iterations, keeping the iterate with the lowest: the
-        products are differences of the element pass, whose rounding sets a floor (on the full
-        default scene with the capsule's bond at 1.2 N the residual fell 30x, then grew 5x over
-        400 iterations, and every Newton iteration ran to the 2000-iteration cap)."""
+        products are differences of the element pass, whose rounding sets a floor (below it the
+        residual grows again, and every Newton iteration would run to the iteration cap)."""
         vec = self._vectors
         r, z, p, q = vec['cg_residual'], vec['z'], vec['search'], vec['product']
         best, best_norm, best_k = vec['best'], math.inf, 0
@@ -404,8 +387,8 @@ class ImplicitStep:
             if trial_norm > norm and self._pseudo_step is None:
                 # no descent along Newton's direction: the residual is not smooth here (an element
                 # at the threshold or the inversion safeguard's switch), or Newton's matrix is not
-                # positive definite (elements crushed around a retracting needle: its direction
-                # was 40 mm long). Close enough is kept; otherwise continuation takes over.
+                # positive definite (elements crushed around a retracting needle). Close enough
+                # is kept; otherwise continuation takes over.
                 if norm <= stall or norm <= self.threshold_floor(x):
                     self.stalled_steps += 1
                     break

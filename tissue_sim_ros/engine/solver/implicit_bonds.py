@@ -1,14 +1,13 @@
 """Bonds held exactly inside an implicit step: the needle's bonded contact as linear equality
-constraints of Newton's step (issue 17 item 1).
+constraints of Newton's step.
 
 A bond row holds a material point (weights w_k over nodes k) along a direction d at a target:
 sum_k w_k d . X_k = t, with X the positions (rest + displacement). A bonded contact holds each
 sample along the three axes, a row per axis. Together the rows of every needle are C X = t, C
 sparse (rows x 3n), factored as one, so bonds that share nodes are held together. Applied after
-an implicit step through each DOF's own stiffness (the uncoupled correction), a bond moves its
-nodes with their neighbours held, so it reported the force that pushes those nodes alone: on
-the coarse default scene at 5 mm/s the capsule ruptured at 2.8 mm of tip travel instead of
-7.6 mm. Here the step itself holds them:
+an implicit step through each DOF's own stiffness (the uncoupled correction), a bond would move
+its nodes with their neighbours held and report the force that pushes those nodes alone, far
+above the body's (the capsule would rupture early). Here the step itself holds them:
 
 - the predictor is moved onto the rows, x += D^-1 C^T Pi (t - C X), Pi = (C D^-1 C^T)^+, D the
   conjugate gradient's (Jacobi) preconditioner;

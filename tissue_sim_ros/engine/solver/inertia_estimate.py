@@ -25,26 +25,24 @@ the force criterion's shift (membrane.criterion: force, the default scene's); a 
 ruptures on its energy moves further, A x / F for the travel x since contact on a force F, which
 the estimate does not model.
 
-Why weighted and smoothed, measured against runs without mass scaling on a small sample (3 mm
-at 10 mm/s, test_inertia_estimate.py): the plain momentum balance (all of b on the needle) read
-0.054 at s = 100 against a measured 0.0145, because the walls carry most of it (weighted:
-0.0141); unsmoothed, the ringing, which the unscaled tissue has too, raised it to 0.0053 and
-0.0198 at s = 25 and 100 (measured 0.0027 and 0.0145; smoothed 0.0037 and 0.0141). On the
-default scene (analysis.inertia_bench: from 1 mm above the surface, 17 mm in at 5 mm/s or 14 mm
-at 3 mm/s, against the same scene unscaled) the estimate is 0.79-0.85 of the measured error at
-s = 100, 400 and 1600, where the capsule punctures 0.08-1.55 mm early; without the puncture term
-it read 0.26-0.5 of it. At s = 25 the puncture moves by less than a force sample's 20 ms and
-whether a sample falls in between decides the measured error (0.0024 or 0.059); the estimate is
-its expectation. It is first order: the scaled run's later path (the recoil after a puncture,
+Why weighted and smoothed (test_inertia_estimate.py holds it against runs without mass scaling):
+the plain momentum balance (all of b on the needle) reads several times the measured error,
+because the walls carry most of it; the ringing, which the unscaled tissue has too, is not what
+the scaling adds, and unsmoothed it would count. On the default scene (tissue_sim_ros.bench.inertia:
+from 1 mm above the surface, 17 mm in at 5 mm/s or 14 mm at 3 mm/s, against the same scene
+unscaled) the estimate is 0.79-0.85 of the measured error at s = 100, 400 and 1600, where the
+capsule punctures 0.08-1.55 mm early. At s = 25 the puncture moves by less than a force sample's
+20 ms and whether a sample falls in between decides the measured error; the estimate is its
+expectation. It is first order: the scaled run's later path (the recoil after a puncture,
 s x speed large) is not in it, and on a small sample whose membrane ruptures at 0.3 N the
-recoil's accelerations made it read 3-6x high at s = 25 and 100. Figures: README.
-``solver.mass_scaling: auto`` measures instead (:mod:`tissue_sim_ros.analysis.charting.mass_scaling_rule`).
+recoil's accelerations make it read high at s = 25 and 100. Figures: docs/performance.md.
+``solver.mass_scaling: auto`` measures instead
+(:mod:`tissue_sim_ros.analysis.charting.mass_scaling_rule`).
 """
 from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 __all__ = ['SMOOTHING_S', 'InertiaEstimate', 'weighted_body_force', 'inertia_line']
@@ -182,4 +180,4 @@ def inertia_line(mass_scaling, error, rms_n, integrator='explicit') -> str:
         return 'mass scaling 1: no inertia error added'
     text = 'not estimated (no force range)' if error is None else f'{error:.3f} of the axial force range'
     return (f'mass scaling {mass_scaling:g}: estimated inertia error {text} (rms {rms_n * 1e3:.1f} mN '
-            f'from the scaled inertia and damping and the punctures they move; first order: README)')
+            f'from the scaled inertia and damping and the punctures they move; first order: docs/method.md)')

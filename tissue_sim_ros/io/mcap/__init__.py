@@ -7,15 +7,16 @@
 - :mod:`.writer`: :class:`McapRecorder` and its hard-kill loss bound;
 - :mod:`.reader`: :func:`read_log` (skips and reports undecodable messages),
   :func:`read_metadata`, :func:`summarize_log`;
+- :mod:`.salvage`: every readable record of a damaged file, and what lies between them;
 - :mod:`.recovery`: :func:`recover_truncated` (``tissue-sim recover``).
 
 The public names are here. Importing this package imports no numba (the engine is not loaded
 to write a log).
 """
 from tissue_sim_ros.io.mcap.profile import DEFAULT_METADATA_NAME, MESSAGE_ENCODING, PROFILE, SCHEMA_ENCODING
-from tissue_sim_ros.io.mcap.reader import (LogMessage, LogReading, TruncatedLogError,
-                                           UndecodableMessages, read_log, read_metadata,
-                                           summarize_log)
+from tissue_sim_ros.io.mcap.reader import (LogMessage, LogReading, UndecodableMessages, read_log,
+                                           read_metadata, summarize_log)
+from tissue_sim_ros.errors import TruncatedLogError
 from tissue_sim_ros.io.mcap.recovery import recover_truncated
 from tissue_sim_ros.io.mcap.sink import end_chunk, new_log_path
 from tissue_sim_ros.io.mcap.writer import McapRecorder, RecorderStats

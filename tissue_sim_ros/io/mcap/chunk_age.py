@@ -16,7 +16,7 @@ class ChunkAge:
     The chunk is closed as soon as its oldest message is ``chunk_interval_s / 2`` old, counted
     on the monotonic clock from the ``write()`` call that handed the message over, or in log time
     against a newer message (a faster-than-real-time writer), or when it outgrows ``chunk_size``.
-    A closed chunk is in the OS once written (``mcap_sink.UnbufferedSink``).
+    A closed chunk is in the OS once written (``sink.UnbufferedSink``).
 
     Bound: after SIGKILL the file holds every message handed to ``write()`` more than
     ``chunk_interval_s / 2 + d`` seconds before the kill, where d is the writer's delay: reaching
@@ -27,9 +27,8 @@ class ChunkAge:
     ``stats().queued_bytes`` shows it). Measured with a 50 Hz writer, interval 1 s (log time
     of the last message written minus that of the last one recovered): killed just before a
     chunk closes 0.48 s, at random moments 0.08-0.42 s, the same with a busy process on the two
-    cores; closing at the full interval, as before, lost 0.98 s and 0.10-0.82 s (and up to
-    1.01 s in a node under load). Without the writer thread (``background=False``) the
-    wall-clock rule is checked at each ``write()`` only.
+    cores. Without the writer thread (``background=False``) the wall-clock rule is checked at
+    each ``write()`` only.
     """
 
     def __init__(self, chunk_interval_s: float):

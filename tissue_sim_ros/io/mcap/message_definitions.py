@@ -1,7 +1,8 @@
 """ROS 2 type names and message definitions, read from the installed .msg/.srv files.
 
 The one home for parsing a ROS type name (``pkg/msg/Type``, ``pkg/srv/Type``, ``pkg/Type``):
-the MCAP writer names schemas with it and ``ros.message_yaml`` finds message classes with it.
+the MCAP writer names schemas with it and ``ros.messages.from_yaml`` finds message classes with
+it.
 The ``ros2msg`` schema text of a type (:func:`message_definition`) is its .msg followed, for each
 dependency (depth first, field order, each once), by a line of 80 ``=``, ``MSG: pkg/Type`` and
 that type's .msg, as rosbag2 writes it. No rclpy: the files are found on disk.
@@ -37,19 +38,21 @@ class RosTypeName(NamedTuple):
 
 
 def parse_type_name(type_name: str, *, short_form: bool = True) -> RosTypeName:
-    """Split 'pkg/msg/Type' or 'pkg/srv/Type' (and, if ``short_form``, 'pkg/Type', read as msg).
+    """Split 'pkg/msg/Type' or 'pkg/srv/Type' (and, if ``short_form``, 'pkg/Type', read as msg;
+    if not, also 'pkg/action/Type').
 
     Each part must be an identifier; anything else raises ValueError naming the value.
     """
     parts = str(type_name).split('/')
-    if len(parts) == 3 and parts[1] in ('msg', 'srv'):
+    if len(parts) == 3 and (parts[1] in ('msg', 'srv') or (parts[1] == 'action' and not short_form)):
         parsed = RosTypeName(parts[0], parts[1], parts[2])
     elif len(parts) == 2 and short_form:
         parsed = RosTypeName(parts[0], 'msg', parts[1])
     else:
         parsed = None
     if parsed is None or not (_TYPE_PART.match(parsed.package) and _TYPE_PART.match(parsed.name)):
-        forms = '"pkg/msg/Type" or "pkg/srv/Type"' + (' (or "pkg/Type")' if short_form else '')
+        forms = '"pkg/msg/Type" or "pkg/srv/Type"' + (' (or "pkg/Type")' if short_form
+                                                      else ' (or "pkg/action/Type")')
         raise ValueError(f'type_name: {type_name!r}; expected {forms}')
     return parsed
 

@@ -3,8 +3,8 @@
 Messages are decoded by ``mcap_ros2`` from the schemas in the file. A payload that does not
 decode with its schema (a malformed message the node received and recorded as it came) is
 skipped and reported, never raised: see :class:`LogReading`. A file without a valid summary (a
-hard kill) raises :class:`TruncatedLogError` unless the caller allows it; then the intact chunks
-are read with a stream read (:class:`TolerantScan`), which ``mcap_recovery`` shares.
+hard kill) raises :class:`TruncatedLogError` unless the caller allows it; then every readable
+record is read (:func:`~tissue_sim_ros.io.mcap.salvage.salvage`, which :mod:`.recovery` shares).
 """
 from __future__ import annotations
 
@@ -13,30 +13,25 @@ import struct
 import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, NamedTuple
 
 import yaml
 from mcap.exceptions import DecoderNotFoundError, McapError
 from mcap.reader import make_reader
-from mcap.records import Channel, Footer, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Message, Metadata
 from mcap_ros2.decoder import DecoderFactory
 
 from tissue_sim_ros.io.mcap.profile import DEFAULT_METADATA_NAME
+from tissue_sim_ros.io.mcap.salvage import salvage
 from tissue_sim_ros.units import NS_PER_S
+from tissue_sim_ros.errors import TruncatedLogError
 
-__all__ = ['LogMessage', 'LogReading', 'TolerantScan', 'TruncatedLogError',
-           'UndecodableMessages', 'has_summary', 'read_log', 'read_metadata', 'summarize_log']
+__all__ = ['LogMessage', 'LogReading', 'UndecodableMessages', 'has_summary', 'read_log', 'read_metadata', 'summarize_log']
 
 _log = logging.getLogger(__name__)
 
 #: How many log times of undecodable messages :class:`UndecodableMessages` keeps per topic.
 FIRST_LOG_TIMES_KEPT = 5
-
-
-class TruncatedLogError(McapError):
-    """The file has no valid footer/summary (a hard kill); see :func:`recover_truncated`."""
 
 
 class LogMessage(NamedTuple):
@@ -127,12 +122,12 @@ class LogReading(Iterator[LogMessage]):
 
     def _read_truncated(self, path, topics) -> Iterator[LogMessage]:
         wanted = None if topics is None else {topics} if isinstance(topics, str) else set(topics)
-        scan = TolerantScan(path)
-        for record in scan:
+        found = salvage(path)
+        for record in found.records:
             if isinstance(record, Message):
-                channel = scan.channels[record.channel_id]
-                if wanted is None or channel.topic in wanted:
-                    yield from self._decoded(scan.schemas.get(channel.schema_id), channel, record,
+                channel = found.channels.get(record.channel_id)
+                if channel is not None and (wanted is None or channel.topic in wanted):
+                    yield from self._decoded(found.schemas.get(channel.schema_id), channel, record,
                                              raw_if_no_decoder=True)
 
     def _decoded(self, schema, channel, message, raw_if_no_decoder) -> Iterator[LogMessage]:
@@ -197,7 +192,7 @@ def read_metadata(path, name: str | None = DEFAULT_METADATA_NAME) -> dict:
             _check_complete(reader, path)
             records = list(reader.iter_metadata())
         except TruncatedLogError:
-            records = [r for r in TolerantScan(path) if isinstance(r, Metadata)]
+            records = [r for r in salvage(path).records if isinstance(r, Metadata)]
     if name is None:
         out: dict[str, dict[str, str]] = {}
         for r in records:
@@ -273,35 +268,3 @@ def summarize_log(path) -> dict:
         'statistics': _statistics(summary),
     }
 
-
-class TolerantScan:
-    """Iterates the records of an MCAP stream until its end or the first torn record.
-
-    Chunks are yielded only whole (decompressed and CRC-checked first); ``error`` says why the
-    scan stopped (None when the footer was reached), ``complete`` whether it was, and
-    ``intact_bytes`` how many bytes from the start of the file the yielded records fill.
-    """
-
-    def __init__(self, path):
-        self.path = Path(path)
-        self.schemas: dict[int, Schema] = {}
-        self.channels: dict[int, Channel] = {}
-        self.error: str | None = None
-        self.complete = False
-        self.intact_bytes = 0
-
-    def __iter__(self) -> Iterator[Any]:
-        with open(self.path, 'rb') as f:
-            reader = StreamReader(f, validate_crcs=True)
-            try:
-                for record in reader.records:
-                    self.intact_bytes = f.tell()
-                    if isinstance(record, Schema):
-                        self.schemas[record.id] = record
-                    elif isinstance(record, Channel):
-                        self.channels[record.id] = record
-                    elif isinstance(record, Footer):
-                        self.complete = True
-                    yield record
-            except _TORN_ERRORS as exc:
-                self.error = f'{type(exc).__name__}: {exc}' if str(exc) else type(exc).__name__

@@ -121,9 +121,8 @@ class McapRecorder:
       compresses (zstd releases the GIL) and writes chunks, so a publishing callback never waits
       for compression (about 18 ms per 4 MB chunk here). The thread takes what is queued in
       batches at most every ``chunk_interval_s / 10`` (50 ms at most), not at each message: a
-      wake costs both threads a GIL hand-off, and one per message was 1.7-1.9 % of a core beside
-      the node at 50 Hz against 0.7-0.9 % batched (issue 19, paired node-bench runs). If more
-      than ``max_queue_bytes`` are waiting (a stalled disk), new messages are dropped and
+      wake costs both threads a GIL hand-off, which a batch pays once for all its messages. If
+      more than ``max_queue_bytes`` are waiting (a stalled disk), new messages are dropped and
       counted, never blocking the caller.
       ``background=False`` writes in the caller's thread under the lock (offline tools, tests).
     - Errors of the writer thread (disk full...) are raised by the next ``write``/``flush``/

@@ -17,11 +17,13 @@ from pathlib import Path
 
 import yaml
 
-from tissue_sim_ros.io.trials.data_spec_keys import DataSpecError, check_data_spec
+from tissue_sim_ros.io.trials.data_spec_keys import check_data_spec
+from tissue_sim_ros.errors import DataSpecError
 from tissue_sim_ros.io.trials.mcap_files import read_mcap_trial
 from tissue_sim_ros.io.trials.measurement_units import unit_factor
 from tissue_sim_ros.io.trials.text_files import read_text_trial
-from tissue_sim_ros.io.trials.trial import DataError, Trial
+from tissue_sim_ros.io.trials.trial import Trial
+from tissue_sim_ros.errors import DataError
 
 __all__ = ['DataSpec', 'file_name_labels', 'group_by_speed', 'load_trials', 'read_trial',
            'speed_from_text']

@@ -12,14 +12,11 @@ from __future__ import annotations
 import math
 import re
 
-from tissue_sim_ros.io.trials.measurement_units import UnitError, unit_factor
+from tissue_sim_ros.io.trials.measurement_units import unit_factor
+from tissue_sim_ros.errors import DataSpecError, UnitError
 
-__all__ = ['DATA_SPEC_KEYS', 'DataSpecError', 'check_data_spec', 'check_section',
-           'describe_data_keys']
-
-
-class DataSpecError(ValueError):
-    """A data description (or a reader's column options) that cannot be used; names the key."""
+__all__ = ['DATA_SPEC_KEYS', 'check_data_spec', 'check_section',
+           'data_keys_markdown', 'describe_data_keys']
 
 
 # -- the keys: key -> (default, kind, meaning); a nested dict is a section ---------------------
@@ -260,3 +257,23 @@ def describe_data_keys(keys=DATA_SPEC_KEYS, prefix: str = '') -> list[str]:
         else:
             lines.append(f'{prefix}{key} (default {spec[0]!r}): {spec[2]}')
     return lines
+
+
+def _rows(keys=DATA_SPEC_KEYS, prefix: str = ''):
+    for key, spec in keys.items():
+        if isinstance(spec, dict):
+            yield from _rows(spec, f'{prefix}{key}.')
+        else:
+            yield f'{prefix}{key}', spec[0], spec[2]
+
+
+def data_keys_markdown() -> str:
+    """docs/data.md's table of every key (``tissue-sim data-keys --markdown``): key, default,
+    meaning, and which sections are optional."""
+    def shown(default):
+        return '' if default is None or default == [] else f'`{default!r}`'
+    lines = ['| key | default | meaning |', '|---|---|---|']
+    lines += [f'| `{dotted}` | {shown(default)} | {meaning.replace("|", "/")} |' for dotted, default, meaning in _rows()]
+    lines += ['', 'Sections: ' + '; '.join(f'`{name}` {note}' for name, note in OPTIONAL_SECTIONS.items()) + '. '
+              'Within `time` and `force`, give exactly one of `column` / `rate_hz` and `column` / `columns`.']
+    return '\n'.join(lines) + '\n'

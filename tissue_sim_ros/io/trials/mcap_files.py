@@ -2,7 +2,7 @@
 
 The force comes from geometry_msgs/WrenchStamped on one topic, the needle base pose from
 geometry_msgs/PoseStamped or TransformStamped on another (both named by the user); messages are
-decoded by :func:`tissue_sim_ros.io.mcap.reader.read_log`. Conventions (DESIGN.md): the needle
+decoded by :func:`tissue_sim_ros.io.mcap.reader.read_log`. Conventions (docs/data.md): the needle
 axis is its base frame's +z (or ``needle_axis`` in that frame); the wrench is the force on the
 needle, so the axial force ``sign x (F . axis)`` with ``sign = -1`` is positive while the tissue
 resists insertion. Rows in errors are a message's 1-based index on its topic, in log order.
@@ -15,9 +15,12 @@ from pathlib import Path
 import numpy as np
 from mcap.exceptions import McapError
 
-from tissue_sim_ros.io.mcap.reader import TruncatedLogError, read_log, summarize_log
-from tissue_sim_ros.io.mcap.recovery import NotAnMcapError, check_mcap_magic
-from tissue_sim_ros.io.trials.trial import DataError, Trial, check_increasing_time, drop_nonfinite_rows
+from tissue_sim_ros.io.mcap.reader import read_log, summarize_log
+from tissue_sim_ros.errors import TruncatedLogError
+from tissue_sim_ros.io.mcap.recovery import check_mcap_magic
+from tissue_sim_ros.errors import NotAnMcapError
+from tissue_sim_ros.io.trials.trial import Trial, check_increasing_time, drop_nonfinite_rows
+from tissue_sim_ros.errors import DataError
 from tissue_sim_ros.units import NS_PER_S
 
 __all__ = ['read_mcap_trial']

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['STANDARD_GRAVITY_M_PER_S2', 'UNITS', 'UnitError', 'known_units', 'to_si',
+from tissue_sim_ros.errors import UnitError
+
+__all__ = ['STANDARD_GRAVITY_M_PER_S2', 'UNITS', 'known_units', 'to_si',
            'unit_factor']
 
 #: Standard gravity [m/s^2] (CGPM 1901), the factor of the gram-force and the pound-force.
@@ -42,11 +44,6 @@ def _compact(unit: str) -> str:
 
 _BY_SPELLING = {quantity: {_compact(unit): factor for unit, factor in table.items()}
                 for quantity, table in UNITS.items()}
-
-
-class UnitError(ValueError):
-    """A unit this module does not know for a quantity; names the quantity, the unit and the
-    units known."""
 
 
 def known_units(quantity: str) -> list[str]:

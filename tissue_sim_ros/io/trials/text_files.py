@@ -16,7 +16,8 @@ import numpy as np
 
 from tissue_sim_ros.io.trials.data_spec_keys import check_section
 from tissue_sim_ros.io.trials.measurement_units import unit_factor
-from tissue_sim_ros.io.trials.trial import DataError, Trial, check_increasing_time, drop_nonfinite_rows
+from tissue_sim_ros.io.trials.trial import Trial, check_increasing_time, drop_nonfinite_rows
+from tissue_sim_ros.errors import DataError
 
 __all__ = ['read_text_trial']
 

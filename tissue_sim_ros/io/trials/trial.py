@@ -11,21 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ['DataError', 'Trial', 'check_increasing_time', 'drop_nonfinite_rows']
+from tissue_sim_ros.errors import DataError
 
-
-class DataError(ValueError):
-    """A recording that cannot be imported; the message names the file and, where it applies,
-    the column (or topic) and the 1-based row (the file's line, or the message's index on its
-    topic)."""
-
-    def __init__(self, file, problem: str, *, column=None, row: int | None = None):
-        self.file = str(file)
-        self.column = column
-        self.row = row
-        where = ''.join([f', column {column!r}' if column is not None else '',
-                         f', row {row}' if row is not None else ''])
-        super().__init__(f'{self.file}{where}: {problem}')
+__all__ = ['Trial', 'check_increasing_time', 'drop_nonfinite_rows']
 
 
 @dataclass

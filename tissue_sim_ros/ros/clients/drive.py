@@ -10,8 +10,9 @@ pointing down) and moves along its axis: from the scene's initial pose (where th
 is after a start or ``~/reset``) to the start pose (``--start-height-mm``: tip that far above the
 entry surface; default: where the scene puts it), down until the tip is ``--depth-mm`` below the
 entry surface, holds ``--hold-s``, and comes back up to the start pose at the same speed. Poses
-are published at ``--rate-hz`` stamped with the publishing time, then the command waits until
-the node has acknowledged them (reliable QoS) and exits.
+are published at ``--rate-hz`` stamped with the publishing time, once the node itself takes them
+(it publishes its wrench and subscribes to the poses; another subscriber does not start the
+drive), then the command waits until the node has acknowledged them (reliable QoS) and exits.
 
 The entry surface is where the needle axis meets the tissue surface under the tip
 (``Scene.start_gap_m``); the start pose is computed from the scene file, which is loaded (not
@@ -28,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ['DriveStart', 'insertion_trajectory', 'scene_start', 'pose_message',
-           'publish_trajectory', 'run_drive']
+           'publish_trajectory', 'run_drive', 'wait_for_node']
 
 
 @dataclass(frozen=True)
@@ -44,16 +45,18 @@ class DriveStart:
 
 
 def _axis(orientation) -> np.ndarray:
-    """The needle axis (base +z) of a quaternion x y z w: the engine's rule, engine.pose.needle_axis."""
+    """The needle axis (base +z) of a quaternion x y z w: the engine's rule,
+    engine.needle.pose.needle_axis."""
     from tissue_sim_ros.engine.needle.pose import needle_axis  # light: numpy only, no numba
     return needle_axis(orientation)
 
 
-def scene_start(scene_file: str | None = None) -> DriveStart:
+def scene_start(scene_file: str | None = None, resolve_auto=None) -> DriveStart:
     """The needle's initial pose and its tip's distance to the surface along the axis in a scene
-    (``Scene.start_gap_m``, the rule every command uses)."""
+    (``Scene.start_gap_m``, the rule every command uses); ``resolve_auto``: as
+    ``Scene.from_file``'s (the command line passes the analysis layer's)."""
     from tissue_sim_ros.engine.scene.scene import Scene
-    scene = Scene.from_file(scene_file or None)
+    scene = Scene.from_file(scene_file or None, resolve_auto=resolve_auto)
     position, orientation = scene.needle_pose
     return DriveStart(position, orientation, _axis(orientation), float(scene.spec['needle']['length_m']),
                       scene.start_gap_m, scene.mesh_frame_id)
@@ -138,18 +141,41 @@ def publish_trajectory(publisher, message, times, positions, now_ns, *,
     return sent
 
 
+def wait_for_node(node, pub, wrenches: list, wrench_topic: str, timeout_s: float) -> bool:
+    """Spin ``node`` until the tissue_sim node itself takes the poses, not merely anyone: a
+    wrench has arrived on ``wrench_topic`` (the node ticks), the node that publishes it
+    subscribes to ``pub``'s topic, and ``pub`` is matched with every subscriber the graph shows
+    there (a monitor subscribed first must not start the drive before the node is connected).
+    False after ``timeout_s``."""
+    import rclpy
+    deadline = time.monotonic() + timeout_s
+    topic = pub.topic_name
+    while time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.02)
+        if not wrenches:
+            continue
+        sources = {(i.node_name, i.node_namespace) for i in node.get_publishers_info_by_topic(wrench_topic)}
+        takers = node.get_subscriptions_info_by_topic(topic)
+        node_takes_poses = bool(sources & {(i.node_name, i.node_namespace) for i in takers})
+        if node_takes_poses and pub.get_subscription_count() >= len(takers):
+            return True
+    return False
+
+
 def run_drive(speed_mm_s: float, depth_mm: float, *, start_height_mm: float | None = None,
               rate_hz: float = 100.0, hold_s: float = 0.5, scene_file: str | None = None,
               topic: str = 'needle/pose', frame_id: str | None = None,
-              wait_for_node_s: float = 10.0, args=None) -> int:
-    """Publish the scripted insertion; 0 when every pose was sent and acknowledged."""
+              wait_for_node_s: float = 10.0, args=None, resolve_auto=None,
+              wrench_topic: str = 'needle/wrench') -> int:
+    """Publish the scripted insertion once the node itself takes the poses (:func:`wait_for_node`);
+    0 when every pose was sent and acknowledged."""
     import rclpy
-    from geometry_msgs.msg import PoseStamped
+    from geometry_msgs.msg import PoseStamped, WrenchStamped
     from rclpy.duration import Duration
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.signals import SignalHandlerOptions
 
-    start = scene_start(scene_file)
+    start = scene_start(scene_file, resolve_auto)
     t, positions = insertion_trajectory(
         start, speed_mm_s * 1e-3, depth_mm * 1e-3, hold_s, rate_hz,
         None if start_height_mm is None else start_height_mm * 1e-3)
@@ -159,14 +185,14 @@ def run_drive(speed_mm_s: float, depth_mm: float, *, start_height_mm: float | No
         node = rclpy.create_node('tissue_sim_drive')
         pub = node.create_publisher(PoseStamped, topic, QoSProfile(
             depth=max(10, int(rate_hz)), reliability=ReliabilityPolicy.RELIABLE))
-        deadline = time.monotonic() + wait_for_node_s
-        while pub.get_subscription_count() == 0:
-            if time.monotonic() > deadline:
-                print(f'tissue-sim drive: nobody subscribes to {pub.topic_name} after '
-                      f'{wait_for_node_s:g} s; is tissue_sim_node running (same ROS_DOMAIN_ID)?',
-                      file=sys.stderr)
-                return 1
-            time.sleep(0.02)
+        wrenches = []
+        node.create_subscription(WrenchStamped, wrench_topic, wrenches.append, QoSProfile(
+            depth=1, reliability=ReliabilityPolicy.RELIABLE))
+        if not wait_for_node(node, pub, wrenches, wrench_topic, wait_for_node_s):
+            print(f'tissue-sim drive: no tissue_sim node on {pub.topic_name} after {wait_for_node_s:g} s '
+                  f'(none publishes {wrench_topic} and takes the poses); is tissue_sim_node running '
+                  '(same ROS_DOMAIN_ID)?', file=sys.stderr)
+            return 1
         print(f'drive: {len(t)} poses on {pub.topic_name} over {t[-1]:.2f} s: down '
               f'{np.linalg.norm(positions - positions[0], axis=1).max() * 1e3:.1f} mm at '
               f'{speed_mm_s:g} mm/s to {depth_mm:g} mm below the surface, hold {hold_s:g} s, back')

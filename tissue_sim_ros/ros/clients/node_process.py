@@ -17,14 +17,12 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable
 
-__all__ = ['NodeProcessError', 'NodeProcess', 'console_script', 'private_domain_id',
+from tissue_sim_ros.errors import NodeProcessError
+
+__all__ = ['NodeProcess', 'console_script', 'private_domain_id',
            'private_ros_env', 'client_context']
 
 _LOCALHOST = 'LOCALHOST'
-
-
-class NodeProcessError(RuntimeError):
-    """The node process exited early or did not come up in time; the message names its log."""
 
 
 def private_domain_id() -> int:
@@ -63,7 +61,7 @@ class NodeProcess:
 
     @property
     def command(self) -> list[str]:
-        cmd = console_script('tissue_sim_node', 'tissue_sim_ros.ros.node') + ['--ros-args']
+        cmd = console_script('tissue_sim_node', 'tissue_sim_ros.cli.node_script') + ['--ros-args']
         for param in self.params:
             cmd += ['-p', param]
         return cmd
@@ -119,6 +117,29 @@ class NodeProcess:
                 return self.wait_until(lambda: probe.count_subscribers(name) > 0, timeout_s,
                                        f'subscribe to {topic}')
             finally:
+                probe.destroy_node()
+
+    def wait_until_ready(self, name: str = '/tissue_sim', timeout_s: float = 300.0) -> float:
+        """Wait until the node ``name`` says it ticks: its latched ``<name>/ready`` is true (the
+        node's readiness, :mod:`~tissue_sim_ros.ros.readiness`); the seconds since start."""
+        with client_context(self.domain_id) as context:
+            import rclpy
+            from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+            from std_msgs.msg import Bool
+            probe = rclpy.create_node('tissue_sim_probe', context=context)
+            ready = []
+            probe.create_subscription(Bool, f'{name}/ready', lambda msg: ready.append(msg.data), QoSProfile(
+                depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+            executor = rclpy.executors.SingleThreadedExecutor(context=context)
+            executor.add_node(probe)
+
+            def spun_ready():
+                executor.spin_once(timeout_sec=0.05)
+                return bool(ready) and ready[-1]
+            try:
+                return self.wait_until(spun_ready, timeout_s, f'say {name}/ready')
+            finally:
+                executor.remove_node(probe)
                 probe.destroy_node()
 
     def stop(self, timeout_s: float = 30.0) -> int | None:

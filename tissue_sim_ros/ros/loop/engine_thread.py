@@ -37,7 +37,7 @@ import numpy as np
 
 from tissue_sim_ros.system.thread_names import name_os_thread
 from tissue_sim_ros.ros.loop.pacing import EnginePacing, LadderControl
-from tissue_sim_ros.ros.loop.trace import DROP, LEVEL, RESET, advance_row, event_row
+from tissue_sim_ros.ros.loop.trace import DROP, LEVEL, RESET, advance_row, event_row, place_row
 from tissue_sim_ros.ros.loop.pose_receiver import PoseReceiver
 from tissue_sim_ros.units import NS_PER_S
 
@@ -51,7 +51,7 @@ MAX_POSES_PER_CYCLE = 64
 class Snapshot:
     """The engine state a tick publishes (one of three buffers; see :class:`EngineLoop`)."""
 
-    def __init__(self, n_nodes: int, n_needles: int = 1):
+    def __init__(self, n_nodes: int, n_needles: int = 1, shape_sizes=(2,)):
         self.index = 0                       # advances done when it was taken
         self.forces = np.zeros((n_needles, 3))   # each needle's wrench; force, torque: the first's
         self.torques = np.zeros((n_needles, 3))
@@ -65,14 +65,19 @@ class Snapshot:
         self.held = False
         self.tip = np.zeros(3)               # the needle tip [m] and axis, for the targets' figures
         self.axis = np.zeros(3)
+        self.positions = np.zeros((n_needles, 3))      # each needle's base pose (TF out)
+        self.orientations = np.zeros((n_needles, 4))
+        # each needle's centreline and its frames (NeedleTissue.write_shape), for needle/shape
+        self.shape_positions = [np.zeros((k, 3)) for k in shape_sizes]
+        self.shape_quaternions = [np.tile([0.0, 0.0, 0.0, 1.0], (k, 1)) for k in shape_sizes]
 
 
 class _TripleBuffer:
     """The engine writes ``back``, :meth:`publish` makes it the newest; :meth:`latest` gives the
     publisher the newest, which the engine does not touch until the publisher asks again."""
 
-    def __init__(self, n_nodes: int, n_needles: int = 1):
-        self.slots = [Snapshot(n_nodes, n_needles) for _ in range(3)]
+    def __init__(self, n_nodes: int, n_needles: int = 1, shape_sizes=(2,)):
+        self.slots = [Snapshot(n_nodes, n_needles, shape_sizes) for _ in range(3)]
         self._back, self._ready, self._front = 0, 1, 2
         self._fresh = False
         self._lock = threading.Lock()
@@ -98,8 +103,8 @@ class _Wake:
     """The engine thread's wake-up call: :meth:`set` from any thread, :meth:`wait` on the
     engine's (it returns at a set since the last wait, or after ``timeout_s``). A
     ``queue.SimpleQueue``, whose put and get are C: a ``threading.Event``'s Python-level
-    condition cost the running node about 60 us of thread time a wait and 10-15 us a set (run
-    cold, between element passes), 150 waits and 150 sets a second."""
+    condition costs the running node about 60 us of thread time a wait and 10-15 us a set (run
+    cold, between element passes), at 150 waits and 150 sets a second."""
 
     def __init__(self):
         self._queue = queue.SimpleQueue()
@@ -142,7 +147,8 @@ class EngineLoop:
         self._now_ns, self._decode, self._log_once, self._log = now_ns, decode, log_once, log
         self.receiver = PoseReceiver(limit=MAX_POSES_PER_CYCLE)
         self.other_receivers = [PoseReceiver(limit=MAX_POSES_PER_CYCLE) for _ in self.other_inputs]
-        self._snapshots = _TripleBuffer(driver.scene.rest_positions.shape[0], 1 + len(self.other_inputs))
+        self._snapshots = _TripleBuffer(driver.scene.rest_positions.shape[0], 1 + len(self.other_inputs),
+                                        [needle.shape_size for needle in driver.scene.needles])
         self._trace: list = []
         self._receipts: deque = deque()          # (receipt ns, advance index) of accepted poses
         self._requests: deque = deque()
@@ -157,6 +163,8 @@ class EngineLoop:
         self.busy_cpu_s = 0.0                     # the engine thread's CPU time in advances
         self.ladder_changes = 0
         self.failure: BaseException | None = None
+        #: place the needle at the first pose received (registration.needle_at_first_pose), once
+        self.place_at_first_pose = False
         self._publish_state()
         self._thread = threading.Thread(target=self._run, name='tissue_sim-engine', daemon=True)
 
@@ -185,8 +193,7 @@ class EngineLoop:
         (sim time), return once the engine has simulated up to now. The engine is woken for it
         only when it is behind (a deadline left substeps for this window) or with ``wait``: else
         its next pose wakes it, or its wait's timeout (a period) when none comes: a cycle of its
-        own for the tick, 50 a second, had nothing to do (in the engine-only loop the engine's CPU
-        did not change measurably without them)."""
+        own for the tick, 50 a second, would have nothing to do."""
         self._tick_wall = time.perf_counter()
         with self._cond:
             self._tick_seq += 1
@@ -244,6 +251,25 @@ class EngineLoop:
         if 'error' in box:
             raise box['error']
         return box['result']
+
+    def place(self, pose=None) -> tuple:
+        """Start the first needle at ``pose`` (position, orientation in the tissue frame; None: the
+        input's newest checked pose, PoseInput.seen) from now on, on the engine thread, traced; the
+        pose used. PoseError when there is none, or the engine refuses it (in or touching the tissue)."""
+        def job():
+            from tissue_sim_ros.ros.registration import needle_start_rule
+            position, orientation = pose if pose is not None else needle_start_rule(self.input.seen,
+                                                                                    'the tissue frame')
+            self._place(position, orientation)
+            return position, orientation
+        return self.call(job)
+
+    def _place(self, position, orientation) -> None:
+        self.driver.place_needle(position, orientation)
+        self.input.reset(self.driver.scene.needle_pose)
+        self.advances += 1
+        self._record(place_row(self.advances, position, orientation))
+        self._publish_state()
 
     def reset(self) -> None:
         """Tissue at rest, needle at its initial pose (on the engine thread, traced)."""
@@ -314,7 +340,11 @@ class EngineLoop:
             self._receipts.append((receipt, self.advances + 1))
         for receiver, other in zip(self.other_receivers, self.other_inputs):
             receiver.decode_into(other, self._decode, self._log_once)
-        if self.paused or self.driver.held:
+        if self.place_at_first_pose and self.input.oldest() is not None:
+            self._place_at_first_pose()
+        if self.paused or self.driver.held or self._tick_seq == 0:
+            # before the first tick the node is still starting (its set-up holds the GIL for
+            # tenths of a second): time not simulated then is not owed, and no lag is warned of
             self.pacing.hold(now_ns)
         else:
             stamps = [newest[0] for newest in (i.newest() for i in [self.input] + self.other_inputs)
@@ -328,6 +358,19 @@ class EngineLoop:
             with self._cond:
                 self._served_seq = seq
                 self._cond.notify_all()
+
+    def _place_at_first_pose(self) -> None:
+        """The needle starts at the first pose received (its input took it from anywhere)."""
+        from tissue_sim_ros.errors import PoseError
+        self.place_at_first_pose = False
+        _, position, orientation = self.input.oldest()
+        try:
+            self._place(position, orientation)
+            self._log('info', f'the needle starts at the first pose received: {position.round(6).tolist()} m '
+                              '(registration.needle_at_first_pose)')
+        except PoseError as exc:
+            self.input.reset(self.driver.scene.needle_pose)
+            self._log('error', f'registration.needle_at_first_pose: the first pose was refused: {exc}')
 
     def _advance(self, advance_s: float) -> None:
         driver, pacing = self.driver, self.pacing
@@ -353,9 +396,12 @@ class EngineLoop:
             self._diverged(outcome.diverged)
         if not self.sim_time and driver.drop_lag(pacing.max_lag_s) > 0.0:
             self._record(event_row(DROP, self.advances, pacing.max_lag_s))
-            self._log_once('lag', f'the engine is more than engine.max_lag_s = {pacing.max_lag_s:g} s '
-                           'behind the poses: the excess is dropped (the needle then moves faster '
-                           'in simulated time)', 'warning')
+            # before any pose the needle rests where the scene put it: the time dropped is the
+            # resting tissue's, and no pose is behind (a loaded machine's start is not a fault)
+            if any(i.newest() is not None for i in [self.input] + self.other_inputs):
+                self._log_once('lag', f'the engine is more than engine.max_lag_s = {pacing.max_lag_s:g} s '
+                               'behind the poses: the excess is dropped (the needle then moves faster '
+                               'in simulated time)', 'warning')
         self._publish_state()
 
     def _diverged(self, exc) -> None:
@@ -414,6 +460,11 @@ class EngineLoop:
         snap.held = bool(driver.held)
         snap.tip[:] = scene.needle.tip
         snap.axis[:] = scene.needle.axis
+        for k, needle in enumerate(scene.needles):
+            snap.positions[k] = needle.position
+            snap.orientations[k] = needle.orientation
+        for needle, positions, quaternions in zip(scene.needles, snap.shape_positions, snap.shape_quaternions):
+            needle.write_shape(positions, quaternions)
         self._snapshots.publish()
 
     @property

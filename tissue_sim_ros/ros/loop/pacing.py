@@ -15,8 +15,8 @@ ROS graph. The engine thread (:mod:`~tissue_sim_ros.ros.loop.engine_thread`) ask
   ``demand`` = that cost / budget_fraction is the budget use (above 1 the engine cannot keep
   real time within its budget);
 - whether to wait for more poses before advancing (``wait_for_poses_s``): a pose stream faster
-  than the ticks (a robot's state at 500 Hz or 1 kHz) made a cycle of the engine's Python per
-  pose, while only the state at each tick is published; waiting costs no pose its tick as long
+  than the ticks (a robot's state at 500 Hz or 1 kHz) would make a cycle of the engine's Python
+  per pose, while only the state at each tick is published; waiting costs no pose its tick as long
   as, by the measured cost, the advance of what is then owed still ends before the tick, with
   ``COALESCE_SAFETY`` times the cost and ``COALESCE_MARGIN_S`` to spare, and within the budget;
   and for at most ``COALESCE_MAX_SPAN_S`` of poses, as the needle goes on a straight line over an

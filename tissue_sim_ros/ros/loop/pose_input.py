@@ -10,7 +10,11 @@ kind                 handling
 non_finite           NaN or inf in position or orientation: ignored
 non_unit_quaternion  quaternion norm off 1 by more than ``unit_quaternion_tolerance``:
                      ignored (closer than that: normalised and accepted)
-wrong_frame          ``header.frame_id`` is not ``expected_frame_id`` (no tf here): ignored
+wrong_frame          ``header.frame_id`` is not ``expected_frame_id`` nor a frame on TF: ignored
+                     (the node brings a pose in a frame on TF into the tissue frame first)
+tf_unavailable       (the node) a pose in a frame on TF that TF cannot relate to the tissue
+                     frame at its stamp, or, with ``input.source: tf``, a TF chain that cannot
+                     be looked up: ignored
 time_backwards       stamp older than the newest accepted pose's stamp: ignored
 future_stamp         stamp more than ``max_future_s`` ahead of the node's clock (a clock
                      mismatch, e.g. use_sim_time on one side only): ignored
@@ -46,6 +50,14 @@ live stream is still refused as a jump; after a start or a reset, with no pose a
 a jump from the needle is refused whatever the wait (the needle's pose is the reference the
 ``~/reset`` service promises).
 
+Delivery stalls. A pose received more than ``stale_after_s`` after its stamp, when the one
+before came on time, starts a *delivery stall*: the stream was held up on the way and arrives as
+a late burst (the publisher did not pause: it stamped these poses on time). Fast DDS does this
+to a reliable subscription for about a second after an empty (0-byte) payload on its topic; a
+best-effort subscription (``input.reliability: best_effort``) is not held up. Stalls are counted
+(``delivery_stalls``, ``delivery_stall_max_s``) and diagnostics warn of them; the late poses are
+judged as any others.
+
 The pose at tick time ``t`` is interpolated (linear position, slerp orientation) between the
 accepted samples whose stamps bracket ``t``; after the newest sample it is held (no
 extrapolation); before the oldest it is the oldest. With nothing buffered, :meth:`pose_at`
@@ -70,7 +82,7 @@ __all__ = ['ACCEPTED_KINDS', 'BAD_INPUT_KINDS', 'RESYNC_STEP_MAX_S', 'PoseInput'
 #: Every kind of bad input the node counts, in the order diagnostics list them. The last one is
 #: counted by the node (the engine refused a pose that passed these checks, e.g. a needle that
 #: would start inside the tissue, or a move beyond the scene's max jump within one tick).
-BAD_INPUT_KINDS = ('non_finite', 'non_unit_quaternion', 'wrong_frame', 'time_backwards',
+BAD_INPUT_KINDS = ('non_finite', 'non_unit_quaternion', 'wrong_frame', 'tf_unavailable', 'time_backwards',
                    'future_stamp', 'jump', 'flood', 'unstamped', 'resynchronised', 'engine_refused',
                    'malformed', 'backlog')
 #: The kinds :meth:`PoseInput.offer` reports for a pose it stored (not in ``bad_total``).
@@ -112,6 +124,13 @@ class PoseInput:
         self._reference = None
         self._handed = None  # (t_ns, p, q) of the last pose pose_at handed out
         self._catching_up = False
+        self.delivery_stalls = 0           # late bursts after on-time poses (module docstring)
+        self.delivery_stall_max_s = 0.0    # the latest pose of any of them, after its stamp [s]
+        self.last_stall_ns: int | None = None    # receipt time of the last stall's first pose
+        self._on_time = True
+        #: (stamp ns, position, orientation) of the newest pose that passed the value, frame and
+        #: stamp checks, stored or not (a jump too): where the robot is (a needle registration)
+        self.seen = None
         self.reset(reference_pose)
 
     def reset(self, reference_pose=None) -> None:
@@ -139,6 +158,8 @@ class PoseInput:
         'resynchronised') are stored too (the caller may log them). ``detail`` says what was wrong, with the values.
         """
         self.received += 1
+        if stamp_ns != 0:
+            self._watch_delivery(stamp_ns, receipt_ns)
         lim = self.limits
         p = np.asarray(position, dtype=np.float64)
         q = np.asarray(orientation, dtype=np.float64)
@@ -151,7 +172,7 @@ class PoseInput:
                              f'{lim.unit_quaternion_tolerance}')
         if frame_id != lim.expected_frame_id:
             return self._bad('wrong_frame',
-                             f'frame_id {frame_id!r}; expected {lim.expected_frame_id!r}')
+                             f'frame_id {frame_id!r}; expected {lim.expected_frame_id!r} or a frame on TF')
         note = None
         if stamp_ns == 0:
             stamp_ns = receipt_ns
@@ -161,6 +182,7 @@ class PoseInput:
                              f'stamp {stamp_ns / NS_PER_S:.9f} s is '
                              f'{(stamp_ns - receipt_ns) / NS_PER_S:.3g} s ahead of the node clock '
                              f'(max {lim.max_future_s} s): use_sim_time set on one side only?')
+        self.seen = (stamp_ns, p, unit)
         newest = self._samples[-1] if self._samples else None
         if newest is not None and stamp_ns < newest[0]:
             return self._bad('time_backwards',
@@ -197,6 +219,17 @@ class PoseInput:
         elif note == 'unstamped':
             detail = 'header.stamp is 0; stamped with the receipt time'
         return note, detail
+
+    def _watch_delivery(self, stamp_ns: int, receipt_ns: int) -> None:
+        """Count a delivery stall: a pose late by more than ``stale_after_s`` after one on time."""
+        late_s = (receipt_ns - stamp_ns) / NS_PER_S
+        late = late_s > self.limits.stale_after_s
+        if late and self._on_time:
+            self.delivery_stalls += 1
+            self.last_stall_ns = receipt_ns
+        if late:
+            self.delivery_stall_max_s = max(self.delivery_stall_max_s, late_s)
+        self._on_time = not late
 
     def _resynchronise(self, p, q, stamp_ns: int, receipt_ns: int, what: str):
         """Start a new stream at this pose; pose_at joins it gradually (module docstring)."""
@@ -274,6 +307,10 @@ class PoseInput:
     def newest(self):
         """(stamp_ns, position, orientation) of the newest accepted pose, or None."""
         return self._samples[-1] if self._samples else None
+
+    def oldest(self):
+        """(stamp_ns, position, orientation) of the oldest buffered pose, or None."""
+        return self._samples[0] if self._samples else None
 
     def age_s(self, now_ns: int) -> float | None:
         """Seconds since the newest accepted pose was received (None: none yet)."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections import deque
 
 from tissue_sim_ros.ros.loop.pose_input import ACCEPTED_KINDS
+from tissue_sim_ros.ros.loop.transforms import TransformUnavailable
 
 __all__ = ['PoseReceiver']
 
@@ -29,7 +30,8 @@ class PoseReceiver:
     def decode_into(self, pose_input, decode, log_once) -> list[int]:
         """Decode the newest ``limit`` waiting poses in order and offer them to ``pose_input``;
         ``decode(bytes) -> (position, orientation, frame_id, stamp_ns)`` may raise for a bad
-        payload; ``log_once(kind, text)``. Returns the receipt times of the accepted poses."""
+        payload, or TransformUnavailable (counted as
+        ``tf_unavailable``); ``log_once(kind, text)``. Returns the receipt times of the accepted poses."""
         accepted = []
         while len(self.queue) > self.limit:
             self.queue.popleft()
@@ -38,6 +40,10 @@ class PoseReceiver:
             receipt_ns, data = self.queue.popleft()
             try:
                 position, orientation, frame_id, stamp_ns = decode(data)
+            except TransformUnavailable as exc:
+                pose_input.count('tf_unavailable')
+                log_once('tf_unavailable', f'needle pose: tf_unavailable: {exc}')
+                continue
             except Exception as exc:  # noqa: BLE001 - any payload a bridge or a bag can send
                 pose_input.count('malformed')
                 log_once('malformed', f'needle/pose: a {len(data)}-byte payload that is not a '

@@ -2,11 +2,9 @@
 
 Why: with rclpy's EventsExecutor each timer callback costs about 100 us of dispatch on the
 executor thread, a third of the node's work outside the physics besides the tick itself; and a
-timer callback waits behind whatever callback runs before it. Measured with node-bench (default
-scene, 15 s, two pairs, this machine): the executor thread and the tick together 2.6-2.9 % of a
-core against 3.0-3.3 % on the timer, tick period deviation p99 0.55-1.13 ms against 1.9-2.2 ms
-(two more pairs: 3.6-3.7 % against 3.6-3.9 %, within the machine's noise). A dedicated loop
-thread is also how ros2_control runs its controller manager's update.
+timer callback waits behind whatever callback runs before it, which makes the tick period
+uneven. A dedicated loop thread is also how ros2_control runs its controller manager's update.
+Figures: docs/performance.md.
 
 The ticks are on a fixed schedule, ``start + k period`` (no drift); a tick that comes more than a
 period late (the process stalled) gives up the slots it missed rather than running them back to
@@ -34,6 +32,7 @@ class TickThread:
             raise ValueError(f'period_s: {period_s!r}; expected a period > 0 s')
         self.period_s, self._tick, self._on_error = float(period_s), tick, on_error
         self.errors = 0
+        self.slots_given_up = 0          # slots of the schedule a stall overran
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
 
@@ -63,4 +62,6 @@ class TickThread:
                 self.errors += 1
                 self._on_error(exc)
             # the next slot in the future: slots a stall overran are given up, not run late
-            k = max(k + 1, int((time.monotonic() - start) / period) + 1)
+            next_k = max(k + 1, int((time.monotonic() - start) / period) + 1)
+            self.slots_given_up += next_k - k - 1
+            k = next_k

@@ -12,9 +12,10 @@ the published wrench shows. The node records them on ``TRACE_TOPIC`` as
             row, row, ...]                              (``data_offset`` = HEADER_SIZE)
 
 each row ``COLUMNS`` (``layout.dim[1].label`` names them): ``kind`` (ADVANCE, RESET, LEVEL,
-DROP), the state ``index`` (each advance and each reset makes a new state, counted from 1; 0 is
-the state at start; a level or a drop keeps the index of the state it follows), ``duration_s``, the
-pose ``x y z qx qy qz qw`` (NaN: the needle held where it was), and ``value``: the substeps an
+DROP, PLACE), the state ``index`` (each advance, reset and placement makes a new state, counted
+from 1; 0 is the state at start; a level or a drop keeps the index of the state it follows),
+``duration_s``, the pose ``x y z qx qy qz qw`` (an advance's target, NaN: the needle held where it
+was; a placement's: the needle's new start, a registration), and ``value``: the substeps an
 advance ran (its ``max_steps`` in a replay), the ladder level, or the lag bound a drop kept;
 ``clock_s``: the node-clock time an advance went to, in seconds from the message's tick stamp
 (negative: before it; NaN for the other rows).
@@ -29,13 +30,14 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ['TRACE_TOPIC', 'TRACE_TYPE', 'COLUMNS', 'HEADER_SIZE', 'ADVANCE', 'RESET', 'LEVEL',
-           'DROP', 'TickTrace', 'TraceReplayer', 'advance_row', 'event_row', 'encode', 'decode']
+           'DROP', 'PLACE', 'TickTrace', 'TraceReplayer', 'advance_row', 'event_row', 'place_row', 'encode',
+           'decode']
 
 TRACE_TOPIC = '~/engine_trace'
 TRACE_TYPE = 'std_msgs/msg/Float64MultiArray'
 COLUMNS = ('kind', 'index', 'duration_s', 'x', 'y', 'z', 'qx', 'qy', 'qz', 'qw', 'value', 'clock_s')
 HEADER_SIZE = 3
-ADVANCE, RESET, LEVEL, DROP = 0, 1, 2, 3
+ADVANCE, RESET, LEVEL, DROP, PLACE = 0, 1, 2, 3, 4
 _NO_POSE = (math.nan,) * 7
 
 
@@ -53,6 +55,11 @@ def event_row(kind: int, index: int, value: float = 0.0) -> tuple:
     return (kind, index, 0.0, *_NO_POSE, float(value), None)
 
 
+def place_row(index: int, position, orientation) -> tuple:
+    """The first needle placed at a new start (a registration), making state ``index``."""
+    return (PLACE, index, 0.0, *map(float, position), *map(float, orientation), 0.0, None)
+
+
 @dataclass
 class TickTrace:
     """One tick's record: its stamp [ns], the advance its wrench shows, the rows since the
@@ -65,8 +72,9 @@ class TickTrace:
     def clock_ns(self) -> np.ndarray:
         """(k,) the node-clock time [ns] of each advance row (-1 for the other rows)."""
         offsets = self.rows[:, COLUMNS.index('clock_s')]
-        return np.where(np.isnan(offsets), -1, self.stamp_ns + np.round(np.nan_to_num(offsets) * 1e9)
-                        ).astype(np.int64)
+        # in integers: a stamp of today's epoch as a float64 is only good to 256 ns
+        clock = np.int64(self.stamp_ns) + np.round(np.nan_to_num(offsets) * 1e9).astype(np.int64)
+        return np.where(np.isnan(offsets), np.int64(-1), clock)
 
 
 def encode(stamp_ns: int, published_index: int, rows) -> list[float]:
@@ -91,7 +99,7 @@ def decode(data) -> TickTrace:
 
 class TraceReplayer:
     """A recorded engine trace run through a driver again: the same advances (each with the
-    substeps the node ran), resets, ladder levels and drops, in the same order, so the state
+    substeps the node ran), resets, placements, ladder levels and drops, in the same order, so the state
     after each is the node's, bit for bit with the same scene, threads and kernels.
     ``ladder``: the scene's DegradationLadder (needed when the trace changes levels);
     ``keep_displacement``: keep the displacement of the published states too."""
@@ -125,7 +133,9 @@ class TraceReplayer:
                 self.ladder.set_level(int(row[10]))
             elif kind == DROP:
                 driver.drop_lag(float(row[10]))
-            if kind in (ADVANCE, RESET):
+            elif kind == PLACE:
+                driver.place_needle(row[3:6].copy(), row[6:10].copy())
+            if kind in (ADVANCE, RESET, PLACE):
                 self.index = index
                 self._states[index] = self._state()
         published = self._states[tick.published_index]

@@ -4,6 +4,7 @@
 - :mod:`.conversions`: engine arrays <-> messages, pure functions;
 - :mod:`.cdr_bytes`: the per-tick messages written straight into their CDR bytes;
 - :mod:`.pose_cdr`: a PoseStamped read straight from its CDR bytes;
-- :mod:`.from_yaml`: messages from YAML (the ``msg_examples/`` files).
+- :mod:`.from_yaml`: messages from YAML (the ``msg_examples/`` files);
+- :mod:`.needle_shape`: ``needle/shape`` and the tip's frame.
 """
-__all__ = ['cdr_bytes', 'conversions', 'from_yaml', 'pose_cdr', 'topics']
+__all__ = ['cdr_bytes', 'conversions', 'from_yaml', 'needle_shape', 'pose_cdr', 'topics']

@@ -1,11 +1,10 @@
 """The node's per-tick messages written straight into their CDR bytes: the wrench, the mesh
-state's point cloud, the engine trace and the surface marker.
+state's point cloud, the needle's shape, the engine trace and the surface marker.
 
-Why: in the running node, building these as rclpy message objects and serializing them took
-about 500 us of the executor thread's 700 us a tick (thread time: wrench 290 us, cloud 210 us,
-trace 100 us; ten times what the same calls take on a quiet core, since the physics leaves the
-interpreter's data out of the caches between ticks), 2.5 % of a core at 50 Hz, while their
-layouts are fixed. Each writer here serializes one message through rclpy when it is made, with
+Why: in the running node, building these as rclpy message objects and serializing them would
+take most of the executor thread's time a tick (ten times what the same calls take on a quiet
+core, since the physics leaves the interpreter's data out of the caches between ticks), while
+their layouts are fixed. Each writer here serializes one message through rclpy when it is made, with
 sentinel values, finds where the stamp and the values lie, and checks the layout (little-endian
 plain CDR, as ROS 2's rmw layers write it); each call then writes the stamp and the values into
 those bytes. They decode to the message rclpy would serialize for the same values (the tests
@@ -21,12 +20,14 @@ import numpy as np
 
 from tissue_sim_ros.ros.messages import conversions as cv
 from tissue_sim_ros.ros.loop.trace import COLUMNS, HEADER_SIZE, encode
+from tissue_sim_ros.units import NS_PER_S
 
-__all__ = ['CloudBytes', 'SurfaceMarkerBytes', 'TraceBytes', 'WrenchBytes']
+__all__ = ['CloudBytes', 'NeedleShapeBytes', 'SurfaceMarkerBytes', 'TraceBytes', 'WrenchBytes']
 
 _STAMP = struct.Struct('<iI')
 _UINT32 = struct.Struct('<I')
 _SIX_DOUBLES = struct.Struct('<6d')
+_SEVEN_DOUBLES = struct.Struct('<7d')
 _SENTINEL = 1.2345678901234567e-301
 
 
@@ -111,6 +112,59 @@ class CloudBytes:
         return bytes(self._data)
 
 
+class NeedleShapeBytes:
+    """nav_msgs/Path of a needle's ``n_points`` centreline poses in ``frame_id``
+    (:func:`conversions.needle_shape_msg`) as CDR bytes: the stamps and the seven doubles of each
+    pose written into the bytes serialized once with sentinel values."""
+
+    def __init__(self, n_points: int, frame_id: str, serialize):
+        n = int(n_points)
+        self.frame_id = frame_id
+        values = np.array([[_SENTINEL * (2 + 7 * k + j) for j in range(7)] for k in range(n)]).reshape(n, 7)
+        data = serialize(cv.needle_shape_msg(values[:, :3], values[:, 3:], frame_id, 0))
+        _little_endian(data, 'Path')
+        self._pose_at = [_find_once(data, _SEVEN_DOUBLES.pack(*row), 'Path') for row in values]
+        stamps = serialize(cv.needle_shape_msg(np.zeros((n, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)),
+                                               frame_id, 0x5A5A5A5A * NS_PER_S))
+        marker = _STAMP.pack(0x5A5A5A5A, 0)
+        self._stamp_at = [4] + self._stamp_offsets(stamps, marker, n)
+        self._data = bytearray(data)
+        # the poses and their stamps written at once through byte indices: CDR aligns each pose's
+        # doubles to 8 from the payload's start, so with some frame_id lengths the poses are not
+        # evenly spaced (every other one is 4 bytes further on)
+        self._bytes = np.frombuffer(self._data, dtype=np.uint8)
+        self._pose_bytes = np.add.outer(np.array(self._pose_at), np.arange(56))
+        self._stamp_bytes = np.add.outer(np.array(self._stamp_at[1:], dtype=np.int64), np.arange(8))
+        self._values = np.empty((n, 7), dtype='<f8')
+        self._stamps = np.empty((n, 2), dtype='<u4')
+
+    @staticmethod
+    def _stamp_offsets(data: bytes, marker: bytes, n: int) -> list:
+        """Where each pose's stamp lies (the message's own is at 4)."""
+        found, at = [], data.find(marker, 5)
+        while at >= 0:
+            found.append(at)
+            at = data.find(marker, at + 1)
+        if len(found) != n:
+            raise ValueError('unexpected Path serialization: a pose stamp is not found once per pose')
+        return found
+
+    def serialized(self, positions, quaternions, stamp_ns: int) -> bytes:
+        """The shape of :func:`conversions.needle_shape_msg` (positions (n, 3) [m], quaternions
+        (n, 4)), serialized; refuses NaN or inf naming the row, as that function does."""
+        values = np.hstack([np.asarray(positions, dtype=np.float64), np.asarray(quaternions, dtype=np.float64)])
+        if values.shape != (len(self._pose_at), 7) or not np.all(np.isfinite(values)):
+            cv.needle_shape_msg(positions, quaternions, self.frame_id, stamp_ns)   # raises, naming it
+            raise ValueError(f'positions, quaternions: expected {len(self._pose_at)} finite poses')
+        sec, nanosec = _stamp(stamp_ns)
+        _STAMP.pack_into(self._data, 4, sec, nanosec)
+        self._stamps[:] = (sec, nanosec)
+        self._values[:] = values
+        self._bytes[self._stamp_bytes] = self._stamps.view(np.uint8)
+        self._bytes[self._pose_bytes] = self._values.view(np.uint8)
+        return bytes(self._data)
+
+
 class TraceBytes:
     """One tick's engine trace (:mod:`~tissue_sim_ros.ros.loop.trace`) as the CDR bytes of a
     std_msgs/Float64MultiArray whose layout names the columns (dimensions 'rows' and the
@@ -148,10 +202,10 @@ class TraceBytes:
 
 class SurfaceMarkerBytes:
     """The surface marker as CDR bytes, built without a Python object per point: the marker of
-    :func:`conversions.surface_marker_msg` is serialized once per topology with sentinel corners, and each
-    :meth:`serialized` call writes the corners (float64, the TRIANGLE_LIST order) and the stamp
-    into those bytes. 5.7 ms per marker of 3366 points (build 1.8, serialize 3.9) becomes a
-    numpy gather. ``serialize``: rclpy's serialize_message (passed in)."""
+    :func:`conversions.surface_marker_msg` is serialized once per topology with sentinel
+    corners, and each :meth:`serialized` call writes the corners (float64, the TRIANGLE_LIST
+    order) and the stamp into those bytes: a numpy gather, not milliseconds of Python objects a
+    marker. ``serialize``: rclpy's serialize_message (passed in)."""
 
     def __init__(self, triangles, n_vertices: int, frame_id: str, max_triangles: int, serialize):
         tri = cv._triangles('triangles', triangles, n_vertices)

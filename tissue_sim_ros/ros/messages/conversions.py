@@ -3,7 +3,7 @@
 Every builder takes numpy arrays in SI units (REP 103) and returns a ready-to-publish rclpy
 message; every reader returns numpy arrays. Nothing here publishes, logs or keeps state.
 
-Message cost, measured on this machine (see ``benchmarks``/the closing note of issue 5):
+Message cost:
 
 - ``point_cloud_msg`` packs the whole cloud into one float32 buffer with numpy: no per-point
   Python object. It is the message to send the mesh state in at the full rate.
@@ -19,6 +19,7 @@ nanoseconds, or anything with ``to_msg()`` (``rclpy.time.Time``).
 from __future__ import annotations
 
 import array
+import math
 import sys
 from collections.abc import Iterable, Mapping, Sequence
 
@@ -26,6 +27,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PoseStamped, Vector3, WrenchStamped
+from nav_msgs.msg import Path
 from sensor_msgs.msg import PointCloud2, PointField
 from shape_msgs.msg import Mesh, MeshTriangle
 from std_msgs.msg import ColorRGBA, Header
@@ -37,6 +39,7 @@ __all__ = [
     'decimation_stride',
     'diagnostic_array_msg',
     'header',
+    'needle_shape_msg',
     'ns_to_stamp',
     'point_cloud_arrays',
     'point_cloud_msg',
@@ -215,6 +218,27 @@ def wrench_msg(force, torque, frame_id: str, stamp) -> WrenchStamped:
     msg = WrenchStamped(header=header(frame_id, stamp))
     msg.wrench.force = Vector3(x=float(f[0]), y=float(f[1]), z=float(f[2]))
     msg.wrench.torque = Vector3(x=float(t[0]), y=float(t[1]), z=float(t[2]))
+    return msg
+
+
+def needle_shape_msg(positions, quaternions, frame_id: str, stamp) -> Path:
+    """nav_msgs/Path of the needle's centreline from the base to the tip: a pose per point
+    (position [m], the needle's frame there as a quaternion x y z w, its +z along the needle),
+    every pose stamped ``stamp`` in ``frame_id``; refuses NaN/inf naming the point."""
+    xyz = _points('positions', positions)
+    q = np.asarray(quaternions, dtype=np.float64).reshape(-1, 4)
+    for name, values in (('positions', xyz), ('quaternions', q)):
+        finite = np.all(np.isfinite(values), axis=1)
+        if len(values) != len(xyz) or not finite.all():
+            raise ValueError(f'{name}: expected {len(xyz)} finite rows, one per point of the needle'
+                             + ('' if len(values) != len(xyz) else f' (row {int(np.argmin(finite))} is not)'))
+    msg = Path(header=header(frame_id, stamp))
+    for (x, y, z), (qx, qy, qz, qw) in zip(xyz.tolist(), q.tolist()):
+        pose = PoseStamped(header=header(frame_id, stamp))
+        pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = x, y, z
+        o = pose.pose.orientation
+        o.x, o.y, o.z, o.w = qx, qy, qz, qw
+        msg.poses.append(pose)
     return msg
 
 
@@ -399,7 +423,8 @@ def _format_value(value) -> str:
     if isinstance(value, (bool, np.bool_)):
         return 'true' if value else 'false'
     if isinstance(value, (float, np.floating)):
-        return f'{float(value):.6g}'
+        # a figure that does not exist says so (the statuses write 'none yet'); never 'nan'
+        return f'{float(value):.6g}' if math.isfinite(value) else 'not available'
     return str(value)
 
 
@@ -408,7 +433,8 @@ def diagnostic_array_msg(stamp, statuses: Iterable[Sequence]) -> DiagnosticArray
 
     ``level`` is 'OK'/'WARN'/'ERROR'/'STALE' (any case), 0..3, or the message's byte constant.
     An optional fifth item is the hardware_id. Values become strings: floats with 6
-    significant digits, bools as true/false, the rest with ``str``.
+    significant digits (a non-finite one 'not available'), bools as true/false, the rest with
+    ``str``.
     """
     msg = DiagnosticArray(header=header('', stamp))
     out = []

@@ -7,10 +7,10 @@ field path.
 
 Example file layout (see ``msg_examples/README.md``)::
 
-    topic: needle/pose              # or  service: ~/reset
+    topic: needle/pose              # or  service: ~/reset, or  action: ~/predict_path
     type: geometry_msgs/msg/PoseStamped
     direction: in                   # in | out
-    message: {header: ..., pose: ...}        # services: request: {...} and response: {...}
+    message: {header: ..., pose: ...}        # services: request, response; actions: goal, feedback, result
 """
 from __future__ import annotations
 
@@ -25,16 +25,18 @@ __all__ = ['message_type', 'message_from_dict', 'load_example']
 
 
 def message_type(type_name: str, part: str | None = None):
-    """The Python class of 'pkg/msg/Type', or of a service's Request/Response ('pkg/srv/Type')."""
+    """The Python class of 'pkg/msg/Type', of a service's Request/Response ('pkg/srv/Type') or of an
+    action's Goal/Result/Feedback ('pkg/action/Type')."""
     try:
         parsed = parse_type_name(type_name, short_form=False)
     except ValueError:
         raise ValueError(f'type: {type_name!r}; expected pkg/msg/Type or pkg/srv/Type') from None
     module = importlib.import_module(f'{parsed.package}.{parsed.interface}')
     cls = getattr(module, parsed.name)
-    if parsed.interface == 'srv':
-        if part not in ('Request', 'Response'):
-            raise ValueError(f'{type_name}: a service needs part Request or Response')
+    parts = {'srv': ('Request', 'Response'), 'action': ('Goal', 'Result', 'Feedback')}.get(parsed.interface)
+    if parts is not None:
+        if part not in parts:
+            raise ValueError(f'{type_name}: needs a part, one of {list(parts)}')
         cls = getattr(cls, part)
     return cls
 
@@ -111,13 +113,18 @@ def message_from_dict(cls, data, path: str = ''):
 def load_example(path) -> dict:
     """Read one example file; returns its keys plus ``messages``: {role: message instance}.
 
-    Roles: 'message' for a topic, 'request' and 'response' for a service.
+    Roles: 'message' for a topic, 'request' and 'response' for a service, 'goal', 'feedback' and
+    'result' for an action.
     """
     doc = yaml.safe_load(Path(path).read_text())
     if not isinstance(doc, dict) or 'type' not in doc:
         raise ValueError(f'{path}: expected a mapping with type and message (or request/response)')
     out = dict(doc)
-    if '/srv/' in doc['type']:
+    if '/action/' in doc['type']:
+        out['messages'] = {role: message_from_dict(message_type(doc['type'], role.capitalize()),
+                                                   doc.get(role))
+                           for role in ('goal', 'feedback', 'result')}
+    elif '/srv/' in doc['type']:
         out['messages'] = {
             'request': message_from_dict(message_type(doc['type'], 'Request'), doc.get('request')),
             'response': message_from_dict(message_type(doc['type'], 'Response'),

@@ -1,0 +1,123 @@
+"""propose and calibrate on layered tissue: synthetic two- and three-layer studies made by the
+simulator from hidden values (analysis.synthetic_study.phantom_scene on its small 'test' mesh,
+short insertions, no pause), each repeat with its own rupture forces and deep boundaries drawn
+from the scene's spread, 5 mN of noise.
+
+The truth: the values that made the data (the layer count, the punctures the simulator made,
+the moduli, the rupture forces each repeat drew), and the data's own noise floor. The long
+calibrations (8 keys, the pause and the retraction) are ``tissue-sim bench layered``'s."""
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from tissue_sim_ros.analysis.calibration import calibrate, propose
+from tissue_sim_ros.analysis.synthetic_study import phantom_scene, write_layered_study
+
+#: the tests' spread between repeats: smaller than the phantom's, so that four repeats pin the mean
+SPREAD = {'regions[0].membrane.rupture_force_spread_n': 0.1, 'regions[1].membrane.rupture_force_spread_n': 0.1,
+          'regions[1].depth_spread_m': 0.0003}
+
+
+def truth_scene(layers):
+    from tissue_sim_ros.engine.scene.keys import set_keys
+    scene = phantom_scene(layers, 'test')
+    scene['model']['relaxation'] = []
+    return set_keys(scene, SPREAD)
+
+
+def base_scene():
+    """The start propose builds on: the phantom's mesh, model, solver and needle, one region."""
+    base = phantom_scene(2, 'test')
+    base['regions'] = [{'name': 'tissue', 'select': 'all', 'young_modulus_pa': 15000.0,
+                        'friction': {'insertion_static_n_per_m': 200.0}}]
+    base['model']['relaxation'] = []
+    return base
+
+
+@pytest.fixture(scope='module')
+def studies(tmp_path_factory):
+    """Two layers at 3 mm/s (fitted) and 2 mm/s (held out), three layers at 3 mm/s: 4 repeats
+    each, 16 mm past the surface (22 with three layers) and back."""
+    root = tmp_path_factory.mktemp('layered')
+    for layers in (2, 3):
+        (root / f'truth_{layers}.yaml').write_text(yaml.safe_dump(truth_scene(layers)))
+    (root / 'base.yaml').write_text(yaml.safe_dump(base_scene()))
+    options = dict(repeats=4, hold_s=0.0, workers=2)
+    return {'root': root,
+            'fit': write_layered_study(root / 'fit', [], [3.0], scene_file=root / 'truth_2.yaml', travel_m=0.017,
+                                       seed=1, **options),
+            'held': write_layered_study(root / 'held', [], [2.0], scene_file=root / 'truth_2.yaml', travel_m=0.017,
+                                        seed=2, **options),
+            'three': write_layered_study(root / 'three', [], [3.0], scene_file=root / 'truth_3.yaml', travel_m=0.023,
+                                         seed=3, **options)}
+
+
+def made_punctures(spec):
+    """Per layer: the depths below the surface at which the simulator punctured it, one per repeat."""
+    trials = json.loads((spec.parent / 'truth.json').read_text())['trials'].values()
+    return [np.array([t['punctures'][k]['tip_depth_m'] for t in trials]) for k in range(len(next(iter(trials))['punctures']))]
+
+
+def drawn(spec, key):
+    trials = json.loads((spec.parent / 'truth.json').read_text())['trials'].values()
+    return np.array([t['drawn'][key] for t in trials])
+
+
+@pytest.fixture(scope='module')
+def two_layer_proposal(studies):
+    return propose.main(data_spec=studies['fit'], scene_file=studies['root'] / 'base.yaml', refine_runs=2,
+                        out=studies['root'] / 'propose_2', workers=2)
+
+
+@pytest.mark.parametrize('layers', [2, 3])
+def test_propose_finds_the_layers_and_their_depths_within_the_jitter(studies, two_layer_proposal, layers):
+    """The layer count the scene made, and each layer's depth (travel since contact) within the
+    standard deviation of the depths the simulator punctured it at (and 0.3 mm: the contact's and
+    the puncture's detection); the proposal a scene with one region per layer, its deeper
+    boundaries planes below the surface, and calibrate's --fit keys."""
+    from tissue_sim_ros.engine.scene.scene import Scene
+    spec = studies['fit'] if layers == 2 else studies['three']
+    report = two_layer_proposal if layers == 2 else propose.main(
+        data_spec=spec, scene_file=studies['root'] / 'base.yaml', refine_runs=0, out=studies['root'] / 'propose_3',
+        workers=2)
+    made = made_punctures(spec)
+    assert len(report['layers']) == len(made) == layers
+    for k, (layer, depths) in enumerate(zip(report['layers'], made)):
+        print(f"layer {k}: {layer['depth_m'] * 1e3:.2f} +- {layer['depth_sd_m'] * 1e3:.2f} mm; made at "
+              f'{depths.mean() * 1e3:.2f} +- {depths.std(ddof=1) * 1e3:.2f} mm')
+        assert abs(layer['depth_m'] - depths.mean()) < max(depths.std(ddof=1), 3e-4)
+        assert layer['found'] == 4
+    scene = Scene.from_file(studies['root'] / f'propose_{layers}' / 'proposed.yaml')
+    assert [r['select'] == 'all' for r in scene.spec['regions']] == [True] + [False] * (layers - 1)
+    assert all(f['key'] in {k['key'] for k in report['fits']} for f in report['fits'])
+    assert (studies['root'] / f'propose_{layers}' / 'propose.png').stat().st_size > 0
+
+
+def test_calibrate_from_the_proposal_recovers_the_layers_and_predicts_a_held_out_speed(studies, two_layer_proposal):
+    """From the proposal, both moduli within 10 % of the truth, both rupture forces within 10 % of
+    the repeats' mean draw, and the held-out speed predicted within 1.5x its own noise floor; the
+    calibration figure has the depth view with the punctures, the noise floor and the baseline."""
+    keys = ('regions[0].young_modulus_pa', 'regions[1].young_modulus_pa', 'regions[0].membrane.rupture_force_n',
+            'regions[1].membrane.rupture_force_n', 'regions[1].select.below_z_m')
+    fits = {f['key']: f['text'] for f in two_layer_proposal['fits']}
+    out = studies['root'] / 'calibrate'
+    report = calibrate.main(data_spec=studies['fit'], validate_spec=studies['held'],
+                            scene_file=studies['root'] / 'propose_2' / 'proposed.yaml', fits=[fits[k] for k in keys],
+                            max_evaluations=60, workers=2, out=out)
+    truth = truth_scene(2)
+    expected = {keys[0]: truth['regions'][0]['young_modulus_pa'], keys[1]: truth['regions'][1]['young_modulus_pa'],
+                keys[2]: drawn(studies['fit'], keys[2]).mean(), keys[3]: drawn(studies['fit'], keys[3]).mean()}
+    for key, value in expected.items():
+        got = report['parameters'][key]
+        print(f"{key}: {got['value']:.5g} (truth {value:.5g}, start {got['start']:.5g})")
+        assert got['value'] == pytest.approx(value, rel=0.10)
+    held = report['validation']['speeds'][0]
+    print(f"held out 2 mm/s: NRMSE {held['nrmse_calibrated']:.4f}, noise floor {held['noise_floor_nrmse']:.4f}, "
+          f"nearest speed {held['nearest_speed_nrmse']:.4f}; {report['evaluations']} evaluations")
+    assert held['nrmse_calibrated'] < 1.5 * held['noise_floor_nrmse']
+    assert report['evaluations'] <= 60
+    assert len((out / 'evaluations.jsonl').read_text().splitlines()) == report['evaluations_logged'] \
+        == report['evaluations']
+    assert (out / 'calibrate_held_out_2mm_s.png').stat().st_size > 0

@@ -1,0 +1,35 @@
+"""A load-cell study made by the simulator (analysis/synthetic_study.py): the files it writes read
+back, through their own data description, as the scene's insertion plus white noise of the size
+asked for, on a jittered 10 ms grid, with each trial's speed and repeat. Truth: the same
+insertion run again here (the simulation is deterministic), and the noise's own statistics."""
+import numpy as np
+import pytest
+
+from tissue_sim_ros.analysis.insertion import run_insertion
+from tissue_sim_ros.analysis.synthetic_study import write_synthetic_study
+from tissue_sim_ros.engine.scene.scene import Scene
+from tissue_sim_ros.io.trials.data_spec import DataSpec, load_trials
+
+SETS = ['mesh.generator=box', 'mesh.divisions=[5,5,4]', 'regions[0].membrane.criterion=none',
+        'needle.start_gap_m=0.001']
+
+
+def test_the_trials_are_the_insertion_plus_the_noise_asked_for(tmp_path):
+    spec = write_synthetic_study(tmp_path, SETS, [6.0], travel_m=0.005, hold_s=0.2, repeats=3,
+                                 noise_n=0.004, seed=3)
+    truth = run_insertion(Scene.from_file(None, sets=SETS), 0.006, 0.005, hold_s=0.2, tick=0.01)
+    trials = load_trials(DataSpec.from_file(spec))
+    assert sorted((t.speed_m_s, t.repeat) for t in trials) == [(0.006, 1), (0.006, 2), (0.006, 3)]
+    noise = []
+    for trial in trials:
+        grid = np.arange(trial.n_samples) * 0.01
+        offset = trial.time_s - grid
+        assert np.all((offset >= 0.0) & (offset < 0.001)) and np.ptp(offset) < 1e-6   # one jitter a trial
+        assert trial.time_s[-1] < truth.time[-1]
+        travel = np.interp(trial.time_s, truth.time, truth.travel)
+        # from its first sample; to the file's 6 decimals of s and mm (0.5 us at 6 mm/s: 3 nm)
+        np.testing.assert_allclose(trial.travel_m, travel - travel[0], rtol=0, atol=5e-9)
+        noise.append(trial.axial_force_n - np.interp(trial.time_s, truth.time, truth.axial_force))
+    noise = np.concatenate(noise)
+    assert np.ptp(truth.axial_force) > 20 * 0.004                   # the curve is far above the noise
+    assert noise.std() == pytest.approx(0.004, rel=0.15) and abs(noise.mean()) < 0.001

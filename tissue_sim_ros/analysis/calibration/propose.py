@@ -1,0 +1,312 @@
+"""``tissue-sim propose``: a layered scene proposed from the data, the start ``calibrate`` takes.
+
+1. The trials (a data description) and their punctures as the repeats of each speed share them
+   (:mod:`~tissue_sim_ros.analysis.compare.shared_punctures`): the layers, each with its depth and
+   peak force as distributions over the repeats. The speed with the most repeats (ties: the
+   slowest) sets the count.
+2. Each repeat's features (:mod:`.layer_estimates`), their mean, and the starting values they
+   give (:func:`~.layer_estimates.starting_values`): a scene with one region per layer, the base
+   scene's mesh, model, solver and needle; layer 0 is the outer surface (``select: all``), layer
+   k >= 1 the half-space under its boundary (``below_z_m``, measured from the mesh's top; the
+   needle goes down along -z). The spread between repeats becomes each layer's
+   ``rupture_force_spread_n`` and ``depth_spread_m``.
+3. ``refine_runs`` times: the scene simulated on the median repeat's motion (compare's plan),
+   its features read from the simulated curve as from the data, and the values that a feature
+   reads robustly moved by what it misses (a fixed-point step): every modulus by the ratio of the
+   outer layer's loading levels over the same depths (the data's slopes keep the layers' ratios),
+   the last layer's friction by the slopes after the last puncture, the relaxing part by the
+   pause's. The other values stay as the data gave them: a layer's depth, rupture force and
+   cutting force are read off its own curve, and a simulation whose layers puncture elsewhere
+   says little about them (moved by their features' errors they did not settle on the phantoms).
+   A last run scores the result; the best scene run is the proposal.
+4. Outputs in ``--out DIR``: ``proposed.yaml`` (a complete scene every command takes; ``calibrate
+   --scene DIR/proposed.yaml`` as it is), ``propose.json`` and ``propose.md`` (the layers, each
+   value with how it was derived, each refinement run's NRMSE, the ``--fit`` keys and bounds to
+   calibrate with), ``propose.csv`` (a row per layer), ``propose.png`` (the data by depth and by
+   time, the punctures and pre-drops marked, each layer's depth spread, the proposal's
+   simulation), ``simulations/`` (resume).
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ['fit_suggestions', 'layered_spec', 'main', 'propose']
+
+#: a correction factor of one refinement run is held within [1 / CLAMP, CLAMP]; the relaxing
+#: part's within [1 / RELAX_CLAMP, RELAX_CLAMP] and below MAX_RELAXING (it softens every loading
+#: too: a long pause's relaxation moves the punctures)
+CLAMP, RELAX_CLAMP, MAX_RELAXING = 3.0, 2.0, 0.9
+#: the last layer punctures where the data's does when within this much of its depth [m]
+SAME_LAYER_M = 0.0015
+
+
+def _finite(value) -> bool:
+    return value is not None and isinstance(value, (int, float)) and math.isfinite(value)
+
+
+def _factor(measured, simulated, clamp=CLAMP) -> float:
+    if not (_finite(measured) and _finite(simulated)) or measured <= 0 or simulated <= 0:
+        return 1.0
+    return float(np.clip(measured / simulated, 1.0 / clamp, clamp))
+
+
+def layered_spec(base_spec: dict, values: dict, layers, top_z_m: float) -> dict:
+    """The base scene's keys with one region per layer set from ``values`` (the names of
+    :func:`~.layer_estimates.starting_values`, numbers only), the spread from ``layers``."""
+    import copy
+    spec = copy.deepcopy(base_spec)
+    first = base_spec['regions'][0]
+    regions = []
+    for k, layer in enumerate(layers):
+        region = {'name': f'layer{k}', 'young_modulus_pa': float(values[f'modulus_pa[{k}]']),
+                  'poisson_ratio': first['poisson_ratio'], 'density_kg_per_m3': first['density_kg_per_m3'],
+                  'membrane': {'criterion': 'force', 'rupture_force_n': float(values[f'rupture_n[{k}]']),
+                               'rupture_force_spread_n': float(layer.force_sd_n)},
+                  'cutting_force_n': float(values[f'cutting_n[{k}]']),
+                  'friction': {'insertion_static_n_per_m': first['friction']['insertion_static_n_per_m'],
+                               'insertion_coulomb_n_per_m': float(values[f'friction_n_per_m[{k}]']),
+                               'stick_band_m_per_s': first['friction']['stick_band_m_per_s'],
+                               'retraction_constant_n': float(values[f'retraction_n[{k}]'])}}
+        if k == 0:
+            region['select'] = 'all'
+        else:
+            region['select'] = {'below_z_m': float(top_z_m - values[f'boundary_m[{k}]'])}
+            region['depth_spread_m'] = float(layer.depth_sd_m)
+        regions.append(region)
+    spec['regions'] = regions
+    if 'relaxing' in values:
+        spec['model']['relaxation'] = [{'relative_modulus': float(values['relaxing']),
+                                        'time_constant_s': float(values['relax_time_s'])}]
+    return spec
+
+
+def _curves(comparisons, simulated=False):
+    """(travel since contact, force) of each comparison's data, or of its simulation (NaN filled)."""
+    out = []
+    for c in comparisons:
+        force = np.asarray(c.simulated_n if simulated else c.measured_n, float)
+        finite = np.isfinite(force)
+        if finite.sum() >= 10:
+            out.append((c.travel_since_contact_m, np.interp(np.arange(len(force)), np.flatnonzero(finite),
+                                                            force[finite])))
+    return out
+
+
+def _modulus_factors(measured, measured_curves, simulated, simulated_curves, n_layers: int) -> list[float]:
+    """Per layer, the ratio of the data's loading level to the simulation's over the same depths
+    (:func:`~.layer_estimates.loading_level`: from 10 % to 90 % of the way from where the layer
+    starts loading to the shallower of the two punctures)."""
+    from tissue_sim_ros.analysis.calibration.layer_estimates import loading_level
+    factors = []
+    for k in range(n_layers):
+        start = 0.0 if k == 0 else measured.valley_m[k - 1]
+        end = min(measured.depth_m[k], simulated.depth_m[k]) if _finite(simulated.depth_m[k]) else measured.depth_m[k]
+        if not (_finite(start) and _finite(end)) or end <= start:
+            factors.append(1.0)
+            continue
+        low, high = start + 0.1 * (end - start), start + 0.9 * (end - start)
+        base_data = 0.0 if k == 0 else measured.valley_n[k - 1]
+        base_sim = 0.0 if k == 0 else simulated.valley_n[k - 1]
+        data = np.nanmean([loading_level(t, f, low, high, base_data) for t, f in measured_curves])
+        sim = np.nanmean([loading_level(t, f, low, high, base_sim) for t, f in simulated_curves[:1]])
+        factors.append(_factor(float(data), float(sim)))
+    return factors
+
+
+def _corrected(values: dict, measured, simulated, n_layers: int, factors) -> dict:
+    """``values`` moved by what the simulation's features miss of the data's (module docstring, 3):
+    every modulus by the outer layer's loading-level ratio (``factors[0]``,
+    :func:`_modulus_factors`), the last layer's friction by the slopes after the last puncture
+    once it punctures within ``SAME_LAYER_M`` of the data's, the relaxing part by the pause's."""
+    out = dict(values)
+    for k in range(n_layers):
+        out[f'modulus_pa[{k}]'] *= factors[0]
+    last = n_layers - 1
+    if _finite(simulated.depth_m[last]) and abs(measured.depth_m[last] - simulated.depth_m[last]) <= SAME_LAYER_M:
+        out[f'friction_n_per_m[{last}]'] *= _factor(measured.post_slope_n_per_m, simulated.post_slope_n_per_m)
+    if 'relaxing' in out:
+        out['relaxing'] = min(MAX_RELAXING, out['relaxing'] * _factor(measured.relaxing, simulated.relaxing,
+                                                                     RELAX_CLAMP))
+        out['relax_time_s'] *= _factor(measured.relax_time_s, simulated.relax_time_s)
+    return out
+
+
+def fit_suggestions(spec: dict, n_layers: int, layers) -> list[dict]:
+    """The ``--fit`` keys a calibration of the proposal takes, with bounds around each value."""
+    rows = []
+
+    def add(key, low, high, log=False, acts=''):
+        rows.append({'key': key, 'low': float(low), 'high': float(high), 'log': log, 'acts_on': acts,
+                     'text': f'{key}={low:.6g}:{high:.6g}' + (':log' if log else '')})
+    for k, region in enumerate(spec['regions'][:n_layers]):
+        add(f'regions[{k}].young_modulus_pa', region['young_modulus_pa'] / 3, region['young_modulus_pa'] * 3, True,
+            f'layer {k} loading')
+        if k >= 1:
+            z = region['select']['below_z_m']
+            margin = max(3 * layers[k].depth_sd_m, 0.002)
+            add(f'regions[{k}].select.below_z_m', z - margin, min(z + margin, -1e-4), False,
+                f'where layer {k} loading starts, its puncture depth')
+        rupture = region['membrane']['rupture_force_n']
+        add(f'regions[{k}].membrane.rupture_force_n', 0.5 * rupture, 1.5 * rupture, False, f'puncture {k}')
+        cutting = region['cutting_force_n']
+        add(f'regions[{k}].cutting_force_n', 0.0, max(2 * cutting, cutting + 0.5), False,
+            f'after puncture {k}')
+        retraction = region['friction']['retraction_constant_n']
+        add(f'regions[{k}].friction.retraction_constant_n', 0.0, max(2 * retraction, 0.5), False,
+            f'retraction with the tip in layer {k}')
+    for k, region in enumerate(spec['regions'][:n_layers]):
+        coulomb = region['friction']['insertion_coulomb_n_per_m']
+        if coulomb > 0:
+            add(f'regions[{k}].friction.insertion_coulomb_n_per_m', coulomb / 3, coulomb * 3, True,
+                f'after puncture {k}')
+    if spec['model']['relaxation']:
+        term = spec['model']['relaxation'][0]
+        add('model.relaxation[0].relative_modulus', 0.05, 0.95, False, 'the pause')
+        add('model.relaxation[0].time_constant_s', term['time_constant_s'] / 5, term['time_constant_s'] * 5, True,
+            'the pause')
+    return rows
+
+
+def _trial_features(comparisons, n_layers, simulated=False):
+    from tissue_sim_ros.analysis.calibration.layer_estimates import curve_features, mean_features
+    features = []
+    for c in comparisons:
+        force = c.simulated_n if simulated else c.measured_n
+        finite = np.isfinite(force)
+        if finite.sum() < 10:
+            continue
+        force = np.interp(np.arange(len(force)), np.flatnonzero(finite), force[finite])
+        punctures = _with_events(c, force) if simulated else c.measured_punctures
+        features.append(curve_features(c.time_since_contact_s, c.travel_since_contact_m, force, punctures, n_layers))
+    return mean_features(features) if features else None
+
+
+def _with_events(comparison, force):
+    """The simulated punctures, and for a layer the force shows no drop of (it ruptured while the
+    needle already pressed the next one) the scene's own event: its travel (its peak unknown)."""
+    from dataclasses import replace as replaced
+
+    from tissue_sim_ros.analysis.compare.force_events import Puncture, depth_bounds
+    found = list(comparison.simulated_punctures)
+    have = {p.layer for p in found}
+    travel = comparison.travel_since_contact_m
+    inserting = np.arange(len(travel)) < depth_bounds(travel)[0]
+    for where, layer in comparison.simulated_events:
+        if layer in have or layer < 0 or not inserting.any():
+            continue
+        index = int(np.argmin(np.where(inserting, np.abs(travel - where), np.inf)))
+        found.append(Puncture(index, float(travel[index]), math.nan, 0.0, layer=layer))
+        have.add(layer)
+    return sorted((replaced(p) for p in found), key=lambda p: p.travel_m)
+
+
+def propose(trials, base_scene, *, refine_runs: int = 3, align: str = 'contact', tick_s: float = 0.01,
+            out=None, workers=None, scheduler=None, log=print) -> dict:
+    """Everything the outputs need (module docstring)."""
+    from tissue_sim_ros.analysis.calibration.layer_estimates import starting_values
+    from tissue_sim_ros.analysis.compare.compare import compare_trials, measured_layers
+    from tissue_sim_ros.analysis.compare.measured_motion import measured_motion
+    from tissue_sim_ros.analysis.compare.trial_simulation import ResultStore
+    from tissue_sim_ros.engine.scene.scene import Scene
+    from tissue_sim_ros.errors import InputError
+    wall0 = time.perf_counter()
+    axis = base_scene.needle.axis
+    if axis[2] > -0.99:
+        raise InputError(f'propose: the base scene\'s needle axis is {np.round(axis, 3).tolist()}; the layers it '
+                         'writes are horizontal planes, for a needle going down along -z')
+    speeds: dict = {}
+    for trial in trials:
+        speeds.setdefault(None if trial.speed_m_s is None else round(trial.speed_m_s, 9), []).append(trial)
+    speed = max(speeds, key=lambda s: (len(speeds[s]), -(s or 0.0)))
+    chosen = speeds[speed]
+    motions = [measured_motion(t) for t in chosen]
+    punctures, layer_lists = measured_layers(chosen, motions)
+    layers = layer_lists[0]
+    if not layers:
+        raise InputError(f'propose: no puncture the repeats at {speed * 1e3 if speed else "?"} mm/s share; '
+                         'nothing to build layers from')
+    n = len(layers)
+    log(f'propose: {len(chosen)} repeat(s) at {"unknown speed" if speed is None else f"{speed * 1e3:g} mm/s"}: '
+        f'{n} layer(s) at ' + ', '.join(f'{1e3 * l.depth_m:.2f} +- {1e3 * l.depth_sd_m:.2f} mm' for l in layers))
+    store = ResultStore(Path(out) / 'simulations') if out is not None else None
+    top = float(base_scene.mesh.rest_positions[:, 2].max())
+    base_modulus = float(base_scene.spec['regions'][0]['young_modulus_pa'])
+    # the data's features, read as the simulation's will be (compare's samples since contact)
+    empty = [_measured_comparison(t, m, p) for t, m, p in zip(chosen, motions, punctures)]
+    measured = _trial_features(empty, n)
+    derived = starting_values(measured, base_modulus)
+    values = {name: value for name, (value, _) in derived.items()}
+    runs, best = [], None
+    for run in range(refine_runs + 1):
+        spec = layered_spec(base_scene.spec, values, layers, top)
+        try:
+            scene = Scene(spec, base_dir=base_scene.base_dir)
+        except InputError as exc:
+            log(f'propose: run {run}: the scene refuses {exc}; stopping the refinement')
+            break
+        study = compare_trials(chosen, scene, align=align, tick_s=tick_s, store=store, workers=workers,
+                               scheduler=scheduler, quiet=True)
+        nrmse = [c.errors.get('nrmse_all_samples', math.nan) for c in study['comparisons']]
+        score = float(np.nanmean(nrmse)) if np.isfinite(nrmse).any() else math.inf
+        runs.append({'run': run, 'nrmse_all_samples': score, 'values': dict(values)})
+        log(f'propose: run {run}: NRMSE {score:.4f} over every sample')
+        if best is None or score < best[0]:
+            best = (score, spec, dict(values), study)
+        if run == refine_runs:
+            break
+        simulated = _trial_features(study['comparisons'], n, simulated=True)
+        if simulated is None:
+            log(f'propose: run {run}: the simulation gave no curve to read; stopping the refinement')
+            break
+        factors = _modulus_factors(measured, _curves(empty), simulated, _curves(study['comparisons'], True), n)
+        runs[-1]['simulated'] = {'depth_m': simulated.depth_m, 'peak_n': simulated.peak_n,
+                                 'valley_n': simulated.valley_n, 'post_slope_n_per_m': simulated.post_slope_n_per_m,
+                                 'relaxing': simulated.relaxing, 'modulus_factors': factors}
+        values = _corrected(values, measured, simulated, n, factors)
+    score, spec, values, study = best
+    return {'speed_m_s': speed, 'trials': chosen, 'layers': layers, 'measured': measured, 'derived': derived,
+            'values': values, 'spec': spec, 'runs': runs, 'nrmse_all_samples': score, 'study': study,
+            'fits': fit_suggestions(spec, n, layers), 'base_dir': base_scene.base_dir,
+            'pre_drops': sum(len(_pre_drops(c)) for c in study['comparisons']),
+            'wall_s': time.perf_counter() - wall0}
+
+
+def _pre_drops(comparison):
+    from tissue_sim_ros.analysis.compare.force_events import PRE_DROP, detect_drops
+    return [p for p in detect_drops(comparison.travel_since_contact_m, comparison.measured_n) if p.kind == PRE_DROP]
+
+
+def _measured_comparison(trial, motion, punctures):
+    """A comparison without a simulation: the trial's samples since contact and its punctures."""
+    from types import SimpleNamespace
+    return SimpleNamespace(time_since_contact_s=motion.time_s - motion.time_s[motion.contact_index],
+                           travel_since_contact_m=motion.travel_m - motion.gap_m,
+                           measured_n=np.asarray(trial.axial_force_n, float), measured_punctures=punctures)
+
+
+def main(*, data_spec, scene_file=None, sets=(), out='out/propose', refine_runs=3, align='contact',
+         max_depth_mm=None, tick_ms=10.0, workers=None, scheduler=None, stream=None) -> dict:
+    """The ``tissue-sim propose`` command."""
+    from tissue_sim_ros.analysis.calibration.propose_report import write_proposal
+    from tissue_sim_ros.analysis.charting.auto_keys import load_scene
+    from tissue_sim_ros.io.trials.data_spec import DataSpec, load_trials
+    stream = sys.stdout if stream is None else stream
+    spec = DataSpec.from_file(data_spec)
+    trials = load_trials(spec)
+    if max_depth_mm is not None:
+        from tissue_sim_ros.analysis.compare.measured_motion import within_depth
+        trials = [within_depth(t, max_depth_mm * 1e-3) for t in trials]
+    base = load_scene(scene_file, sets=sets)
+    proposal = propose(trials, base, refine_runs=refine_runs, align=align, tick_s=tick_ms * 1e-3, out=out,
+                       workers=workers, scheduler=scheduler, log=lambda text: print(text, file=stream))
+    report = write_proposal(Path(out), proposal, data_spec=str(data_spec), scene_file=scene_file, sets=sets)
+    print(f"proposed {len(proposal['layers'])} layer(s); NRMSE {proposal['nrmse_all_samples']:.4f} over every "
+          f"sample of {len(proposal['trials'])} repeat(s); {proposal['wall_s']:.1f} s", file=stream)
+    print('calibrate it with:\n  ' + report['calibrate_command'], file=stream)
+    print(f"wrote {', '.join(report['outputs'].values())}", file=stream)
+    return report

@@ -1,0 +1,141 @@
+"""Benchmark of ``propose`` and ``calibrate`` on layered tissue: synthetic phantoms, known values.
+
+``tissue-sim bench layered [--out DIR] [--jobs N] [--max-evaluations 110]``
+
+The data (:func:`~tissue_sim_ros.analysis.synthetic_study.phantom_scene`, the 'bench' mesh, 4356
+tetrahedra): the two-layer phantom, five repeats at each of 1, 2 and 3 mm/s, inserted 25 mm past
+the surface, a 5 s pause, retracted; 5 mN of noise; each repeat draws its layers' rupture forces
+(0.2 N) and the deep boundary's depth (0.5 mm) from the phantom's spread. The three-layer phantom
+at 2 mm/s, five repeats, for the layer count. Then:
+
+1. ``propose`` on each phantom's 2 mm/s repeats from a one-layer base (15 kPa, no relaxation):
+   its time, the layers it finds against the punctures the simulator made (their depth since
+   contact: mean and standard deviation over the repeats);
+2. ``calibrate`` of the two-layer proposal with 8 keys (both moduli, both rupture forces, the
+   deep layer's boundary, its insertion friction, its retraction pull, the relaxing part of the
+   pause) on the five 2 mm/s repeats, ``--max-evaluations``, the 1 and 3 mm/s repeats held out:
+   its time, evaluations and simulations, each key against the truth (nominal, and the mean of
+   the repeats' draws for the spread keys), the fit and the held-out NRMSE against each speed's
+   noise floor and against reusing the nearest measured speed's mean curve.
+
+Printed; the runs' outputs are kept in ``DIR``.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ['main']
+
+#: the 8 keys calibrated (the proposal's bounds)
+KEYS = ('regions[0].young_modulus_pa', 'regions[1].young_modulus_pa', 'regions[0].membrane.rupture_force_n',
+        'regions[1].membrane.rupture_force_n', 'regions[1].select.below_z_m',
+        'regions[1].friction.insertion_coulomb_n_per_m', 'regions[1].friction.retraction_constant_n',
+        'model.relaxation[0].relative_modulus')
+
+
+def _truth_of(scene: dict, key: str):
+    from tissue_sim_ros.engine.scene.keys import get_key
+    return get_key(scene, key)
+
+
+def _write_base(path: Path, layers: int) -> Path:
+    import yaml
+
+    from tissue_sim_ros.analysis.synthetic_study import phantom_scene
+    base = phantom_scene(layers, 'bench')
+    base['regions'] = [{'name': 'tissue', 'select': 'all', 'young_modulus_pa': 15000.0,
+                        'friction': {'insertion_static_n_per_m': 200.0}}]
+    base['model']['relaxation'] = []
+    path.write_text(yaml.safe_dump(base))
+    return path
+
+
+def _made_punctures(spec: Path) -> list[tuple]:
+    """Per layer (in order) the mean and standard deviation of the simulator's puncture depths."""
+    truth = json.loads((spec.parent / 'truth.json').read_text())
+    by_layer: dict = {}
+    for trial in truth['trials'].values():
+        for k, event in enumerate(trial['punctures']):
+            by_layer.setdefault(k, []).append(event['tip_depth_m'])
+    return [(float(np.mean(v)), float(np.std(v, ddof=1))) for _, v in sorted(by_layer.items())]
+
+
+def main(*, out='out/bench_layered', jobs=None, max_evaluations=110) -> dict:
+    """``tissue-sim bench layered``: run the benchmark, print its figures."""
+    import yaml
+
+    from tissue_sim_ros.analysis.calibration import calibrate as calibration
+    from tissue_sim_ros.analysis.calibration import propose
+    from tissue_sim_ros.analysis.synthetic_study import phantom_scene, write_layered_study
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    figures = {}
+    scenes = {}
+    for layers in (2, 3):
+        scenes[layers] = out / f'truth_{layers}_layers.yaml'
+        scenes[layers].write_text(yaml.safe_dump(phantom_scene(layers, 'bench')))
+    wall0 = time.perf_counter()
+    fit_spec = write_layered_study(out / 'two_layers_2mm_s', [], [2.0], scene_file=scenes[2], workers=jobs, seed=1)
+    held_spec = write_layered_study(out / 'two_layers_1_3mm_s', [], [1.0, 3.0], scene_file=scenes[2], workers=jobs,
+                                    seed=2)
+    three_spec = write_layered_study(out / 'three_layers_2mm_s', [], [2.0], scene_file=scenes[3], workers=jobs,
+                                     seed=3)
+    print(f'data: 25 trials simulated in {time.perf_counter() - wall0:.0f} s')
+    proposals = {}
+    for layers, spec in ((2, fit_spec), (3, three_spec)):
+        t0 = time.perf_counter()
+        report = propose.main(data_spec=spec, scene_file=_write_base(out / f'base_{layers}.yaml', layers),
+                              out=out / f'propose_{layers}_layers', workers=jobs)
+        wall = time.perf_counter() - t0
+        made = _made_punctures(spec)
+        found = [(l['depth_m'], l['depth_sd_m']) for l in report['layers']]
+        print(f'\npropose, {layers}-layer phantom: {len(found)} layer(s) found (made {len(made)}) in {wall:.1f} s; '
+              f'proposal NRMSE {report["nrmse_all_samples"]:.4f} over every sample')
+        for k, ((depth, sd), (true_depth, true_sd)) in enumerate(zip(found, made)):
+            print(f'  layer {k}: {depth * 1e3:6.2f} +- {sd * 1e3:.2f} mm; the simulator punctured it at '
+                  f'{true_depth * 1e3:6.2f} +- {true_sd * 1e3:.2f} mm ({(depth - true_depth) / max(true_sd, 1e-9):+.2f} s.d.)')
+        proposals[layers] = report
+        figures[f'propose_{layers}'] = {'wall_s': wall, 'layers': len(found), 'made': len(made), 'found': found,
+                                        'punctured': made, 'nrmse': report['nrmse_all_samples']}
+    fits = {f['key']: f['text'] for f in proposals[2]['fits']}
+    t0 = time.perf_counter()
+    result = calibration.main(data_spec=fit_spec, validate_spec=held_spec, scene_file=out / 'propose_2_layers' /
+                              'proposed.yaml', fits=[fits[key] for key in KEYS], max_evaluations=max_evaluations,
+                              workers=jobs, out=out / 'calibrate_8_keys')
+    wall = time.perf_counter() - t0
+    truth = yaml.safe_load(scenes[2].read_text())
+    drawn = json.loads((fit_spec.parent / 'truth.json').read_text())['trials'].values()
+    print(f'\ncalibrate, 8 keys on 5 repeats at 2 mm/s (4356 tetrahedra): {wall:.1f} s wall, '
+          f"{result['evaluations']} of {max_evaluations} evaluations, {result['simulations']} simulations")
+    recovered = {}
+    for key in KEYS:
+        entry = result['parameters'][key]
+        nominal = float(_truth_of(truth, key))
+        mean = nominal
+        values = [t['drawn'][key] for t in drawn if key in t['drawn']]
+        if values:
+            mean = float(np.mean(values))
+        if key.endswith('below_z_m'):
+            offsets = [t['drawn'].get('regions[1].depth_offset_m', 0.0) for t in drawn]
+            mean = nominal - float(np.mean(offsets))
+        recovered[key] = (entry['value'], nominal, mean)
+        print(f"  {key:48s} {entry['value']:11.5g}  truth {nominal:9.5g} (repeats' mean {mean:9.5g}): "
+              f"{100 * (entry['value'] / mean - 1):+6.1f} %  start {entry['start']:9.5g}")
+    for row in result['speeds']:
+        print(f"  {row['role']:8s} {row['speed_m_s'] * 1e3:g} mm/s: NRMSE {row['nrmse_calibrated']:.4f} (start "
+              f"{row['nrmse_start']:.4f}); noise floor {row['noise_floor_nrmse'] or float('nan'):.4f} "
+              f"({(row['nrmse_calibrated'] or 0) / (row['noise_floor_nrmse'] or float('nan')):.2f}x); nearest "
+              f"speed's data {row['nearest_speed_nrmse'] or float('nan'):.4f}")
+    figures['calibrate'] = {'wall_s': wall, 'evaluations': result['evaluations'], 'simulations': result['simulations'],
+                            'recovered': recovered, 'speeds': result['speeds']}
+    (out / 'figures.json').write_text(json.dumps(figures, indent=2, default=float))
+    return figures
+
+
+if __name__ == '__main__':
+    import sys
+    sys.exit('this benchmark runs as: tissue-sim bench layered (tissue-sim bench --help)')
