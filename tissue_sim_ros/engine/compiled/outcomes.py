@@ -6,7 +6,10 @@ in each.
 """
 from numba import njit
 
-__all__ = ['DONE', 'TAIL', 'DIVERGED', 'ENGAGED', 'REFUSED', 'CHECK', 'energy_limit', 'move_and_watch']
+from tissue_sim_ros.engine.mesh.selectors import region_of_point
+
+__all__ = ['DONE', 'TAIL', 'DIVERGED', 'ENGAGED', 'REFUSED', 'CHECK', 'energy_limit', 'inside_outcome',
+           'move_and_watch']
 
 #: a compiled step's outcome: complete; the needle's Python must decide the rest; the watchdog
 #: tripped (the needle's step not run); (a contact step) samples touched: the Python takes them;
@@ -37,3 +40,25 @@ def move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position, 
         tip[r] += position[r]
     energy[0] += work
     return not bad and kinetic <= energy_limit(watch, energy[0])
+
+
+@njit(cache=True, inline='always')
+def inside_outcome(step, state, energy, results, decide, kinds, params, tags, element_region, apex_rest):
+    """What the Python after an inside step would decide, from the step's nine values ``step``
+    (rigid or flexible needle's, :mod:`~tissue_sim_ros.engine.needle.step`): the work added to
+    ``energy[0]``, the values into ``results``, and DONE when nothing is left to decide (the
+    apex still in the layer's region ``decide[3]``, no shaft point to release or add), else TAIL.
+    ``state``: (the apex's element, whether the applied forces need clearing first), updated."""
+    friction, cutting, n_tip, n_applied, needle_work, apex, travel_along, deepest, speed_along = step
+    state[1] = 0                                   # explicit: the step zeroed what it applied
+    energy[0] += needle_work
+    results[0], results[1], results[2], results[3], results[4] = friction, cutting, n_tip, n_applied, needle_work
+    results[5], results[6], results[7], results[8] = apex, travel_along, deepest, speed_along
+    if not (travel_along < 0.0 and deepest > decide[0]) and apex >= 0 and not decide[1] - deepest >= decide[2]:
+        region = region_of_point(kinds, params, tags, apex_rest[0], apex_rest[1], apex_rest[2], apex)
+        if region < 0:
+            region = element_region[apex]
+        if region == decide[3]:
+            state[0] = apex
+            return DONE
+    return TAIL

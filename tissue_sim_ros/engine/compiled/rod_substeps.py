@@ -9,8 +9,7 @@ straight needle's tip, which the rod's step replaces with the rod's.
 """
 from numba import njit
 
-from tissue_sim_ros.engine.compiled.outcomes import DIVERGED, DONE, TAIL, move_and_watch
-from tissue_sim_ros.engine.mesh.selectors import region_of_point
+from tissue_sim_ros.engine.compiled.outcomes import DIVERGED, inside_outcome, move_and_watch
 from tissue_sim_ros.engine.needle.rod_step import rod_inserted_step
 
 __all__ = ['after_rod_inside_step']
@@ -25,18 +24,5 @@ def after_rod_inside_step(s, work, kinetic, bad, start, move, energy, watch, pos
     if not move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
                           previous_axis, length, tip):
         return DIVERGED
-    (friction, cutting, n_tip, n_applied, needle_work, apex, travel_along, deepest,
-     speed_along) = rod_inserted_step(*needle, state[0], state[1] != 0)
-    state[1] = 0                                   # explicit: the step zeroed what it applied
-    energy[0] += needle_work
-    results[0], results[1], results[2], results[3], results[4] = friction, cutting, n_tip, n_applied, needle_work
-    results[5], results[6], results[7], results[8] = apex, travel_along, deepest, speed_along
-    outcome = TAIL
-    if not (travel_along < 0.0 and deepest > decide[0]) and apex >= 0 and not decide[1] - deepest >= decide[2]:
-        region = region_of_point(kinds, params, tags, apex_rest[0], apex_rest[1], apex_rest[2], apex)
-        if region < 0:
-            region = element_region[apex]
-        if region == decide[3]:
-            state[0] = apex
-            outcome = DONE
-    return outcome
+    return inside_outcome(rod_inserted_step(*needle, state[0], state[1] != 0), state, energy, results, decide,
+                          kinds, params, tags, element_region, apex_rest)

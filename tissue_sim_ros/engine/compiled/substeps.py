@@ -50,14 +50,13 @@ from numba import njit, types
 from tissue_sim_ros.engine.compiled.call import call_compiled, compiled_address, signature_check
 from tissue_sim_ros.engine.compiled.clock import MONOTONIC, THREAD_CPU, clock_ns
 from tissue_sim_ros.engine.compiled.outcomes import (CHECK, DIVERGED, DONE, ENGAGED, REFUSED, TAIL, energy_limit,
-                                                     move_and_watch)
+                                                     inside_outcome, move_and_watch)
 from tissue_sim_ros.engine.compiled.rod_substeps import after_rod_inside_step
 from tissue_sim_ros.engine.needle.kernels import (applied_work, approach_hit, dot3, needle_kinematics, patch_apply,
                                                   patch_solve, put_rigid_points, put_rows, wrench_about)
 from tissue_sim_ros.engine.needle.parameters import rupture_force_at
 from tissue_sim_ros.engine.needle.step import inserted_step
 from tissue_sim_ros.engine.needle.tip import engage_samples
-from tissue_sim_ros.engine.mesh.selectors import region_of_point
 from tissue_sim_ros.engine.solver.explicit import _advance_free
 
 __all__ = ['after_approach_step', 'after_inside_step', 'after_contact_step', 'run_slice',
@@ -105,21 +104,8 @@ def after_inside_step(s, work, kinetic, bad, start, move, energy, watch, positio
     if not move_and_watch(s, work, kinetic, bad, start, move, energy, watch, position, axis, previous_position,
                           previous_axis, length, tip):
         return DIVERGED
-    (friction, cutting, n_tip, n_applied, needle_work, apex, travel_along, deepest,
-     speed_along) = inserted_step(*needle, state[0], state[1] != 0)
-    state[1] = 0                                   # explicit: the step zeroed what it applied
-    energy[0] += needle_work
-    results[0], results[1], results[2], results[3], results[4] = friction, cutting, n_tip, n_applied, needle_work
-    results[5], results[6], results[7], results[8] = apex, travel_along, deepest, speed_along
-    outcome = TAIL
-    if not (travel_along < 0.0 and deepest > decide[0]) and apex >= 0 and not decide[1] - deepest >= decide[2]:
-        region = region_of_point(kinds, params, tags, apex_rest[0], apex_rest[1], apex_rest[2], apex)
-        if region < 0:
-            region = element_region[apex]
-        if region == decide[3]:
-            state[0] = apex
-            outcome = DONE
-    return outcome
+    return inside_outcome(inserted_step(*needle, state[0], state[1] != 0), state, energy, results, decide, kinds, params,
+                          tags, element_region, apex_rest)
 
 
 @njit(cache=True, nogil=True)

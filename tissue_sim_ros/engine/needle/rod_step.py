@@ -13,12 +13,10 @@ floats, so :meth:`.interaction.NeedleTissue.after_inserted_step` and the compile
 import numpy as np
 from numba import njit
 
-from tissue_sim_ros.engine.needle.kernels import (follow_rigid_samples, locate_walk, needle_kinematics,
-                                                  put_rigid_points, put_rows, shaft_solve, wrench_about)
+from tissue_sim_ros.engine.needle.kernels import needle_kinematics, put_rows
 from tissue_sim_ros.engine.needle.rod_coupling import (add_tip_loads, centreline_points, guide_nodes,
                                                        rod_shaft_solve, tip_frame)
-from tissue_sim_ros.engine.needle.step import take_work
-from tissue_sim_ros.engine.needle.tip import take_found, tip_contact_solve
+from tissue_sim_ros.engine.needle.step import close_step, cut_at_tip
 
 __all__ = ['ROD_SWEEPS', 'rod_shaft_step', 'rod_inserted_step']
 
@@ -87,52 +85,16 @@ def rod_inserted_step(rest, displacement, velocity, inverse_mass, force_scale, t
                               point_stiffness, point_pull, node_share, point_segments, point_fractions, tip_rotation,
                               tip_axis, virtual_base, tip_velocity)
     n_applied = n_points
-    n_tip = follow_rigid_samples(rest, displacement, tetrahedra, neighbours, element_boxes, mesh_nodes, tip,
-                                 tip_rotation, sample_offsets, sample_elements, tip_offsets, tip_nodes, tip_weights,
-                                 walk_weights, candidates, near_boxes)
-    if faces_cut:
-        n_faces = engaged.shape[0]
-        take_found(sample_elements, tip_nodes, tip_weights, engaged, new, face_nodes, face_weights)
-        tip_contact_solve(rest, displacement, velocity, inverse_mass, force_scale, face_nodes, face_weights,
-                          engaged, cutting_force_n / n_faces, face_params, tip, tip_rotation, dt, 2, face_forces,
-                          face_points, applied_forces, face_total)
-        put_rows(face_points, n_faces, applied_points, n_applied)
-        put_rows(face_forces, n_faces, applied_point_forces, n_applied)
-        n_applied += n_faces
-    cutting = 0.0
-    if n_tip:
-        cutting_law[0] = cutting_force_n / n_tip
-        cutting = shaft_solve(rest, displacement, velocity, inverse_mass, force_scale, tip_nodes, tip_weights,
-                              n_tip, virtual_base, tip_axis, tip_rotation, tip_velocity, no_rate, dt, 0.0,
-                              cutting_law, 0, np.inf, 0.0, no_offsets, tip_forces, tip_depths, unit_shares,
-                              applied_forces)
-        put_rigid_points(tip, tip_rotation, tip_offsets, n_tip, applied_points, n_applied)
-        put_rows(tip_forces, n_tip, applied_point_forces, n_applied)
-        n_applied += n_tip
+    cutting, n_tip, n_applied = cut_at_tip(
+        rest, displacement, velocity, inverse_mass, force_scale, tetrahedra, neighbours, element_boxes, mesh_nodes,
+        tip, tip_rotation, virtual_base, tip_axis, tip_velocity, no_rate, dt, sample_offsets, sample_elements,
+        tip_offsets, tip_nodes, tip_weights, walk_weights, candidates, near_boxes, cutting_force_n, cutting_law,
+        tip_forces, tip_depths, unit_shares, no_offsets, faces_cut, engaged, new, face_nodes, face_weights,
+        face_params, face_forces, face_points, face_total, applied_forces, applied_points, applied_point_forces,
+        n_applied)
     add_tip_loads(nodes, loads, applied_points, applied_point_forces, n_points, n_applied, scratch)
-    if sparse:
-        work = take_work(applied_forces, velocity, point_nodes, n_points)
-        if faces_cut:
-            work += take_work(applied_forces, velocity, face_nodes, face_nodes.shape[0])
-        work += take_work(applied_forces, velocity, tip_nodes, n_tip)
-    else:
-        work = np.vdot(applied_forces.reshape(-1), velocity.reshape(-1))
-    wrench_about(applied_points, applied_point_forces, n_applied, position, wrench_force, wrench_torque)
-    apex = -2
-    if apex_start >= 0:
-        apex = locate_walk(rest, displacement, tetrahedra, neighbours, apex_start, tip, 64, apex_weights)
-        if apex >= 0:
-            for r in range(3):
-                x = 0.0
-                for k in range(4):
-                    x += apex_weights[k] * rest[tetrahedra[apex, k], r]
-                apex_rest[r] = x
-    travel_along = 0.0
-    speed_along = 0.0
-    for r in range(3):
-        travel_along += travel[r] * tip_axis[r]
-        speed_along += base_velocity[r] * axis[r]
-    deepest = -np.inf
-    for k in range(n_points):
-        deepest = max(deepest, point_depths[k])
-    return friction, cutting, n_tip, n_applied, work * dt, apex, travel_along, deepest, speed_along
+    return (friction, cutting, n_tip, n_applied) + close_step(
+        rest, displacement, velocity, tetrahedra, neighbours, position, axis, tip_axis, dt, tip, travel,
+        base_velocity, point_nodes, n_points, point_depths, tip_nodes, n_tip, faces_cut, face_nodes, applied_forces,
+        applied_points, applied_point_forces, n_applied, wrench_force, wrench_torque, apex_weights, apex_rest,
+        sparse, apex_start)

@@ -22,7 +22,7 @@ from tissue_sim_ros.engine.needle.kernels import (follow_rigid_samples, locate_w
                                                   wrench_about)
 from tissue_sim_ros.engine.needle.tip import take_found, tip_contact_solve
 
-__all__ = ['inserted_step', 'take_work']
+__all__ = ['close_step', 'cut_at_tip', 'inserted_step', 'take_work']
 
 
 @njit(cache=True)
@@ -61,14 +61,39 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
     put_axis_points(position, axis, point_depths, n_points, applied_points, 0)
     put_rows(point_forces, n_points, applied_point_forces, 0)
     n_applied = n_points
+    cutting, n_tip, n_applied = cut_at_tip(
+        rest, displacement, velocity, inverse_mass, force_scale, tetrahedra, neighbours, element_boxes, mesh_nodes,
+        tip, rotation, position, axis, base_velocity, axis_rate, dt, sample_offsets, sample_elements, tip_offsets,
+        tip_nodes, tip_weights, walk_weights, candidates, near_boxes, cutting_force_n, cutting_law, tip_forces,
+        tip_depths, unit_shares, no_offsets, faces_cut, engaged, new, face_nodes, face_weights, face_params,
+        face_forces, face_points, face_total, applied_forces, applied_points, applied_point_forces, n_applied)
+    return (friction, cutting, n_tip, n_applied) + close_step(
+        rest, displacement, velocity, tetrahedra, neighbours, position, axis, axis, dt, tip, travel, base_velocity,
+        point_nodes, n_points, point_depths, tip_nodes, n_tip, faces_cut, face_nodes, applied_forces, applied_points,
+        applied_point_forces, n_applied, wrench_force, wrench_torque, apex_weights, apex_rest, sparse, apex_start)
+
+
+@njit(cache=True)
+def cut_at_tip(rest, displacement, velocity, inverse_mass, force_scale, tetrahedra, neighbours, element_boxes,
+               mesh_nodes, tip, frame, base, along, base_velocity, axis_rate, dt, sample_offsets, sample_elements,
+               tip_offsets, tip_nodes, tip_weights, walk_weights, candidates, near_boxes, cutting_force_n,
+               cutting_law, tip_forces, tip_depths, unit_shares, no_offsets, faces_cut, engaged, new, face_nodes,
+               face_weights, face_params, face_forces, face_points, face_total, applied_forces, applied_points,
+               applied_point_forces, n_applied):
+    """The tip's part of an inside step, in the tip's ``frame`` (rotation) on the line ``base`` +
+    s ``along`` moving at ``base_velocity`` and turning at ``axis_rate``: the cutting samples found
+    again under the end, a sharp tip's faces pushing the displaced tissue aside, the cutting law on
+    the samples, their points of action from row ``n_applied``. The rigid needle's frame is its
+    own; a flexible one's the rod's tip (:mod:`.rod_step`). Returns (cutting force, cutting
+    samples found, points of action written)."""
     n_tip = follow_rigid_samples(rest, displacement, tetrahedra, neighbours, element_boxes, mesh_nodes, tip,
-                                 rotation, sample_offsets, sample_elements, tip_offsets, tip_nodes, tip_weights,
+                                 frame, sample_offsets, sample_elements, tip_offsets, tip_nodes, tip_weights,
                                  walk_weights, candidates, near_boxes)
     if faces_cut:
         n_faces = engaged.shape[0]
         take_found(sample_elements, tip_nodes, tip_weights, engaged, new, face_nodes, face_weights)
         tip_contact_solve(rest, displacement, velocity, inverse_mass, force_scale, face_nodes, face_weights,
-                          engaged, cutting_force_n / n_faces, face_params, tip, rotation, dt, 2, face_forces,
+                          engaged, cutting_force_n / n_faces, face_params, tip, frame, dt, 2, face_forces,
                           face_points, applied_forces, face_total)
         put_rows(face_points, n_faces, applied_points, n_applied)
         put_rows(face_forces, n_faces, applied_point_forces, n_applied)
@@ -77,11 +102,24 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
     if n_tip:
         cutting_law[0] = cutting_force_n / n_tip
         cutting = shaft_solve(rest, displacement, velocity, inverse_mass, force_scale, tip_nodes, tip_weights,
-                              n_tip, position, axis, rotation, base_velocity, axis_rate, dt, 0.0, cutting_law, 0,
+                              n_tip, base, along, frame, base_velocity, axis_rate, dt, 0.0, cutting_law, 0,
                               np.inf, 0.0, no_offsets, tip_forces, tip_depths, unit_shares, applied_forces)
-        put_rigid_points(tip, rotation, tip_offsets, n_tip, applied_points, n_applied)
+        put_rigid_points(tip, frame, tip_offsets, n_tip, applied_points, n_applied)
         put_rows(tip_forces, n_tip, applied_point_forces, n_applied)
         n_applied += n_tip
+    return cutting, n_tip, n_applied
+
+
+@njit(cache=True)
+def close_step(rest, displacement, velocity, tetrahedra, neighbours, position, axis, along, dt, tip, travel,
+               base_velocity, point_nodes, n_points, point_depths, tip_nodes, n_tip, faces_cut, face_nodes,
+               applied_forces, applied_points, applied_point_forces, n_applied, wrench_force, wrench_torque,
+               apex_weights, apex_rest, sparse, apex_start):
+    """The end of an inside step: the work the needle's forces put in over it (module docstring of
+    :func:`inserted_step` on ``sparse``), the reaction wrench about the base ``position``, the
+    walk to the tip's apex, the tip's travel along ``along`` (the rigid needle's ``axis``, a
+    flexible one's tip axis) and the base's speed along ``axis``, the deepest shaft point.
+    Returns (work [J], apex element, travel along [m], deepest [m], speed along [m/s])."""
     if sparse:
         work = take_work(applied_forces, velocity, point_nodes, n_points)
         if faces_cut:
@@ -102,12 +140,12 @@ def inserted_step(rest, displacement, velocity, inverse_mass, force_scale, tetra
     travel_along = 0.0
     speed_along = 0.0
     for r in range(3):
-        travel_along += travel[r] * axis[r]
+        travel_along += travel[r] * along[r]
         speed_along += base_velocity[r] * axis[r]
     deepest = -np.inf
     for k in range(n_points):
         deepest = max(deepest, point_depths[k])
-    return friction, cutting, n_tip, n_applied, work * dt, apex, travel_along, deepest, speed_along
+    return work * dt, apex, travel_along, deepest, speed_along
 
 
 @njit(cache=True)
