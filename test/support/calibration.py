@@ -59,13 +59,17 @@ class _LinearObjective:
     def evaluations(self):
         return list(self._cache.values())
 
+    def values(self, u):
+        """The scene values an evaluation records (none here)."""
+        return {}
+
     def evaluate_many(self, us, phases=None):
         from tissue_sim_ros.analysis.calibration.objective import Evaluation
         out = []
         for u in us:
             k = self._key(u)
             if k not in self._cache:
-                self._cache[k] = Evaluation(k, {}, self.residuals(u), [], [])
+                self._cache[k] = Evaluation(k, self.values(u), self.residuals(u), [], [])
                 if self.best is None or self._cache[k].objective < self.best.objective:
                     self.best = self._cache[k]
             out.append(self._cache[k])

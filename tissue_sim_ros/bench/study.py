@@ -140,7 +140,7 @@ def _start_cluster(workers: int, log_dir: Path):
             with Client(address, timeout=5) as client:
                 if len(client.scheduler_info()['workers']) == workers:
                     return address, processes
-        except OSError:
+        except OSError:              # the scheduler not listening yet: asked again below
             pass
         time.sleep(1)
     _stop(processes)

@@ -46,50 +46,26 @@ BLOCKS = {'segment 0': (0, 1), 'segment 1': (0, 2, 3, 4), 'segment 2': (2, 5), '
           'retraction 1': (6,), 'hold': (7, 3)}
 
 
-class LayeredLinearObjective:
+class LayeredLinearObjective(_LinearObjective):
     """r(u) = A u - b, A's rows in blocks by label (``BLOCKS``), with the objective interface the
     search uses (staged stages pick their labels' rows)."""
 
     def __init__(self, b_noise=0.0, seed=0, rows=12):
         rng = np.random.default_rng(seed)
-        self.keys = [parse_fit(text) for text in KEYS]
+        keys = [parse_fit(text) for text in KEYS]
         self.regions, self.n_layers = REGIONS, 2
         self.labels = np.repeat(list(BLOCKS), rows)
-        self.A = np.zeros((len(self.labels), len(self.keys)))
+        A = np.zeros((len(self.labels), len(keys)))
         for label, acting in BLOCKS.items():
             rows_of = self.labels == label
-            self.A[np.ix_(rows_of, acting)] = rng.normal(size=(rows, len(acting)))
-        self.optimum_u = rng.uniform(0.2, 0.8, size=len(self.keys))
-        self.b = self.A @ self.optimum_u + b_noise * rng.normal(size=len(self.labels))
-        self.least_squares_u = np.linalg.lstsq(self.A, self.b, rcond=None)[0]
-        self._cache, self.best, self.budget = {}, None, None
-
-    @staticmethod
-    def _key(u):
-        from tissue_sim_ros.analysis.calibration.objective import Objective
-        return Objective._key(u)
-
-    @property
-    def evaluations(self):
-        return list(self._cache.values())
+            A[np.ix_(rows_of, acting)] = rng.normal(size=(rows, len(acting)))
+        self.optimum_u = rng.uniform(0.2, 0.8, size=len(keys))
+        b = A @ self.optimum_u + b_noise * rng.normal(size=len(self.labels))
+        self.least_squares_u = np.linalg.lstsq(A, b, rcond=None)[0]
+        super().__init__(A, b, keys)
 
     def values(self, u):
         return {k.key: k.value(x) for k, x in zip(self.keys, u)}
-
-    def evaluate_many(self, us, phases=None):
-        from tissue_sim_ros.analysis.calibration.objective import Evaluation
-        out = []
-        for u in us:
-            k = self._key(u)
-            if k not in self._cache:
-                self._cache[k] = Evaluation(k, self.values(u), self.A @ np.asarray(u) - self.b, [], [])
-                if self.best is None or self._cache[k].objective < self.best.objective:
-                    self.best = self._cache[k]
-            out.append(self._cache[k])
-        return out
-
-    def evaluate(self, u, phases=None):
-        return self.evaluate_many([u])[0]
 
     def stage_residuals(self, evaluation, phases=None):
         if phases is None:

@@ -94,7 +94,7 @@ def settled_state(simulation, key_text: str) -> tuple[np.ndarray, dict]:
             u = np.load(path)
             if u.shape == simulation.displacement.shape and np.isfinite(u).all():
                 return u, {'iterations': 0, 'residual': None, 'cached': str(path)}
-        except (OSError, ValueError):
+        except (OSError, ValueError):      # an unreadable entry: settled again below
             pass
     u, info = settle(simulation)
     if path is not None:
@@ -103,6 +103,6 @@ def settled_state(simulation, key_text: str) -> tuple[np.ndarray, dict]:
             partial = path.with_suffix('.partial.npy')
             np.save(partial, u)
             os.replace(partial, path)
-        except OSError:
+        except OSError:                    # a cache that cannot be written: the run goes on
             pass
     return u, info
