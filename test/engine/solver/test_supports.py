@@ -38,6 +38,29 @@ def test_the_full_model_settles_near_the_linear_one():
     assert np.abs(full - linear).max() < 0.03 * np.abs(linear).max()
 
 
+def test_a_threshold_is_set_aside_while_settling_the_full_models_equilibrium():
+    """With a non-linearity threshold in the middle of the sag's gradients (2 % at the bottom of
+    the column, 0 at its top) the state found is the full model's own equilibrium (its residual
+    with every element non-linear), and the threshold is the scene's again afterwards."""
+    from tissue_sim_ros.engine.solver.settle import settle
+    scene = block(ON_FOUNDATION, model={'geometric': True, 'nonlinearity_threshold': 0.01})
+    sim = scene.simulation
+    u, info = settle(sim, tolerance=1e-10)
+    assert sim.model.nonlinearity_threshold == 0.01
+    sim.model.set_nonlinearity_threshold(0.0)
+    force = sim.model.internal_forces(u, out=np.empty_like(u))
+    sim.add_support_forces(u, force)
+    force += sim.body_forces
+    free = sim.dof_kind == 0
+    assert np.linalg.norm(force * free) < 1e-9 * np.linalg.norm(sim.body_forces * free)
+    # and the thresholded model's forces there are out of balance (the threshold matters here)
+    sim.model.set_nonlinearity_threshold(0.01)
+    thresholded = sim.model.internal_forces(u, out=np.empty_like(u))
+    sim.add_support_forces(u, thresholded)
+    thresholded += sim.body_forces
+    assert np.linalg.norm(thresholded * free) > 1e-6 * np.linalg.norm(sim.body_forces * free)
+
+
 def test_supports_that_cannot_stop_rigid_motion_are_refused_naming_the_key():
     corner = [0.0, 0.0, 0.0, 1e-4]
     with pytest.raises(SceneError, match=r'boundary\.fixed.*holds 1 node.*free to move rigidly'):

@@ -5,7 +5,11 @@ force, K_s the foundations', f_g the body forces) is solved by modified Newton: 
 u += K0^-1 r(u), with K0 the rest state's linear stiffness plus the foundations', factored once
 (scipy's sparse LU). For the linear model that is the exact solve in one iteration; for the
 non-linear ones it converges linearly at the small strains an organ's own weight makes, to the
-non-linear model's own equilibrium. The state it finds is the one a reset returns to
+non-linear model's own equilibrium. The non-linearity threshold is set aside for the solve (every
+element on the non-linear path): a settled organ is turned a little on its supports, its elements'
+displacement gradients spread around a threshold such as 0.05, and the force's jump where an
+element crosses it kept the iteration from converging; the threshold is the run's approximation of
+the model, applied from the first step on. The state it finds is the one a reset returns to
 (``Simulation.set_initial_state``); :func:`settled_state` caches it per scene, keyed by the
 arrays and values that decide it.
 """
@@ -20,6 +24,9 @@ import numpy as np
 from tissue_sim_ros.errors import SceneError
 
 __all__ = ['settle', 'settled_state']
+
+#: how the state is found, in the cache key: a change here settles every scene again
+_RULES = 'modified Newton; the non-linearity threshold set aside'
 
 
 def _stiffness(simulation, free):
@@ -62,17 +69,22 @@ def settle(simulation, tolerance=1e-9, max_iterations=200) -> tuple[np.ndarray, 
                          'of it is held by no support (boundary.fixed, boundary.springs)') from exc
     force = np.empty_like(u)
     residual = np.inf
-    for iteration in range(1, max_iterations + 1):
-        model.internal_forces(u, out=force)
-        simulation.add_support_forces(u, force)
-        force += loads
-        residual = float(np.linalg.norm(force * free)) / scale
-        if residual <= tolerance:
-            return u, {'iterations': iteration - 1, 'residual': residual}
-        step = factor.solve(force.ravel()[index])
-        if not np.isfinite(step).all():
-            break
-        u.ravel()[index] += step
+    threshold = model.nonlinearity_threshold
+    model.set_nonlinearity_threshold(0.0)
+    try:
+        for iteration in range(1, max_iterations + 1):
+            model.internal_forces(u, out=force)
+            simulation.add_support_forces(u, force)
+            force += loads
+            residual = float(np.linalg.norm(force * free)) / scale
+            if residual <= tolerance:
+                return u, {'iterations': iteration - 1, 'residual': residual}
+            step = factor.solve(force.ravel()[index])
+            if not np.isfinite(step).all():
+                break
+            u.ravel()[index] += step
+    finally:
+        model.set_nonlinearity_threshold(threshold)
     raise SceneError(f'solver.gravity_m_s2: the tissue did not settle under gravity ({max_iterations} iterations, '
                      f'residual {residual:.3g} of the load): the supports are too soft for its weight '
                      '(boundary.springs) or the model too non-linear at that sag')
@@ -82,7 +94,7 @@ def settled_state(simulation, key_text: str) -> tuple[np.ndarray, dict]:
     """:func:`settle`'s result, read from the per-user cache when this scene (``key_text``: the
     values that decide it) was settled before, else solved and stored."""
     from tissue_sim_ros.system.user_cache import user_cache_dir
-    digest = hashlib.sha256(key_text.encode())
+    digest = hashlib.sha256((key_text + _RULES).encode())
     model = simulation.model
     for array in (model.mesh.rest_positions, model.tetrahedra, simulation.body_forces, simulation.dof_kind,
                   simulation.support_rows, simulation.support_stiffness):
