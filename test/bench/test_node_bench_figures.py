@@ -65,16 +65,18 @@ def test_latency_is_receipt_to_the_publish_of_the_first_wrench_computed_with_the
     assert f['poses_not_in_a_wrench'] == 1                  # 44 ms: no advance went there
 
 
-def test_diagnostic_figures_read_the_last_message_and_the_kernel_over_the_window():
+def test_diagnostic_figures_read_the_counters_and_the_kernel_over_the_window():
     diagnostic_msgs = pytest.importorskip('diagnostic_msgs.msg')
     from builtin_interfaces.msg import Time
 
-    def array(sec, missed, kernel_s, advances=0):
+    def array(sec, missed, kernel_s, advances=0, dropped_s=0.0, changes=0):
         status = diagnostic_msgs.DiagnosticStatus(name='tissue_sim: engine', values=[
             diagnostic_msgs.KeyValue(key='missed_ticks', value=str(missed)),
             diagnostic_msgs.KeyValue(key='advances_total', value=str(advances)),
             diagnostic_msgs.KeyValue(key='advances_per_s', value='99'),
-            diagnostic_msgs.KeyValue(key='ticks', value='1000'),
+            diagnostic_msgs.KeyValue(key='ticks', value=str(50 * sec)),
+            diagnostic_msgs.KeyValue(key='dropped_time_s', value=str(dropped_s)),
+            diagnostic_msgs.KeyValue(key='ladder_changes', value=str(changes)),
             diagnostic_msgs.KeyValue(key='kernel_s_total', value=str(kernel_s)),
             diagnostic_msgs.KeyValue(key='budget_use', value='0.5')])
         inputs = diagnostic_msgs.DiagnosticStatus(name='tissue_sim: input', values=[
@@ -82,9 +84,16 @@ def test_diagnostic_figures_read_the_last_message_and_the_kernel_over_the_window
         msg = diagnostic_msgs.DiagnosticArray(status=[status, inputs])
         msg.header.stamp = Time(sec=sec)
         return msg
-    f = node_bench_figures.diagnostic_figures([array(10, 7, 1.0, 40), array(11, 7, 1.5, 100),
-                                               array(20, 3, 4.0, 640)], window_start_ns=11 * 1_000_000_000)
-    assert (f['missed_ticks'], f['ticks'], f['budget_use']) == (3, 1000, 0.5)
+    # the node counts from its start: a start that dropped 40 s and missed 7 ticks before the
+    # window is not the window's
+    messages = [array(10, 7, 1.0, 40, 30.0, 1), array(11, 7, 1.5, 100, 40.0, 1),
+                array(20, 10, 4.0, 640, 40.25, 3)]
+    f = node_bench_figures.diagnostic_figures(messages, window_start_ns=11 * 1_000_000_000)
+    assert (f['missed_ticks'], f['ticks'], f['budget_use']) == (3, 450, 0.5)
+    assert (f['dropped_time_s'], f['ladder_changes']) == (pytest.approx(0.25), 2)
+    whole = node_bench_figures.diagnostic_figures([array(20, 10, 4.0, 640, 40.25, 3)], window_start_ns=0)
+    # no message before the window: the node's counts since its start
+    assert (whole['missed_ticks'], whole['ticks'], whole['dropped_time_s']) == (10, 1000, 40.25)
     assert f['kernel_s_in_window'] == pytest.approx(2.5)   # from the last message before the window
     assert f['advances_per_s'] == pytest.approx(60.0)      # (640 - 100) advances in 9 s, not the last second's
     assert f['node_latency_ms_p99_own'] == 12.5

@@ -212,11 +212,22 @@ def engine_dt_s(diagnostics: list) -> float:
     return dt if dt > 0.0 else 0.0
 
 
+def _in_window(engine: dict, engine0: dict, key: str, kind=int):
+    """A cumulative counter of the engine's status over the window: the last value minus the one
+    the last message before the window had (the node counts from its start, and a large scene's
+    start, with nothing to keep up with yet, drops time and misses ticks of its own); the last
+    value where no message came before the window, -1 (NaN) where the node did not report it."""
+    if key not in engine:
+        return kind(-1) if kind is int else float('nan')
+    last = kind(_number(engine, key))
+    return last - kind(_number(engine0, key)) if key in engine0 else last
+
+
 def diagnostic_figures(diagnostics: list, window_start_ns: int | None = None) -> dict:
-    """Counters from the node's last diagnostics (engine and input status), and the engine's
-    kernel seconds over the window and its advances a second (from the last message before it
-    starts: its cumulative ``kernel_s_total`` and ``advances_total``). -1 or NaN where the node
-    did not report a figure."""
+    """Figures from the node's diagnostics (engine and input status): its counters over the window
+    (missed ticks, ticks, dropped time, ladder changes, kernel seconds, advances a second: the last
+    message's minus the last one's before the window starts), and the last message's state (budget
+    use, lag, ladder level). -1 or NaN where the node did not report a figure."""
     from tissue_sim_ros.ros.messages.conversions import stamp_to_ns
     last = diagnostics[-1] if diagnostics else None
     engine, inputs = status_values(last, 'engine'), status_values(last, 'input')
@@ -229,13 +240,13 @@ def diagnostic_figures(diagnostics: list, window_start_ns: int | None = None) ->
     advances = ((_number(engine, 'advances_total') - _number(engine0, 'advances_total')) / span_s
                 if span_s > 0 else _number(engine, 'advances_per_s'))
     return {
-        'missed_ticks': int(engine.get('missed_ticks', -1)),
-        'ticks': int(engine.get('ticks', -1)),
+        'missed_ticks': _in_window(engine, engine0, 'missed_ticks'),
+        'ticks': _in_window(engine, engine0, 'ticks'),
         'budget_use': _number(engine, 'budget_use'),
         'lag_s': _number(engine, 'lag_s'),
-        'dropped_time_s': _number(engine, 'dropped_time_s'),
+        'dropped_time_s': _in_window(engine, engine0, 'dropped_time_s', float),
         'ladder_level': int(engine.get('ladder_level', -1)),
-        'ladder_changes': int(engine.get('ladder_changes', -1)),
+        'ladder_changes': _in_window(engine, engine0, 'ladder_changes'),
         'engine_threads': int(engine.get('engine_threads', -1)),
         'kernel_share_of_engine': _number(engine, 'kernel_share_of_engine'),
         'advances_per_s': advances,
