@@ -117,6 +117,15 @@ class _BenchClient:
             return True
         return status_values(self.diagnostics[-1], 'predictions').get('workers_state') == 'starting'
 
+    def ladder_measuring(self) -> bool:
+        """Whether the node's degradation ladder is still measuring its rungs' errors (its probe: a
+        run of the scene at every level, in a thread beside the engine, the first start of a scene;
+        the ladder does not step before), or no diagnostics came yet to tell."""
+        if not self.diagnostics:
+            return True
+        engine = status_values(self.diagnostics[-1], 'engine')
+        return engine.get('ladder_predicted_error') == 'not measured yet'
+
     def await_next_diagnostics(self, timeout_s: float = 3.0) -> None:
         """Wait for one more diagnostics message (the counters at the end of the window)."""
         seen, deadline = len(self.diagnostics), time.monotonic() + timeout_s
@@ -173,6 +182,10 @@ def _run_node(log_dir: Path, params: list[str], domain_id: int | None, start, ti
             # several seconds): the window starts after, so the node is measured, not its start
             warm_up_s = node.wait_until(lambda: not client.predictions_starting(), 300.0,
                                         'start its prediction workers') - startup_s
+            # and its ladder's probe (a core for about a minute on an organ-scale scene's first
+            # start, and no ladder step before it ends): likewise not the node's steady state
+            probe_s = node.wait_until(lambda: not client.ladder_measuring(), 900.0,
+                                      'measure its degradation ladder') - startup_s - warm_up_s
             with BackgroundLoad(load, node.env, listen=listen) as background:
                 time.sleep(1.0)  # let the first ticks (caches, page faults) pass
                 if burst is not None:
@@ -185,7 +198,8 @@ def _run_node(log_dir: Path, params: list[str], domain_id: int | None, start, ti
             time.sleep(0.2)
         finally:
             client.close()
-    return {'window': window, 'startup_s': startup_s, 'warm_up_s': warm_up_s, 'exit_code': exit_code,
+    return {'window': window, 'startup_s': startup_s, 'warm_up_s': warm_up_s, 'probe_s': probe_s,
+            'exit_code': exit_code,
             'predictions': burst.figures() if burst is not None else {},
             'wrench_rx': np.array(client.wrench_rx, dtype=np.int64),
             'diagnostics': client.diagnostics, 'load': background.describe(),
@@ -228,6 +242,7 @@ def measure(duration_s: float = 20.0, rate_hz: float = 100.0, scene_file: str | 
         'poses_logged': int(len(log['pose_receipt'])),
         'startup_s': run['startup_s'],
         'prediction_warm_up_s': run['warm_up_s'],
+        'ladder_probe_wait_s': run['probe_s'],
         'node_exit_code': run['exit_code'],
         **rate_and_periods(run['wrench_rx'], log['wrench_tick'], window, publish_rate_hz),
         **latencies(log, run['wrench_rx'], window, engine_dt_s(run['diagnostics'])),
@@ -251,7 +266,9 @@ def report(r: dict) -> str:
         f'{r["duration_s"]:.1f} s measured, poses at {r["pose_rate_hz"]:g} Hz '
         f'({r["poses_sent"]} sent, {r["poses_logged"]} logged by the node), node up in {r["startup_s"]:.1f} s'
         + (f', its prediction workers warm {r["prediction_warm_up_s"]:.1f} s later (the window starts after)'
-           if r.get('prediction_workers', -1) > 0 else ''),
+           if r.get('prediction_workers', -1) > 0 else '')
+        + (f', its ladder measured {r["ladder_probe_wait_s"]:.1f} s later'
+           if r.get('ladder_probe_wait_s', 0) > 0.5 else ''),
         f'  load beside the node {r["load"]}; before the run: {r["machine_before"]}'
         + (f'; parameters {" ".join(r["parameters"])}' if r.get('parameters') else ''),
         f'  wrench rate          {r["wrench_rate_hz"]:8.3f} Hz   ({r["wrench_rate_error_pct"]:+.2f} %; goal within '

@@ -187,7 +187,9 @@ def _engine_status(name, now_ns, stats, engine, ticks) -> tuple:
         error = ladder.predicted_error()
         values.update({'ladder_level': ladder.level, 'ladder_rung': ladder.rung.name,
                        'ladder_changes': engine.ladder_changes,
-                       'ladder_predicted_error': 'not measured yet' if error is None else error})
+                       # 'not measured': the probe failed (its warning says why); the ladder steps anyway
+                       'ladder_predicted_error': error if error is not None else
+                       'not measured yet' if ladder.predicted_errors is None else 'not measured'})
     return f'{name}: engine', level, state, values
 
 
