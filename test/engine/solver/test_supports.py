@@ -61,6 +61,18 @@ def test_a_threshold_is_set_aside_while_settling_the_full_models_equilibrium():
     assert np.linalg.norm(thresholded * free) > 1e-6 * np.linalg.norm(sim.body_forces * free)
 
 
+def test_a_float32_model_settles_to_its_round_off_near_the_float64_one():
+    """A float32 element pass cannot bring the residual to 1e-9 of the loads (its forces' round-off
+    is larger): it settles to FLOAT32_TOLERANCE, within float32's reach of the float64 state."""
+    from tissue_sim_ros.engine.solver.settle import FLOAT32_TOLERANCE, settle
+    double = block(ON_FOUNDATION, model={'geometric': True})
+    single = block(ON_FOUNDATION, model={'geometric': True, 'precision': 'float32'})
+    u, info = settle(single.simulation)
+    assert info['residual'] <= FLOAT32_TOLERANCE
+    reference = double.simulation.displacement
+    assert np.abs(u - reference).max() < 2 * FLOAT32_TOLERANCE * np.abs(reference).max()
+
+
 def test_supports_that_cannot_stop_rigid_motion_are_refused_naming_the_key():
     corner = [0.0, 0.0, 0.0, 1e-4]
     with pytest.raises(SceneError, match=r'boundary\.fixed.*holds 1 node.*free to move rigidly'):
