@@ -52,3 +52,12 @@ def test_force_nrmse_is_the_rms_difference_over_the_reference_range():
     force = reference + np.array([0.1, -0.1, 0.1, -0.1])
     assert organ_scale.force_nrmse(force, reference) == pytest.approx(0.1 / 2.0)
     assert organ_scale.force_nrmse(reference, reference) == 0.0
+
+
+def test_a_run_holds_with_no_missed_tick_no_dropped_time_and_room_in_its_budget():
+    kept = dict(missed_ticks=0, ladder_level=-1, ladder_changes=-1, dropped_time_s=0.0, budget_use=0.93)
+    assert organ_scale.holds(kept)                                  # the ladder off: not reported
+    assert organ_scale.holds(dict(kept, ladder_level=0, ladder_changes=0))
+    for failed in (dict(missed_ticks=1), dict(dropped_time_s=0.02), dict(budget_use=1.05),
+                   dict(ladder_level=1), dict(ladder_level=0, ladder_changes=2)):
+        assert not organ_scale.holds(dict(kept, **failed)), failed

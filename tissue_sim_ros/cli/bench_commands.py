@@ -49,7 +49,7 @@ def _organ(args):
         raise CommandLineError(f'--models {" ".join(unknown)}: unknown; expected some of '
                                f'{", ".join(organ_scale.MODELS)}')
     organ_scale.main([int(s) for s in args.sizes], args.models, args.set, args.duration_s, args.out,
-                     args.threads, args.accuracy)
+                     args.threads, args.accuracy, args.ladder)
 def _robot_graph(args):
     from tissue_sim_ros.bench import robot_graph
     robot_graph.main(rounds=args.rounds, seconds=args.seconds, rate_hz=args.rate_hz, goals=args.goals)
@@ -136,6 +136,9 @@ def add_bench_commands(commands):
     organ.add_argument('--accuracy', action='store_true',
                        help="also run the insertion offline: each row's estimated inertia error and, with "
                        '--set, its axial-force NRMSE against the scene as configured')
+    organ.add_argument('--ladder', action='store_true',
+                       help="the node's degradation ladder on (default off: whether the scene's own settings "
+                       'keep real time)')
     organ.add_argument('--out', type=output_dir, default='out/bench_organ', help='output directory')
     organ.set_defaults(run=_organ)
     graph = which.add_parser('robot-graph',
