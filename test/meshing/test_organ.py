@@ -38,3 +38,20 @@ def test_the_planned_needle_reaches_the_tumour_centre(organ):
     assert lateral < 0.001 and abs(offset @ axis - travel) < 0.002
     assert organ.start_gap_m == pytest.approx(0.001, abs=1e-6)
     assert abs(axis[2]) < 0.95                                     # an oblique approach
+
+
+def test_the_real_time_variant_is_the_example_but_for_its_three_values():
+    """config/organ_example_realtime.yaml repeats the example (the node takes one scene file): every
+    key the same but the viscosity, the threshold and the precision it says it changes."""
+    from tissue_sim_ros.engine.scene.scene import read_scene_keys
+
+    def flat(spec, prefix=''):
+        if isinstance(spec, dict):
+            return {k: v for key, value in spec.items() for k, v in flat(value, f'{prefix}{key}.').items()}
+        return {prefix.rstrip('.'): spec}
+    example = flat(read_scene_keys(EXAMPLE)[0])
+    realtime = flat(read_scene_keys(shared_file('config/organ_example_realtime.yaml'))[0])
+    assert example.keys() == realtime.keys()
+    changed = {key: (example[key], realtime[key]) for key in example if example[key] != realtime[key]}
+    assert changed == {'model.viscosity_mu_pa_s': (5.0, 0.0), 'model.nonlinearity_threshold': (0.02, 0.1),
+                       'model.precision': ('float64', 'float32')}
