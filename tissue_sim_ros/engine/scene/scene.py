@@ -110,10 +110,8 @@ class Scene:
         build_supports(self.simulation, self.mesh, s['boundary'], point_sets_of(s, self.base_dir))
         check_time_step(self.simulation, s['solver'])
         #: how the tissue settled under gravity (engine.solver.settle), None without it
-        # the values that decide the settled state (the solve sets the non-linearity threshold aside)
-        model_keys = {k: v for k, v in s['model'].items() if k != 'nonlinearity_threshold'}
         self.settled = build_gravity(self.simulation, s['solver'],
-                                     repr([s['mesh'], s['regions'], model_keys, s['boundary']]))
+                                     repr([s[k] for k in ('mesh', 'regions', 'model', 'boundary')]))
         interactions = [region_interaction(r) for r in regions]
         self.needle_names, self.needles = [], []
         for i, (name, n) in enumerate(needle_sections(s)):

@@ -5,11 +5,12 @@ force, K_s the foundations', f_g the body forces) is solved by modified Newton: 
 u += K0^-1 r(u), with K0 the rest state's linear stiffness plus the foundations', factored once
 (scipy's sparse LU). For the linear model that is the exact solve in one iteration; for the
 non-linear ones it converges linearly at the small strains an organ's own weight makes, to the
-non-linear model's own equilibrium. The non-linearity threshold is set aside for the solve (every
-element on the non-linear path): a settled organ is turned a little on its supports, its elements'
-displacement gradients spread around a threshold such as 0.05, and the force's jump where an
-element crosses it kept the iteration from converging; the threshold is the run's approximation of
-the model, applied from the first step on. The state it finds is the one a reset returns to
+non-linear model's own equilibrium, with its non-linearity threshold. Where the threshold keeps the
+iteration from converging (a settled organ is turned a little on its supports, its elements'
+displacement gradients spread around a threshold such as 0.05, and the force jumps where an
+element crosses it: the residual stops falling), it is set aside and the state is the full
+model's equilibrium (every element on the non-linear path); the run then starts a little out of
+balance, by the threshold's own approximation. The state it finds is the one a reset returns to
 (``Simulation.set_initial_state``); :func:`settled_state` caches it per scene, keyed by the
 arrays and values that decide it.
 """
@@ -23,14 +24,16 @@ import numpy as np
 
 from tissue_sim_ros.errors import SceneError
 
-__all__ = ['FLOAT32_TOLERANCE', 'settle', 'settled_state']
+__all__ = ['FLOAT32_TOLERANCE', 'STALL_ITERATIONS', 'settle', 'settled_state']
 
 #: the residual a float32 element pass settles to (relative to the loads): its forces carry its
 #: round-off, about 1e-7 of the elements' stresses, which at equilibrium cancel to a load thousands
 #: of times smaller (the organ example at 54000 tetrahedra stalled at 1.3e-4)
 FLOAT32_TOLERANCE = 1e-3
+#: the iteration with the threshold gives up when its residual has not halved over this many
+STALL_ITERATIONS = 20
 #: how the state is found, in the cache key: a change here settles every scene again
-_RULES = 'modified Newton; the non-linearity threshold set aside; float32 to 1e-3'
+_RULES = 'modified Newton; the threshold set aside where it stalls; float32 to 1e-3'
 
 
 def _stiffness(simulation, free):
@@ -77,19 +80,26 @@ def settle(simulation, tolerance=1e-9, max_iterations=200) -> tuple[np.ndarray, 
     force = np.empty_like(u)
     residual = np.inf
     threshold = model.nonlinearity_threshold
-    model.set_nonlinearity_threshold(0.0)
     try:
-        for iteration in range(1, max_iterations + 1):
-            model.internal_forces(u, out=force)
-            simulation.add_support_forces(u, force)
-            force += loads
-            residual = float(np.linalg.norm(force * free)) / scale
-            if residual <= tolerance:
-                return u, {'iterations': iteration - 1, 'residual': residual}
-            step = factor.solve(force.ravel()[index])
-            if not np.isfinite(step).all():
-                break
-            u.ravel()[index] += step
+        for aside in (False, True) if threshold > 0.0 else (False,):
+            model.set_nonlinearity_threshold(0.0 if aside else threshold)
+            u[:] = 0.0
+            history = []
+            for iteration in range(1, max_iterations + 1):
+                model.internal_forces(u, out=force)
+                simulation.add_support_forces(u, force)
+                force += loads
+                residual = float(np.linalg.norm(force * free)) / scale
+                if residual <= tolerance:
+                    return u, {'iterations': iteration - 1, 'residual': residual, 'threshold_set_aside': aside}
+                history.append(residual)
+                if not aside and threshold > 0.0 and len(history) > STALL_ITERATIONS \
+                        and residual > 0.5 * history[-1 - STALL_ITERATIONS]:
+                    break                  # chattering on the threshold: the full model's equilibrium
+                step = factor.solve(force.ravel()[index])
+                if not np.isfinite(step).all():
+                    break
+                u.ravel()[index] += step
     finally:
         model.set_nonlinearity_threshold(threshold)
     raise SceneError(f'solver.gravity_m_s2: the tissue did not settle under gravity ({max_iterations} iterations, '
