@@ -202,8 +202,8 @@ def test_the_pause_relaxation_and_the_retraction_plateau_are_fitted_to_what_made
             'regions[0].friction.retraction_constant_n=0:1']
     scene = [text for text in CHEAP_MESH if 'membrane' not in text] + sets(TRUE) + sets(relaxing)
     for speed, travel, seed in ((2.0, 0.0105, 1), (3.0, 0.02, 2)):     # 1.5 mm into the tissue, then 11
-        spec = write_synthetic_study(tmp_path / 'data', scene + sets(truth), [speed], travel_m=travel, hold_s=2.0,
-                                     repeats=2, noise_n=NOISE_N, seed=seed)
+        spec = write_synthetic_study(tmp_path / 'data', scene + sets(truth), [speed], travel_m=travel,
+                                     hold_s=2.0, repeats=2, noise_n=NOISE_N, seed=seed)
     trials = load_trials(DataSpec.from_file(spec))
     falls = []
     for trial in trials:
