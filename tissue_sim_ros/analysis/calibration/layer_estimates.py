@@ -230,8 +230,9 @@ def starting_values(measured: CurveFeatures, base_modulus_pa: float) -> dict:
       alone makes it: the layers above already hold the needle; on the layered phantoms the slope
       ratio is about the square of the moduli's), then every one scaled by the simulations
       (:mod:`.propose`);
-    - ``rupture_n[k]``: the peak (a membrane ruptures at its contact force; the shaft above a deeper
-      layer's contact adds what the simulation then shows, and the refinement takes it off);
+    - ``rupture_n[k]``: the peak (a membrane ruptures at its contact force; the load cell reads
+      that plus the shaft's friction on the length already inside, which the refinement takes
+      off a deeper layer's: :func:`~.propose.shaft_force_at_punctures`);
     - ``friction_n_per_m[k]``: the slope of the cut through layer k before layer k + 1 loads (the
       hinge's first line); where that slope exceeds ``MAX_CUT_OVER_VALLEY`` times the valley's
       force over its depth, the valley's force over its depth instead (the shaft's friction up to
