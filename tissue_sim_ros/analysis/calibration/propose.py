@@ -15,12 +15,14 @@
    reads robustly moved by what it misses (a fixed-point step): every modulus by the ratio of the
    outer layer's loading levels over the same depths (the data's slopes keep the layers' ratios),
    the last layer's friction by the slopes after the last puncture, the relaxing part by the
-   pause's, and a deeper layer's rupture force set to its measured peak less the force the
-   simulated load cell read beyond the membrane's contact force when the simulation punctured
-   that layer (:func:`shaft_force_at_punctures`: the shaft's friction on the length inside,
-   which the measured peak holds too; read off the data alone, as the friction per length
-   times the travel since the puncture above, it was 3x the simulator's on the two-layer
-   phantom: the tissue moves with the shaft as the next layer loads). The other values stay as
+   pause's, and a deeper layer's rupture force (which starts at its peak less the shaft
+   friction read off the data: the friction per length times the travel since the puncture
+   above) set, once the simulation punctures that layer within ``SAME_LAYER_M`` of the data's
+   depth, to the measured peak less the force the simulated load cell read beyond the
+   membrane's contact force there (:func:`shaft_force_at_punctures`: the shaft's friction on
+   the length inside, which the measured peak holds too; the data's estimate was 3x the
+   simulator's on the two-layer phantom, the tissue moving with the shaft as the next layer
+   loads). The other values stay as
    the data gave them: a layer's depth and cutting force are read off its own curve, and a
    simulation whose layers puncture elsewhere says little about them (moved by their
    features' errors they did not settle on the phantoms).
@@ -49,8 +51,6 @@ __all__ = ['fit_suggestions', 'layered_spec', 'main', 'propose', 'shaft_force_at
 CLAMP, RELAX_CLAMP, MAX_RELAXING = 3.0, 2.0, 0.9
 #: the last layer punctures where the data's does when within this much of its depth [m]
 SAME_LAYER_M = 0.0015
-#: a deeper layer's rupture force stays at least this fraction of its measured peak
-MIN_RUPTURE_OF_PEAK = 0.5
 
 
 def _finite(value) -> bool:
@@ -157,12 +157,15 @@ def _corrected(values: dict, measured, simulated, n_layers: int, factors, shaft=
     every modulus by the outer layer's loading-level ratio (``factors[0]``,
     :func:`_modulus_factors`), the last layer's friction by the slopes after the last puncture
     once it punctures within ``SAME_LAYER_M`` of the data's, the relaxing part by the pause's,
-    each deeper layer's rupture force to its measured peak less ``shaft`` (per layer,
-    :func:`shaft_force_at_punctures`), at least ``MIN_RUPTURE_OF_PEAK`` of the peak."""
+    each deeper layer the simulation punctures within ``SAME_LAYER_M`` of the data's its rupture
+    force to its measured peak less ``shaft`` (per layer, :func:`shaft_force_at_punctures`), at
+    least ``MIN_RUPTURE_OF_PEAK`` of the peak (a layer punctured deeper has more shaft inside)."""
+    from tissue_sim_ros.analysis.calibration.layer_estimates import MIN_RUPTURE_OF_PEAK
     out = dict(values)
     for k, force in enumerate(shaft):
-        peak = measured.peak_n[k]
-        if k and _finite(force) and _finite(peak):
+        peak, depth = measured.peak_n[k], simulated.depth_m[k]
+        if k and _finite(force) and _finite(peak) and _finite(depth) and \
+                abs(depth - measured.depth_m[k]) <= SAME_LAYER_M:
             out[f'rupture_n[{k}]'] = max(peak - max(force, 0.0), MIN_RUPTURE_OF_PEAK * peak)
     for k in range(n_layers):
         out[f'modulus_pa[{k}]'] *= factors[0]
