@@ -172,3 +172,66 @@ def test_a_fit_key_that_cannot_be_applied_is_refused_before_any_simulation(tmp_p
     error = capsys.readouterr().err.strip().splitlines()[-1]
     print(error)
     assert status == 2 and error.startswith('tissue-sim calibrate: error:') and says in error
+
+
+def test_the_pause_relaxation_and_the_retraction_plateau_are_fitted_to_what_made_them(tmp_path):
+    """Insert, pause 2 s, retract: data made with a known relaxation term (half the modulus relaxing
+    with a 1 s time constant) and a constant retraction pull of 0.3 N, plus 5 mN of noise, at two
+    speeds: at 2 mm/s an indentation that stops before the puncture (its pause is the tissue's
+    own relaxation), at 3 mm/s an insertion through it (its retraction pulls on the inserted
+    shaft); the calibration of those three keys from a start 50 % (the part), 100 % (the time)
+    and 67 % (the pull) off brings them back.
+
+    The tolerances are what the data tell apart, from the misfit sigma of the keys that made the
+    data (the RMS of simulated less measured force over every compared sample: the 5 mN of noise
+    and what the comparison's own steps add, the motion rebuilt from the sampled positions, the
+    contact found in noisy data) and the largest fall dF of a pause (its first samples' median
+    less its last ones'): a change that moves the force by less than 2 sigma at every sample is
+    within that misfit. The pull adds to the retraction
+    force one for one (``Friction.slip_force``): 2 sigma. The relaxing part g scales the fall (dF
+    proportional to g): |dg| / g <= 2 sigma / dF. The time constant tau moves the fall
+    dF exp(-t / tau) by at most dF (d tau / tau) / e (at t = tau): |d tau| / tau <= 2 e sigma / dF."""
+    from tissue_sim_ros.analysis.compare.force_events import depth_bounds
+    from tissue_sim_ros.analysis.synthetic_study import write_synthetic_study
+    relaxing = {'model.relaxation': [{'relative_modulus': 0.5, 'time_constant_s': 1.0}]}
+    truth = {'model.relaxation[0].relative_modulus': 0.5, 'model.relaxation[0].time_constant_s': 1.0,
+             'regions[0].friction.retraction_constant_n': 0.3}
+    start = {'model.relaxation[0].relative_modulus': 0.25, 'model.relaxation[0].time_constant_s': 2.0,
+             'regions[0].friction.retraction_constant_n': 0.1}
+    fits = ['model.relaxation[0].relative_modulus=0.05:0.9', 'model.relaxation[0].time_constant_s=0.2:5:log',
+            'regions[0].friction.retraction_constant_n=0:1']
+    scene = [text for text in CHEAP_MESH if 'membrane' not in text] + sets(TRUE) + sets(relaxing)
+    for speed, travel, seed in ((2.0, 0.0105, 1), (3.0, 0.02, 2)):     # 1.5 mm into the tissue, then 11
+        spec = write_synthetic_study(tmp_path / 'data', scene + sets(truth), [speed], travel_m=travel,
+                                     hold_s=2.0, repeats=2, noise_n=NOISE_N, seed=seed)
+    trials = load_trials(DataSpec.from_file(spec))
+    falls = []
+    for trial in trials:
+        first, last = depth_bounds(trial.travel_m)
+        pause = trial.axial_force_n[first:last + 1]
+        falls.append(np.median(pause[:10]) - np.median(pause[-10:]))
+    fall = float(np.max(falls))
+    from tissue_sim_ros.analysis.calibration.objective import Objective
+    from tissue_sim_ros.analysis.calibration.parameters import parse_fit
+    keys = [parse_fit(text) for text in fits]
+    made = Objective(trials, Scene.from_file(None, sets=scene + sets(start)), keys, workers=1)
+    at_truth = made.evaluate([k.unit(truth[k.key]) for k in keys]).comparisons
+    misfit = np.concatenate([(c.simulated_n - c.measured_n)[np.isfinite(c.simulated_n)] for c in at_truth])
+    sigma = float(np.sqrt(np.mean(misfit ** 2)))
+    t0 = time.perf_counter()
+    report = calibration.main(data_spec=spec, fits=fits, sets=scene + sets(start), out=tmp_path / 'out',
+                              max_evaluations=70, workers=2)
+    tolerance = {'model.relaxation[0].relative_modulus': 2 * sigma / fall * 0.5,
+                 'model.relaxation[0].time_constant_s': 2 * np.e * sigma / fall * 1.0,
+                 'regions[0].friction.retraction_constant_n': 2 * sigma}
+    print(f"the pauses fall {np.round(falls, 3)} N; misfit at the truth {sigma * 1e3:.1f} mN (noise "
+          f"{NOISE_N * 1e3:g} mN); {report['evaluations']} evaluations in "
+          f"{time.perf_counter() - t0:.1f} s; fit NRMSE {report['fit']['nrmse_mean']:.4f} "
+          f"(start {report['fit']['nrmse_mean_start']:.4f})")
+    assert len(trials) == 4 and fall > 10 * NOISE_N and NOISE_N < sigma < 3 * NOISE_N
+    for key, value in truth.items():
+        got = report['parameters'][key]['value']
+        print(f'{key}: {got:.4g} (true {value:g}, start {start[key]:g}, within {tolerance[key]:.3g})')
+    for key, value in truth.items():
+        assert abs(start[key] - value) > tolerance[key]         # left at its start, it would fail
+        assert abs(report['parameters'][key]['value'] - value) <= tolerance[key]

@@ -77,7 +77,8 @@ def test_a_late_puncture_costs_a_residual_smooth_in_its_shift_not_a_staircase_of
 
 def test_a_stage_runs_its_simulations_only_as_far_as_its_phases_and_scores_them_as_a_whole_run(tmp_path, monkeypatch):
     """The objective's horizons: an evaluation for the loading (or the puncture, or the steady
-    insertion) stops each simulation after the last sample of those phases (plus its margin);
+    insertion, or the pause) stops each simulation after the last sample of those phases (plus its
+    margin);
     the simulation is deterministic, so those phases' residuals are the whole run's to rounding,
     for a fraction of its steps. A horizon that falls short of a sample (a margin made negative
     here) is run again whole, never scored as a miss."""
@@ -91,7 +92,8 @@ def test_a_stage_runs_its_simulations_only_as_far_as_its_phases_and_scores_them_
     first = objective.evaluate([0.5, 0.5, 0.5])
     assert first.phases is None and first.comparisons[0].measured_punctures
     u = [keys[0].unit(18000.0), keys[1].unit(1.1), keys[2].unit(0.45)]
-    partial = {phases: objective.evaluate(u, phases) for phases in (('loading',), 'events', ('inserted',))}
+    partial = {phases: objective.evaluate(u, phases)
+               for phases in (('loading',), 'events', ('inserted',), ('hold',))}
     whole = objective.evaluate(u)
     assert whole.phases is None and objective.best is not None and all(
         e.phases is None for e in (objective.best, first))          # a partial run is never the best
@@ -102,7 +104,8 @@ def test_a_stage_runs_its_simulations_only_as_far_as_its_phases_and_scores_them_
         assert evaluation.phases == phases and share < 0.9
         np.testing.assert_allclose(objective.stage_residuals(evaluation, phases),
                                    objective.stage_residuals(whole, phases), rtol=0, atol=1e-12)
-    assert partial[('loading',)].results[0].steps < partial[('inserted',)].results[0].steps
+    assert partial[('loading',)].results[0].steps < partial[('inserted',)].results[0].steps \
+        < partial[('hold',)].results[0].steps
     monkeypatch.setattr(calibration_objective, 'HORIZON_MARGIN_S', -1.0)
     short = Objective(trials, scene, keys, workers=1)
     short.evaluate([0.5, 0.5, 0.5])

@@ -35,7 +35,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ['CurveFeatures', 'curve_features', 'loading_level', 'mean_features', 'starting_values']
+__all__ = ['CurveFeatures', 'accrued_friction', 'curve_features', 'loading_level', 'mean_features',
+           'starting_values']
 
 #: a layer's loading slope is the secant between these fractions of its rise
 SLOPE_FRACTIONS = (0.3, 0.8)
@@ -46,6 +47,8 @@ MIN_RELAXATION = 0.03
 #: a cut's slope above this many times its valley's force over the valley's depth is the next
 #: layer's rise, not a cut (:func:`starting_values`)
 MAX_CUT_OVER_VALLEY = 3.0
+#: a deeper layer's rupture force starts at least at this fraction of its peak (:func:`starting_values`)
+MIN_RUPTURE_OF_PEAK = 0.5
 
 
 @dataclass
@@ -220,6 +223,17 @@ def mean_features(features: list[CurveFeatures]) -> CurveFeatures:
     return out
 
 
+def accrued_friction(depths_m, friction_n_per_m, k: int) -> float:
+    """The shaft's friction [N] when the tip reaches layer ``k``'s puncture depth: for each layer j
+    above it, its friction per length times the travel from its puncture (where the shaft enters
+    it) to the next puncture or to that depth; 0 for the outer layer, NaN where a depth is."""
+    total = 0.0
+    for j in range(k):
+        length = min(depths_m[j + 1], depths_m[k]) - depths_m[j]
+        total += friction_n_per_m[j] * max(length, 0.0)
+    return float(total)
+
+
 def starting_values(measured: CurveFeatures, base_modulus_pa: float) -> dict:
     """Starting values of a layered scene from the measured features (each with the rule it came
     from, as ``{name: (value, how)}``); layer k's keys are suffixed ``[k]``:
@@ -230,8 +244,13 @@ def starting_values(measured: CurveFeatures, base_modulus_pa: float) -> dict:
       alone makes it: the layers above already hold the needle; on the layered phantoms the slope
       ratio is about the square of the moduli's), then every one scaled by the simulations
       (:mod:`.propose`);
-    - ``rupture_n[k]``: the peak (a membrane ruptures at its contact force; the shaft above a deeper
-      layer's contact adds what the simulation then shows, and the refinement takes it off);
+    - ``rupture_n[k]``: the peak less the shaft's friction accrued at its depth (a membrane
+      ruptures at the tip's contact force, and the load cell reads that plus the friction on the
+      length already inside: for each layer j above, ``friction_n_per_m[j]`` times the travel from
+      puncture j to puncture j + 1, or to this depth; :func:`accrued_friction`), at least half the
+      peak (``MIN_RUPTURE_OF_PEAK``: a friction overestimated from a short cut cannot take the
+      whole peak); the refinement replaces it by the simulator's own shaft force where the
+      simulation punctures the layer where the data does (:func:`~.propose.shaft_force_at_punctures`);
     - ``friction_n_per_m[k]``: the slope of the cut through layer k before layer k + 1 loads (the
       hinge's first line); where that slope exceeds ``MAX_CUT_OVER_VALLEY`` times the valley's
       force over its depth, the valley's force over its depth instead (the shaft's friction up to
@@ -273,7 +292,14 @@ def starting_values(measured: CurveFeatures, base_modulus_pa: float) -> dict:
                                       f'layer 0\'s times the square root of its loading slope over layer 0\'s '
                                       f'({ratio:.3g})')
         peak = measured.peak_n[k]
-        values[f'rupture_n[{k}]'] = (peak, 'the peak force')
+        per_length = [values[f'friction_n_per_m[{j}]'][0] for j in range(n)]
+        friction = accrued_friction(measured.depth_m, per_length, k)
+        if k and np.isfinite(friction) and friction > 0:
+            rupture = max(peak - friction, MIN_RUPTURE_OF_PEAK * peak)
+            values[f'rupture_n[{k}]'] = (rupture, 'the peak force less the shaft friction accrued at its '
+                                                  f'depth ({peak:.4g} - {peak - rupture:.3g} N)')
+        else:
+            values[f'rupture_n[{k}]'] = (peak, 'the peak force')
         if k == n - 1:
             c = measured.post_intercept_n
             values[f'cutting_n[{k}]'] = (max(0.0, c) if np.isfinite(c) else 0.0,

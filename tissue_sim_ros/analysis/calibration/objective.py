@@ -34,11 +34,12 @@ run's, not the data's: a sample no run reaches would be a constant in every eval
 stops the search's relative tests early. Nothing is NaN and nothing stops the search.
 
 A stage of the search that fits only the first phases of the curve (the loading before the first
-puncture, the puncture itself, the steady insertion) needs the simulations only that far: an
-evaluation for ``phases`` runs each speed's simulation to a **horizon**, the latest sample of
-those phases over the speed's trials (each on its own contact's clock; for a layer's puncture,
+puncture, the puncture itself, the steady insertion, the pause) needs the simulations only that
+far: an evaluation for ``phases`` runs each speed's simulation to a **horizon**, the latest sample
+of those phases over the speed's trials (each on its own contact's clock; for a layer's puncture,
 the travel to ``EVENT_REACH`` times its depth, and the detector's window at least, so that a
-simulated puncture somewhat deeper than the measured one is still found) plus ``HORIZON_MARGIN_S``
+simulated puncture somewhat deeper than the measured one is still found, or the insertion's end
+when that reach lies deeper than the needle goes) plus ``HORIZON_MARGIN_S``
 and ``HORIZON_MARGIN_FRACTION`` of it (the simulated contact's lag, the cross-correlation's
 shift). On the calibration benchmark the loading ends at a quarter of the slowest speed's run.
 Such a partial evaluation scores only its phases (its other samples are misses), so it never
@@ -269,7 +270,7 @@ class Objective:
 
     def _find_horizon(self, labels, events):
         from tissue_sim_ros.analysis.compare.force_events import PUNCTURE_WINDOW_M
-        if not all(label.startswith('segment ') for label in labels):
+        if not all(label.startswith('segment ') or label == 'hold' for label in labels):
             return None
         first = next(iter(self._cache.values()))       # the first evaluation (whole: it chose the points)
         needed = [0.0] * len(self.plan.jobs)           # per job: time since contact
@@ -282,10 +283,10 @@ class Objective:
                     continue
                 depth = punctures[0].travel_m
                 reach = depth + max(PUNCTURE_WINDOW_M, (EVENT_REACH - 1.0) * depth)
-                beyond = np.flatnonzero(comparison.travel_since_contact_m >= reach)
-                if not beyond.size:
-                    return None
-                times.append(float(since[beyond[0]]))
+                travel = comparison.travel_since_contact_m
+                beyond = np.flatnonzero(travel >= reach)
+                # a reach past the deepest travel: the insertion's end (no puncture comes later)
+                times.append(float(since[beyond[0] if beyond.size else int(np.argmax(travel))]))
             if not times:
                 continue
             job = self.plan.job_of_trial[i]

@@ -15,9 +15,17 @@
    reads robustly moved by what it misses (a fixed-point step): every modulus by the ratio of the
    outer layer's loading levels over the same depths (the data's slopes keep the layers' ratios),
    the last layer's friction by the slopes after the last puncture, the relaxing part by the
-   pause's. The other values stay as the data gave them: a layer's depth, rupture force and
-   cutting force are read off its own curve, and a simulation whose layers puncture elsewhere
-   says little about them (moved by their features' errors they did not settle on the phantoms).
+   pause's, and a deeper layer's rupture force (which starts at its peak less the shaft
+   friction read off the data: the friction per length times the travel since the puncture
+   above) set, once the simulation punctures that layer within ``SAME_LAYER_M`` of the data's
+   depth, to the measured peak less the force the simulated load cell read beyond the
+   membrane's contact force there (:func:`shaft_force_at_punctures`: the shaft's friction on
+   the length inside, which the measured peak holds too; the data's estimate was 3x the
+   simulator's on the two-layer phantom, the tissue moving with the shaft as the next layer
+   loads). The other values stay as
+   the data gave them: a layer's depth and cutting force are read off its own curve, and a
+   simulation whose layers puncture elsewhere says little about them (moved by their
+   features' errors they did not settle on the phantoms).
    A last run scores the result; the best scene run is the proposal.
 4. Outputs in ``--out DIR``: ``proposed.yaml`` (a complete scene every command takes; ``calibrate
    --scene DIR/proposed.yaml`` as it is), ``propose.json`` and ``propose.md`` (the layers, each
@@ -35,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['fit_suggestions', 'layered_spec', 'main', 'propose']
+__all__ = ['fit_suggestions', 'layered_spec', 'main', 'propose', 'shaft_force_at_punctures']
 
 #: a correction factor of one refinement run is held within [1 / CLAMP, CLAMP]; the relaxing
 #: part's within [1 / RELAX_CLAMP, RELAX_CLAMP] and below MAX_RELAXING (it softens every loading
@@ -118,12 +126,47 @@ def _modulus_factors(measured, measured_curves, simulated, simulated_curves, n_l
     return factors
 
 
-def _corrected(values: dict, measured, simulated, n_layers: int, factors) -> dict:
+def shaft_force_at_punctures(study, scene, n_layers: int) -> list[float]:
+    """Per layer, what the simulated load cell read at the layer's puncture beyond the membrane's
+    contact force (the shaft's friction, and the cutting of a layer above where it still acts),
+    averaged over the study's simulations: the force just before the puncture (the largest of
+    the samples up to the one after it) less the contact force the scene's puncture event
+    records; NaN where no simulation punctured the layer."""
+    start, axis = scene.needle_pose[0], scene.needle.axis
+    found: dict = {}
+    for job, result in zip(study['plan'].jobs, study['results']):
+        if result.diverged or not len(result.puncture_travel_m):
+            continue
+        travel = (np.asarray(job.positions) - start) @ axis
+        inserting = np.arange(len(travel)) <= int(np.argmax(travel))
+        seen = set()
+        events = zip(result.puncture_travel_m, result.puncture_force_n, result.puncture_layer)
+        for where, contact, layer in events:
+            after = np.flatnonzero(inserting & (travel >= where))
+            if not 0 <= layer < n_layers or not after.size or layer in seen:
+                continue
+            seen.add(int(layer))
+            i = int(after[0])
+            total = float(np.nanmax(result.axial_force_n[max(0, i - 3):i + 1]))
+            found.setdefault(int(layer), []).append(total - float(contact))
+    return [float(np.mean(found[k])) if k in found else math.nan for k in range(n_layers)]
+
+
+def _corrected(values: dict, measured, simulated, n_layers: int, factors, shaft=()) -> dict:
     """``values`` moved by what the simulation's features miss of the data's (module docstring, 3):
     every modulus by the outer layer's loading-level ratio (``factors[0]``,
     :func:`_modulus_factors`), the last layer's friction by the slopes after the last puncture
-    once it punctures within ``SAME_LAYER_M`` of the data's, the relaxing part by the pause's."""
+    once it punctures within ``SAME_LAYER_M`` of the data's, the relaxing part by the pause's,
+    each deeper layer the simulation punctures within ``SAME_LAYER_M`` of the data's its rupture
+    force to its measured peak less ``shaft`` (per layer, :func:`shaft_force_at_punctures`), at
+    least ``MIN_RUPTURE_OF_PEAK`` of the peak (a layer punctured deeper has more shaft inside)."""
+    from tissue_sim_ros.analysis.calibration.layer_estimates import MIN_RUPTURE_OF_PEAK
     out = dict(values)
+    for k, force in enumerate(shaft):
+        peak, depth = measured.peak_n[k], simulated.depth_m[k]
+        if k and _finite(force) and _finite(peak) and _finite(depth) and \
+                abs(depth - measured.depth_m[k]) <= SAME_LAYER_M:
+            out[f'rupture_n[{k}]'] = max(peak - max(force, 0.0), MIN_RUPTURE_OF_PEAK * peak)
     for k in range(n_layers):
         out[f'modulus_pa[{k}]'] *= factors[0]
     last = n_layers - 1
@@ -267,7 +310,9 @@ def propose(trials, base_scene, *, refine_runs: int = 3, align: str = 'contact',
         runs[-1]['simulated'] = {'depth_m': simulated.depth_m, 'peak_n': simulated.peak_n,
                                  'valley_n': simulated.valley_n, 'post_slope_n_per_m': simulated.post_slope_n_per_m,
                                  'relaxing': simulated.relaxing, 'modulus_factors': factors}
-        values = _corrected(values, measured, simulated, n, factors)
+        shaft = shaft_force_at_punctures(study, scene, n)
+        runs[-1]['simulated']['shaft_force_at_puncture_n'] = shaft
+        values = _corrected(values, measured, simulated, n, factors, shaft)
     score, spec, values, study = best
     return {'speed_m_s': speed, 'trials': chosen, 'layers': layers, 'measured': measured, 'derived': derived,
             'values': values, 'spec': spec, 'runs': runs, 'nrmse_all_samples': score, 'study': study,
