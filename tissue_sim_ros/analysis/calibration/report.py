@@ -162,7 +162,7 @@ def _plot(out, study_start, study_final, role, rows) -> dict:
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    from tissue_sim_ros.analysis.compare.repeat_statistics import ForceCurve, mean_and_spread
+    from tissue_sim_ros.analysis.compare.report import draw_measured
     written = {}
     for group in study_final['speeds']:
         speed = group['speed_m_s']
@@ -173,19 +173,7 @@ def _plot(out, study_start, study_final, role, rows) -> dict:
         for ax, by in zip(axes[:2], ('depth', 'time')):
             def x_of(c):
                 return c.travel_since_contact_m * 1e3 if by == 'depth' else c.time_since_contact_s
-            for n, c in enumerate(comparisons):
-                ax.plot(x_of(c), c.measured_n, color='0.72', lw=0.6, label='repeats' if n == 0 else None)
-                ax.plot(x_of(c)[[p.index for p in c.measured_punctures]], [p.force_n for p in c.measured_punctures],
-                        'o', mfc='none', color='0.3', ms=5)
-            if len(comparisons) >= 2:
-                curves = [ForceCurve(c.time_since_contact_s, c.measured_n,
-                                     c.travel_since_contact_m if by == 'depth' else None,
-                                     int(np.argmin(np.abs(c.time_since_contact_s)))) for c in comparisons]
-                grid, mean, std, _ = mean_and_spread(curves, by='travel_since_contact' if by == 'depth'
-                                                     else 'time_since_contact')
-                scale = 1e3 if by == 'depth' else 1.0
-                ax.fill_between(grid * scale, mean - std, mean + std, color='C0', alpha=0.25,
-                                label='data: mean ± 1 s.d.')
+            draw_measured(ax, comparisons, by, label='repeats')
             for study, style, colour, label in ((study_start, '--', 'C1', 'starting scene'),
                                                 (study_final, '-', 'C3', 'calibrated')):
                 c = study['comparisons'][members[0]]

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['SCHEMA', 'plot_comparison', 'report_dict', 'study_panels', 'write_report']
+__all__ = ['SCHEMA', 'draw_measured', 'plot_comparison', 'report_dict', 'study_panels', 'write_report']
 
 SCHEMA = 'tissue_sim_ros/compare/1'
 NORMALISER = "each trial's measured axial-force range (max - min)"
@@ -172,6 +172,28 @@ def study_panels(study: dict) -> list[dict]:
     return panels
 
 
+def draw_measured(ax, comparisons, by: str, *, label: str | None = None) -> None:
+    """The measured trials on ``ax`` against depth (``by='depth'``, mm) or time since contact (s):
+    each thin (the first labelled ``label``), its punctures as circles, and with repeats their mean
+    and one standard deviation as a band (the figures of compare and calibrate draw the data so)."""
+    from tissue_sim_ros.analysis.compare.repeat_statistics import ForceCurve, mean_and_spread
+    scale = 1e3 if by == 'depth' else 1.0
+    for n, c in enumerate(comparisons):
+        x = (c.travel_since_contact_m if by == 'depth' else c.time_since_contact_s) * scale
+        ax.plot(x, c.measured_n, color='0.7', lw=0.6, label=label if n == 0 else None)
+        ax.plot(x[[p.index for p in c.measured_punctures]], [p.force_n for p in c.measured_punctures],
+                'o', mfc='none', color='0.35', ms=5)
+    if len(comparisons) >= 2:
+        curves = [ForceCurve(c.time_since_contact_s, c.measured_n,
+                             c.travel_since_contact_m if by == 'depth' else None,
+                             int(np.argmin(np.abs(c.time_since_contact_s)))) for c in comparisons]
+        grid, mean, std, _ = mean_and_spread(curves, by='travel_since_contact' if by == 'depth'
+                                             else 'time_since_contact')
+        ax.fill_between(grid * scale, mean - std, mean + std, color='C0', alpha=0.25,
+                        label='data: mean ± 1 s.d.')
+        ax.plot(grid * scale, mean, color='C0', lw=1.2)
+
+
 def plot_comparison(path, panels: list[dict], by: str, *, simulation_label: str = 'simulation') -> None:
     """Force against depth (``by='depth'``) or time since contact, a panel per entry of ``panels``
     (``title``; ``comparisons``: the trials; ``simulations``: (SimulatedCurve, the comparison
@@ -182,7 +204,6 @@ def plot_comparison(path, panels: list[dict], by: str, *, simulation_label: str 
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    from tissue_sim_ros.analysis.compare.repeat_statistics import ForceCurve, mean_and_spread
     fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4.2), squeeze=False)
     scale = 1e3 if by == 'depth' else 1.0
 
@@ -190,20 +211,7 @@ def plot_comparison(path, panels: list[dict], by: str, *, simulation_label: str 
         x = c.travel_since_contact_m if by == 'depth' else c.time_since_contact_s
         return x * scale if indices is None else x[indices] * scale
     for ax, panel in zip(axes[0], panels):
-        members = panel['comparisons']
-        for c in members:
-            ax.plot(x_of(c), c.measured_n, color='0.7', lw=0.6)
-            ax.plot(x_of(c, [p.index for p in c.measured_punctures]), [p.force_n for p in c.measured_punctures],
-                    'o', mfc='none', color='0.35', ms=5)
-        if len(members) >= 2:
-            curves = [ForceCurve(c.time_since_contact_s, c.measured_n,
-                                 c.travel_since_contact_m if by == 'depth' else None,
-                                 int(np.argmin(np.abs(c.time_since_contact_s)))) for c in members]
-            grid, mean, std, _ = mean_and_spread(curves, by='travel_since_contact' if by == 'depth'
-                                                 else 'time_since_contact')
-            ax.fill_between(grid * scale, mean - std, mean + std, color='C0', alpha=0.25,
-                            label='data: mean ± 1 s.d.')
-            ax.plot(grid * scale, mean, color='C0', lw=1.2)
+        draw_measured(ax, panel['comparisons'], by)
         for n, curve in enumerate(panel.get('simulated_repeats', [])):
             x = curve.travel_since_contact_m if by == 'depth' else curve.time_since_contact_s
             ax.plot(x * scale, curve.axial_force_n, color='C3', lw=0.5, alpha=0.35,
