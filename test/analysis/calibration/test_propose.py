@@ -121,3 +121,24 @@ def test_calibrate_from_the_proposal_recovers_the_layers_and_predicts_a_held_out
     assert len((out / 'evaluations.jsonl').read_text().splitlines()) == report['evaluations_logged'] \
         == report['evaluations']
     assert (out / 'calibrate_held_out_2mm_s.png').stat().st_size > 0
+
+
+def test_propose_moves_the_deep_boundary_to_the_one_that_made_the_data(studies, two_layer_proposal):
+    """The data's deep layer starts loading (its onset, where the proposal starts its boundary)
+    away from its boundary at rest: the layer above is compressed over it, and the onset read off
+    noisy repeats is uncertain by a few tenths of a millimetre. The refinement moves the boundary
+    until the simulated onset meets the data's: the proposal's boundary within one depth spread
+    (0.3 mm) of the repeats' mean boundary and nearer to it than the onset it started from, and
+    the --fit bounds it suggests for it contain that boundary."""
+    offsets = drawn(studies['fit'], 'regions[1].depth_offset_m')
+    truth = truth_scene(2)['regions'][1]['select']['below_z_m'] - offsets.mean()
+    proposed = yaml.safe_load((studies['root'] / 'propose_2' / 'proposed.yaml').read_text())
+    boundary = proposed['regions'][1]['select']['below_z_m']
+    started = -two_layer_proposal['runs'][0]['values']['boundary_m[1]']
+    fit = next(f for f in two_layer_proposal['fits'] if f['key'] == 'regions[1].select.below_z_m')
+    print(f'deep boundary: proposed {boundary * 1e3:.2f} mm, started {started * 1e3:.2f} mm (the onset), '
+          f'the repeats\' mean {truth * 1e3:.2f} mm; fit bounds {fit["low"] * 1e3:.2f} to '
+          f'{fit["high"] * 1e3:.2f} mm')
+    assert abs(boundary - truth) < SPREAD['regions[1].depth_spread_m']
+    assert abs(boundary - truth) < abs(started - truth)
+    assert fit['low'] < truth < fit['high']

@@ -238,7 +238,8 @@ def starting_values(measured: CurveFeatures, base_modulus_pa: float) -> dict:
     """Starting values of a layered scene from the measured features (each with the rule it came
     from, as ``{name: (value, how)}``); layer k's keys are suffixed ``[k]``:
 
-    - ``boundary_m[k]`` (k >= 1): where layer k starts loading (its onset);
+    - ``boundary_m[k]`` (k >= 1): where layer k starts loading (its onset: deeper than the boundary
+      at rest by the compression of the layers above; the refinement moves it up, :mod:`.propose`);
     - ``modulus_pa[k]``: layer 0 the base scene's, layer k that times the square root of its
       loading slope over layer 0's (a deeper layer's loading rises more steeply than its modulus
       alone makes it: the layers above already hold the needle; on the layered phantoms the slope

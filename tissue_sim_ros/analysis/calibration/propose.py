@@ -14,19 +14,22 @@
    its features read from the simulated curve as from the data, and the values that a feature
    reads robustly moved by what it misses (a fixed-point step): every modulus by the ratio of the
    outer layer's loading levels over the same depths (the data's slopes keep the layers' ratios),
-   the last layer's friction by the slopes after the last puncture, the relaxing part by the
-   pause's, and a deeper layer's rupture force (which starts at its peak less the shaft
-   friction read off the data: the friction per length times the travel since the puncture
-   above) set, once the simulation punctures that layer within ``SAME_LAYER_M`` of the data's
-   depth, to the measured peak less the force the simulated load cell read beyond the
+   each deeper boundary by the travel where the simulated layer starts loading less the data's
+   (:func:`_boundary`: the data's onset lies deeper than the boundary at rest by what the layers
+   above are compressed, 4 mm on the two-layer phantom, so the boundary starts there and moves
+   up), the last layer's friction by the slopes after the last puncture, the relaxing part by
+   the fraction of its force the pause relaxes (:func:`_relaxing`: a secant, the fraction being
+   far from proportional to it), and a deeper layer's rupture force (which starts at its peak
+   less the shaft friction read off the data: the friction per length times the travel since the
+   puncture above) set, once the simulation punctures that layer within ``SAME_LAYER_M`` of the
+   data's depth, to the measured peak less the force the simulated load cell read beyond the
    membrane's contact force there (:func:`shaft_force_at_punctures`: the shaft's friction on
    the length inside, which the measured peak holds too; the data's estimate was 3x the
    simulator's on the two-layer phantom, the tissue moving with the shaft as the next layer
-   loads). The other values stay as
-   the data gave them: a layer's depth and cutting force are read off its own curve, and a
-   simulation whose layers puncture elsewhere says little about them (moved by their
-   features' errors they did not settle on the phantoms).
-   A last run scores the result; the best scene run is the proposal.
+   loads). A layer's cutting force stays as its own curve gave it. The values move together
+   and pull on each other's features (a shallower deep layer stiffens the outer one's loading,
+   a larger relaxing part softens every loading), so the runs need not improve one by one:
+   a last run scores the result, and the best scene run is the proposal.
 4. Outputs in ``--out DIR``: ``proposed.yaml`` (a complete scene every command takes; ``calibrate
    --scene DIR/proposed.yaml`` as it is), ``propose.json`` and ``propose.md`` (the layers, each
    value with how it was derived, each refinement run's NRMSE, the ``--fit`` keys and bounds to
@@ -49,6 +52,9 @@ __all__ = ['fit_suggestions', 'layered_spec', 'main', 'propose', 'shaft_force_at
 #: part's within [1 / RELAX_CLAMP, RELAX_CLAMP] and below MAX_RELAXING (it softens every loading
 #: too: a long pause's relaxation moves the punctures)
 CLAMP, RELAX_CLAMP, MAX_RELAXING = 3.0, 2.0, 0.9
+#: a deeper boundary moves at most this far in one refinement run [m], and stays this far below
+#: the one above it (or the surface)
+BOUNDARY_STEP_M, BOUNDARY_GAP_M = 0.003, 0.0005
 #: the last layer punctures where the data's does when within this much of its depth [m]
 SAME_LAYER_M = 0.0015
 
@@ -152,14 +158,64 @@ def shaft_force_at_punctures(study, scene, n_layers: int) -> list[float]:
     return [float(np.mean(found[k])) if k in found else math.nan for k in range(n_layers)]
 
 
-def _corrected(values: dict, measured, simulated, n_layers: int, factors, shaft=()) -> dict:
+def _secant(value, feature, previous_value, previous_feature) -> float:
+    """The slope of a feature over its value through two runs (NaN where they do not give one)."""
+    if not all(_finite(v) for v in (value, feature, previous_value, previous_feature)):
+        return math.nan
+    if abs(value - previous_value) <= 1e-9 * max(abs(value), abs(previous_value), 1e-12):
+        return math.nan
+    return (feature - previous_feature) / (value - previous_value)
+
+
+def _boundary(values, measured, simulated, k: int) -> float:
+    """Layer k's boundary (its depth below the top) moved by what the simulated onset of its
+    loading misses of the data's (an additive fixed point: a boundary moved by d moves the onset
+    by about d, 1.3 d on the two-layer phantom, so the steps shrink), at most ``BOUNDARY_STEP_M``,
+    and ``BOUNDARY_GAP_M`` below the boundary above. The onset, not the puncture's depth: the
+    puncture moves with the layer's modulus and rupture force too. No secant: between two runs
+    the moduli move as well, and the onset with them."""
+    name = f'boundary_m[{k}]'
+    here, data, sim = values[name], measured.onset_m[k], simulated.onset_m[k]
+    if not (_finite(data) and _finite(sim)):
+        return here
+    step = float(np.clip(data - sim, -BOUNDARY_STEP_M, BOUNDARY_STEP_M))
+    above = values[f'boundary_m[{k - 1}]'] if k > 1 else 0.0
+    return max(here + step, above + BOUNDARY_GAP_M)
+
+
+def _relaxing(values, measured, simulated, previous) -> float:
+    """The relaxing part moved so that the simulated pause relaxes the data's fraction of its
+    force. The fraction is far below the relaxing part and not proportional to it (on the
+    two-layer phantom a relaxing part of 0.1, 0.2, 0.4, 0.7 relaxes 0.003, 0.017, 0.036, 0.087
+    of it: about affine, from 0.08 on: much of the pause's force does not relax), so the step
+    is the secant's (this run and the previous one) where it rises, else the ratio of the
+    fractions (a simulation that does not relax at all: ``RELAX_CLAMP``), held within [1 /
+    ``RELAX_CLAMP``, ``RELAX_CLAMP``] and below ``MAX_RELAXING``."""
+    here, data, sim = values['relaxing'], measured.relaxing, simulated.relaxing
+    if not (_finite(data) and _finite(sim)):
+        return here
+    slope = math.nan
+    if previous is not None:
+        slope = _secant(here, sim, previous[0].get('relaxing'), previous[1].relaxing)
+    if _finite(slope) and slope > 0:
+        factor = (here + (data - sim) / slope) / here
+    elif sim <= 0 < data:
+        factor = RELAX_CLAMP
+    else:
+        factor = _factor(data, sim, RELAX_CLAMP)
+    return min(MAX_RELAXING, here * float(np.clip(factor, 1.0 / RELAX_CLAMP, RELAX_CLAMP)))
+
+
+def _corrected(values: dict, measured, simulated, n_layers: int, factors, shaft=(), previous=None) -> dict:
     """``values`` moved by what the simulation's features miss of the data's (module docstring, 3):
     every modulus by the outer layer's loading-level ratio (``factors[0]``,
-    :func:`_modulus_factors`), the last layer's friction by the slopes after the last puncture
-    once it punctures within ``SAME_LAYER_M`` of the data's, the relaxing part by the pause's,
-    each deeper layer the simulation punctures within ``SAME_LAYER_M`` of the data's its rupture
+    :func:`_modulus_factors`), each deeper boundary by its onset's error (:func:`_boundary`), the
+    last layer's friction by the slopes after the last puncture once it punctures within
+    ``SAME_LAYER_M`` of the data's, the relaxing part by the pause's (:func:`_relaxing`), each
+    deeper layer the simulation punctures within ``SAME_LAYER_M`` of the data's its rupture
     force to its measured peak less ``shaft`` (per layer, :func:`shaft_force_at_punctures`), at
-    least ``MIN_RUPTURE_OF_PEAK`` of the peak (a layer punctured deeper has more shaft inside)."""
+    least ``MIN_RUPTURE_OF_PEAK`` of the peak (a layer punctured deeper has more shaft inside).
+    ``previous``: the previous run's (values, simulated features), for the secants."""
     from tissue_sim_ros.analysis.calibration.layer_estimates import MIN_RUPTURE_OF_PEAK
     out = dict(values)
     for k, force in enumerate(shaft):
@@ -169,12 +225,13 @@ def _corrected(values: dict, measured, simulated, n_layers: int, factors, shaft=
             out[f'rupture_n[{k}]'] = max(peak - max(force, 0.0), MIN_RUPTURE_OF_PEAK * peak)
     for k in range(n_layers):
         out[f'modulus_pa[{k}]'] *= factors[0]
+    for k in range(1, n_layers):
+        out[f'boundary_m[{k}]'] = _boundary(out, measured, simulated, k)
     last = n_layers - 1
     if _finite(simulated.depth_m[last]) and abs(measured.depth_m[last] - simulated.depth_m[last]) <= SAME_LAYER_M:
         out[f'friction_n_per_m[{last}]'] *= _factor(measured.post_slope_n_per_m, simulated.post_slope_n_per_m)
     if 'relaxing' in out:
-        out['relaxing'] = min(MAX_RELAXING, out['relaxing'] * _factor(measured.relaxing, simulated.relaxing,
-                                                                     RELAX_CLAMP))
+        out['relaxing'] = _relaxing(values, measured, simulated, previous)
         out['relax_time_s'] *= _factor(measured.relax_time_s, simulated.relax_time_s)
     return out
 
@@ -284,7 +341,7 @@ def propose(trials, base_scene, *, refine_runs: int = 3, align: str = 'contact',
     measured = _trial_features(empty, n)
     derived = starting_values(measured, base_modulus)
     values = {name: value for name, (value, _) in derived.items()}
-    runs, best = [], None
+    runs, best, previous = [], None, None
     for run in range(refine_runs + 1):
         spec = layered_spec(base_scene.spec, values, layers, top)
         try:
@@ -312,7 +369,9 @@ def propose(trials, base_scene, *, refine_runs: int = 3, align: str = 'contact',
                                  'relaxing': simulated.relaxing, 'modulus_factors': factors}
         shaft = shaft_force_at_punctures(study, scene, n)
         runs[-1]['simulated']['shaft_force_at_puncture_n'] = shaft
-        values = _corrected(values, measured, simulated, n, factors, shaft)
+        runs[-1]['simulated']['onset_m'] = simulated.onset_m
+        corrected = _corrected(values, measured, simulated, n, factors, shaft, previous)
+        previous, values = (values, simulated), corrected
     score, spec, values, study = best
     return {'speed_m_s': speed, 'trials': chosen, 'layers': layers, 'measured': measured, 'derived': derived,
             'values': values, 'spec': spec, 'runs': runs, 'nrmse_all_samples': score, 'study': study,

@@ -5,7 +5,8 @@
   layer: ``depth_m``, ``depth_sd_m``, ``depth_min_m``, ``depth_max_m``, ``force_n``, ``force_sd_n``,
   ``force_min_n``, ``force_max_n``, ``drop_n``, ``found``, ``repeats``, ``assisted``, and the scene keys
   set for it), ``values`` (each starting value: ``value``, ``derived`` from the data's feature,
-  ``refined`` after the simulation runs), ``runs`` (each refinement run's NRMSE over every sample),
+  ``refined`` after the simulation runs), ``runs`` (each refinement run's NRMSE over every sample,
+  the values it ran and the features its simulation gave),
   ``nrmse_all_samples`` (the proposal's), ``pre_drops`` (drops told from punctures), ``fits`` (the
   ``--fit`` keys and bounds: ``key``, ``low``, ``high``, ``log``, ``acts_on``, ``text``),
   ``calibrate_command``, ``wall_s``, ``outputs``;
@@ -99,8 +100,7 @@ def write_proposal(out: Path, proposal: dict, *, data_spec, scene_file, sets) ->
                      'how': derived[1]} for name, derived in proposal['derived'].items()}
     report = {'schema': SCHEMA, 'data_spec': data_spec, 'scene': str(scene_file or 'the packaged default'),
               'sets': list(sets), 'speed_m_s': proposal['speed_m_s'], 'repeats': len(proposal['trials']),
-              'layers': layers, 'values': values, 'runs': [{k: v for k, v in r.items() if k != 'values'}
-                                                          for r in proposal['runs']],
+              'layers': layers, 'values': values, 'runs': proposal['runs'],
               'nrmse_all_samples': proposal['nrmse_all_samples'], 'pre_drops': proposal['pre_drops'],
               'fits': fits, 'calibrate_command': command, 'wall_s': proposal['wall_s'], 'outputs': outputs}
     header = ['A layered scene proposed by tissue-sim propose from the data (every key; `tissue-sim scene-keys`).',
