@@ -53,5 +53,5 @@ def test_the_real_time_variant_is_the_example_but_for_its_three_values():
     realtime = flat(read_scene_keys(shared_file('config/organ_example_realtime.yaml'))[0])
     assert example.keys() == realtime.keys()
     changed = {key: (example[key], realtime[key]) for key in example if example[key] != realtime[key]}
-    assert changed == {'model.viscosity_mu_pa_s': (5.0, 0.0), 'model.nonlinearity_threshold': (0.02, 0.1),
-                       'model.precision': ('float64', 'float32')}
+    assert changed == {'model.nonlinearity_threshold': (0.02, 0.05), 'model.precision': ('float64', 'float32'),
+                       'solver.selective_mass_scaling': (1.0, 3.0)}

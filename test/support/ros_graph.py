@@ -162,12 +162,12 @@ def truth_times(z, clocks, start_z, speed, t0, seconds):
     return np.where(on_clock, at_clock, held)
 
 
-def replay_wrenches(traces, threads, rows=None):
-    """The wrench of each traced tick from a fresh scene run through the trace (its rows, or
-    ``rows(tick)``), and the index of the first tick whose state has a puncture (len: none)."""
+def replay_wrenches(traces, threads):
+    """The wrench of each traced tick from a fresh scene run through the trace, and the index of
+    the first tick whose state has a puncture (len: none)."""
     from tissue_sim_ros.engine.driver import SimulationDriver
     from tissue_sim_ros.engine.ladder import DegradationLadder
-    from tissue_sim_ros.ros.loop.trace import TickTrace, TraceReplayer
+    from tissue_sim_ros.ros.loop.trace import TraceReplayer
 
     scene = make_scene()
     scene.model.set_threads(threads)
@@ -175,8 +175,7 @@ def replay_wrenches(traces, threads, rows=None):
                              DegradationLadder(scene))
     wrenches, punctured = [], len(traces)
     for k, tick in enumerate(traces):
-        fed = tick if rows is None else TickTrace(tick.stamp_ns, tick.published_index, rows(tick))
-        wrenches.append(np.concatenate(replayer.apply(fed)[:2]))
+        wrenches.append(np.concatenate(replayer.apply(tick)[:2]))
         if scene.puncture_events and punctured == len(traces):
             punctured = k
     return np.array(wrenches), punctured

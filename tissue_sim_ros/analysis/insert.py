@@ -83,7 +83,7 @@ def main(scene_file, speed_mm_s, out, *, travel_mm=None, depth_mm=None, hold_s=0
           f'{result.wall_time:.2f} s wall: real-time factor {result.real_time_factor:.2f} '
           f'({result.steps} steps)', file=stream)
     print(inertia_line(scene.simulation.mass_scaling, result.inertia_error, result.inertia_rms_n,
-                       scene.simulation.integrator), file=stream)
+                       scene.simulation.integrator, scene.simulation.selective_added_fraction), file=stream)
     if scene.simulation.integrator != 'explicit':
         print(scene.simulation.implicit_summary(), file=stream)
     write_summary(out, scene_file, speed_mm_s, kind, scene, result)

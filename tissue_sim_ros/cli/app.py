@@ -81,7 +81,8 @@ def _chart(args):
     from tissue_sim_ros.analysis.charting.chart import main
     scene_file, sets = _concrete(args)
     return main(scene_file=scene_file, sets=sets, quick=args.quick, speed_mm_s=args.speed_mm_s,
-                travel_mm=args.travel_mm, out=args.out, workers=args.jobs, scheduler=args.scheduler)
+                travel_mm=args.travel_mm, out=args.out, workers=args.jobs, scheduler=args.scheduler,
+                reference_selective=args.reference_selective)
 
 
 def _recommend(args):
@@ -89,7 +90,7 @@ def _recommend(args):
     scene_file, sets = _concrete(args)
     return main(scene_file=scene_file, sets=sets, tolerance=args.tolerance, rate_hz=args.rate_hz,
                 quick=args.quick, speed_mm_s=args.speed_mm_s, travel_mm=args.travel_mm, out=args.out,
-                workers=args.jobs, scheduler=args.scheduler)
+                workers=args.jobs, scheduler=args.scheduler, reference_selective=args.reference_selective)
 
 
 def _stability(args):
@@ -370,6 +371,11 @@ def _add_model_studies(commands):
     recommend.add_argument('--rate-hz', type=POSITIVE, default=50.0, help="the node's tick rate (default 50)")
     recommend.add_argument('--travel-mm', type=POSITIVE, default=None,
                            help="tip travel [mm] (default: the scene's planned travel, else 12)")
+    for parser in (chart, recommend):
+        parser.add_argument('--reference-selective', type=number(1, inclusive=True), default=1.0, metavar='R',
+                            help='the reference run with selective mass scaling R (solver.selective_mass_scaling): '
+                                 "for an organ mesh with viscosity, whose unscaled step is microseconds; its "
+                                 'estimated inertia error is reported (default 1: none)')
     study('stability', "each model's and integrator's largest stable time step against the estimate, and "
           'induced failures (caught or survived)', 'the coarse mesh and shorter searches (under 5 minutes on '
           '2 cores)', _stability, 'out/stability')

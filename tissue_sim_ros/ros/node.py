@@ -471,7 +471,7 @@ class TissueSimNode(Node):
             inertia = self.engine.driver.inertia
             simulation = self.engine.driver.scene.simulation
             self.get_logger().info(inertia_line(simulation.mass_scaling, inertia.error, inertia.rms_n,
-                                                simulation.integrator))
+                                                simulation.integrator, simulation.selective_added_fraction))
         if self._recorder is not None:
             path = self._recorder.path
             self._recorder.close()

@@ -107,3 +107,15 @@ def test_the_chart_scores_the_insertion_a_scene_plans():
     assert chart.insertion_task(None) == dict(travel_m=chart.DEFAULT_TRAVEL_M, start_gap_m=chart.START_GAP_M,
                                               planned=False)
     assert chart.insertion_task(example, travel=0.02)['travel_m'] == 0.02
+
+
+def test_the_reference_alone_takes_the_selective_mass_scaling_asked():
+    """--reference-selective R: the reference row, and it alone, runs with
+    solver.selective_mass_scaling R; the report names it with the reference's own inertia estimate."""
+    rows = chart.configurations(1e-3, quick=True, reference_selective=8.0)
+    assert rows[0]['reference'] and rows[0]['values']['solver.selective_mass_scaling'] == 8.0
+    assert all('solver.selective_mass_scaling' not in r['values'] for r in rows[1:])
+    assert all('solver.selective_mass_scaling' not in r['values'] for r in chart.configurations(1e-3, quick=True))
+    line = chart._reference_line([dict(rows[0], inertia_error_estimate=0.0012)])
+    assert line == ('Reference: the full model, explicit, no mass scaling, selective mass scaling 8; '
+                    'its estimated inertia error 0.0012.')

@@ -35,6 +35,20 @@ def test_keys_that_cannot_go_together_are_refused_naming_both():
         Scene.from_file(None, values={**COARSE_VALUES, 'solver.integrator': 'implicit', 'model.precision': 'float32'})
 
 
+def test_selective_mass_scaling_raises_the_step_of_an_explicit_scene_only():
+    """solver.selective_mass_scaling 1.5: the step set by time_step_safety grows at least 1.5-fold
+    (the simulation's own estimate, with the masses it added); the implicit integrators refuse it."""
+    plain = Scene.from_file(None, mesh=COARSE)
+    lifted = Scene.from_file(None, mesh=COARSE, solver={'selective_mass_scaling': 1.5})
+    assert lifted.dt >= 1.5 * plain.dt
+    assert lifted.dt == pytest.approx(lifted.spec['solver']['time_step_safety']
+                                      * lifted.simulation.critical_time_step(), rel=1e-12)
+    assert lifted.simulation.selective_added_fraction > 0.0 == plain.simulation.selective_added_fraction
+    with pytest.raises(SceneError, match=r"solver.selective_mass_scaling = 1.5 with solver.integrator = 'implicit'"):
+        Scene.from_file(None, values={**COARSE_VALUES, 'solver.integrator': 'implicit',
+                                      'solver.selective_mass_scaling': 1.5})
+
+
 def test_a_mistyped_mesh_size_is_refused_at_once_in_bounded_memory():
     """fine_size_m 1e-5 m (a millimetre value written as metres) asks for about 2e7 tetrahedra:
     refused before meshing, naming the key, the estimate and the limit, in a fresh process that

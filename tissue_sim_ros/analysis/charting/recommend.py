@@ -59,7 +59,8 @@ def choose(rows: list[dict], tolerance: float, rate_hz: float, budget: float = C
 
 
 def recommend(scene_file=None, sets=(), *, tolerance=0.05, rate_hz=50.0, quick=False, speed=0.005, travel=None,
-              out='out', workers=None, scheduler=None, jobs=None, quiet=False, budget=CORE_BUDGET) -> dict:
+              out='out', workers=None, scheduler=None, jobs=None, quiet=False, budget=CORE_BUDGET,
+              reference_selective=1.0) -> dict:
     """The study (module docstring); returns recommend.json's content. ``jobs``: a subset of the
     chart's; ``budget``: the share of a core the physics may take (CORE_BUDGET)."""
     from tissue_sim_ros.analysis.charting import chart
@@ -71,7 +72,8 @@ def recommend(scene_file=None, sets=(), *, tolerance=0.05, rate_hz=50.0, quick=F
         raise ValueError(f'rate_hz = {rate_hz!r}: expected a rate > 0 Hz')
     out = Path(out)
     report = chart.run_chart(scene_file, sets, quick=quick, speed=speed, travel=travel, out=out / 'chart',
-                             workers=workers, scheduler=scheduler, jobs=jobs, quiet=quiet)
+                             workers=workers, scheduler=scheduler, jobs=jobs, quiet=quiet,
+                             reference_selective=reference_selective)
     rows = [r for r in report['rows'] if r['task'] == 'insertion']
     chosen, verdicts = choose(rows, tolerance, rate_hz, budget)
     base = Scene.from_file(scene_file, sets=list(sets))
@@ -202,9 +204,10 @@ def _markdown(r: dict) -> str:
 
 
 def main(scene_file=None, sets=(), tolerance=0.05, rate_hz=50.0, quick=False, speed_mm_s=5.0, travel_mm=None,
-         out='out', workers=None, scheduler=None) -> int:
+         out='out', workers=None, scheduler=None, reference_selective=1.0) -> int:
     recommend(scene_file, sets, tolerance=tolerance, rate_hz=rate_hz, quick=quick, speed=speed_mm_s * 1e-3,
-              travel=None if travel_mm is None else travel_mm * 1e-3, out=out, workers=workers, scheduler=scheduler)
+              travel=None if travel_mm is None else travel_mm * 1e-3, out=out, workers=workers, scheduler=scheduler,
+              reference_selective=reference_selective)
     print((Path(out) / 'recommend.md').read_text())
     print(f'wrote {out}/recommended.yaml, recommend.json, recommend.csv, recommend.png, recommend.md', file=sys.stderr)
     return 0

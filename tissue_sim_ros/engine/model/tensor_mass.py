@@ -450,15 +450,16 @@ class TensorMassModel:
     def _strain_energy_arguments(self, displacement):
         return self.tetrahedra, self.shape_gradients, self.volume_lambda, self.volume_mu, displacement, self.geometric
 
-    def critical_time_step(self, method='lanczos'):
+    def critical_time_step(self, method='lanczos', mass_factor=None):
         """Critical (largest stable) explicit time step [s] of the linearised model, 2 / omega_max
         (critical_step.py: 'lanczos', the estimate; 'element_bound', a guaranteed lower bound).
-        Stiffening under deformation (non-linear models) lowers the limit: keep a safety margin."""
-        if method == 'element_bound':
+        Stiffening under deformation (non-linear models) lowers the limit: keep a safety margin.
+        ``mass_factor`` (n,): a factor on each node's lumped mass (lanczos only; None: 1)."""
+        if method == 'element_bound' and mass_factor is None:
             return critical_step.element_bound(self)
         if method != 'lanczos':
-            raise ValueError(f"method = {method!r}: expected 'lanczos' or 'element_bound'")
-        return critical_step.lanczos(self)
+            raise ValueError(f"method = {method!r}: expected 'lanczos', or 'element_bound' without a mass_factor")
+        return critical_step.lanczos(self, mass_factor)
 
 
 @njit(cache=True, parallel=True, fastmath=forces.FASTMATH, boundscheck=False, nogil=True)

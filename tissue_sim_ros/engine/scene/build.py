@@ -43,6 +43,10 @@ def check_combinations(spec: dict) -> None:
             raise SceneError(f"regions[{k}].depth_spread_m = {region['depth_spread_m']!r} with "
                              f"regions[{k}].select = {region['select']!r}: a spread of depth needs a boundary "
                              'with a depth (below_z_m, above_z_m, box_m or sphere_m)')
+    if integrator != 'explicit' and spec['solver']['selective_mass_scaling'] != 1.0:
+        raise SceneError(f"solver.selective_mass_scaling = {spec['solver']['selective_mass_scaling']!r} with "
+                         f'solver.integrator = {integrator!r}: it raises the explicit step; the implicit '
+                         'integrators are stable at any step (leave it 1)')
     if integrator != 'explicit' and model['relaxation']:
         raise SceneError(f'solver.integrator = {integrator!r} with model.relaxation: the implicit and '
                          'quasi-static integrators do not support relaxation yet (its internal variables '

@@ -172,6 +172,11 @@ SCHEMA = {
                                          "force NRMSE on the scene's insertion at design_speed_m_s, "
                                          'against 4x, is within inertia_error_bound (probed once, '
                                          'cached; analysis.charting.mass_scaling_rule)'),
+        'selective_mass_scaling': (1.0, Range(1.0, None, low_closed=True),
+                                   'explicit: raise the critical step at least this factor by adding mass only '
+                                   'at the nodes of the elements whose own step is below it (a mesher\'s few '
+                                   'smallest or flattest elements set the step of a whole organ); the added '
+                                   'mass is printed with the inertia error, which counts it; 1: off'),
         'inertia_error_bound': (0.02, 'float+', 'mass_scaling auto: the force NRMSE the mass scaling may add'),
         'design_speed_m_s': (0.005, 'float+', 'mass_scaling auto: the needle speed it is chosen for [m/s] '
                                               '(tissue-sim insert sets its own)'),

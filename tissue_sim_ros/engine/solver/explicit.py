@@ -123,6 +123,7 @@ class Simulation:
     [s]; None picks ``time_step_safety`` times the critical step estimate. mass_scaling: factor
     (>= 1) on every node mass, for quasi-static runs: the critical step grows as its square
     root, inertial forces grow by it (measure what that costs before relying on it).
+    :meth:`scale_selected_masses` adds mass only where the smallest elements limit the step.
     """
 
     def __init__(self, model, *, damping=0.0, fixed=None, dt=None, time_step_safety=0.8,
@@ -148,6 +149,8 @@ class Simulation:
         #: returns to (None: rest)
         self.body_forces = np.zeros((n, 3))
         self.initial_displacement = None
+        #: selective mass scaling's factor on each node's mass, on top of mass_scaling
+        self.node_mass_factor = np.ones(n)
         self._update_masses()
         damping_arr = np.asarray(damping, dtype=float)
         if damping_arr.ndim == 0:
@@ -162,6 +165,7 @@ class Simulation:
         if fixed is not None:
             self.fix(fixed)
         self._critical = None
+        self.time_step_safety = float(time_step_safety) if dt is None else None  # None: dt fixed
         if dt is None:
             dt = time_step_safety * self.critical_time_step()
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
@@ -202,8 +206,11 @@ class Simulation:
         self.reset()
 
     def _update_masses(self):
-        """Lumped masses from the model's current elements; nodes left without mass are held."""
-        self.mass = self.mass_scaling * self.model.lumped_masses()
+        """Lumped masses from the model's current elements; nodes left without mass are held.
+        ``added_mass``: what the scalings add to each node (the inertia estimate's)."""
+        physical = self.model.lumped_masses()
+        self.mass = self.mass_scaling * self.node_mass_factor * physical
+        self.added_mass = self.mass - physical
         massless = self.mass <= 0.0
         self.inverse_mass = np.where(massless, 0.0, 1.0 / np.where(massless, 1.0, self.mass))
         self.dof_kind[massless] = FIXED
@@ -276,6 +283,30 @@ class Simulation:
         self.dt *= math.sqrt(ratio)
         self._critical = None
 
+    def scale_selected_masses(self, factor) -> float:
+        """Selective mass scaling: the critical step's elastic part raised at least ``factor``-fold
+        (>= 1) by mass added only at the nodes of the elements whose own step is shortest
+        (critical_step.selective_mass_factors; why it costs little mass on a mesher's organ); a
+        step set by time_step_safety follows. The damping rate is kept, as with mass_scaling. Returns
+        ``selective_added_fraction``."""
+        from tissue_sim_ros.engine.model.critical_step import selective_mass_factors
+        if not (isinstance(factor, (int, float)) and math.isfinite(factor) and factor >= 1.0):
+            raise ValueError(f'selective mass scaling factor = {factor!r}: expected a finite factor >= 1')
+        if factor > 1.0:
+            self.node_mass_factor = selective_mass_factors(self.model, factor, self.node_mass_factor)
+            self._update_masses()
+            self._critical = None
+            if self.time_step_safety is not None:
+                self.dt = self.time_step_safety * self.critical_time_step()
+        return self.selective_added_fraction
+
+    @property
+    def selective_added_fraction(self) -> float:
+        """The mass selective scaling added, over the (uniformly scaled) total without it."""
+        physical = self.model.lumped_masses()
+        total = float(np.sum(physical))
+        return float(np.sum((self.node_mass_factor - 1.0) * physical)) / total if total > 0.0 else 0.0
+
     def advance_arguments(self):
         """The arguments of the node update ``_advance_free`` after the element pass (the explicit
         step's, and a compiled substep's, engine.compiled.substeps)."""
@@ -310,7 +341,8 @@ class Simulation:
         dt = (2 / omega) (sqrt(1 + zeta^2) - zeta), zeta = omega tau / 2, smallest at omega_max.
         """
         if self._critical is None:
-            elastic = self.model.critical_time_step() * math.sqrt(self.mass_scaling)
+            factor = None if np.all(self.node_mass_factor == 1.0) else self.node_mass_factor
+            elastic = self.model.critical_time_step(mass_factor=factor) * math.sqrt(self.mass_scaling)
             supported = np.flatnonzero(self.support_rows >= 0)
             if len(supported):       # lambda_max(M^-1 (K + K_s)) <= omega^2 + max_i |K_i|_inf / m_i
                 rows = np.abs(self.support_stiffness[self.support_rows[supported]])

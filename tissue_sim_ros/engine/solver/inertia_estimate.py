@@ -4,7 +4,8 @@ Mass scaling s multiplies every node mass m_i, and with it the mass-proportional
 gamma_i = c m_i (solver.damping_per_s c). For the same motion the tissue's equation
 m a + gamma v = f + f_ext then carries s times the inertial and damping force of the unscaled
 tissue, of which (1 - 1/s) is what the scaling added: body forces b_i = (1 - 1/s) m_i (a_i + c v_i)
-(scaled masses). How much of them the needle feels follows from Betti's reciprocal theorem: with
+(scaled masses). Selective mass scaling (Simulation.scale_selected_masses) gives each node its own
+s_i; b_i = (m_i - m_i / s_i) (a_i + c v_i) covers both (Simulation.added_mass). How much of them the needle feels follows from Betti's reciprocal theorem: with
 the needle a prescribed displacement delta, body forces b change its reaction by sum_i b_i . psi_i,
 psi the displacement field of a unit needle displacement. For a response linear in the needle's
 push psi = u / delta, u the displacement now, so
@@ -119,9 +120,9 @@ class InertiaEstimate:
             return
         if not elapsed > 0.0:
             return
-        weighted, delta = weighted_body_force(simulation.mass, simulation.damping_rate, simulation.velocity,
+        weighted, delta = weighted_body_force(simulation.added_mass, simulation.damping_rate, simulation.velocity,
                                               self._previous, simulation.displacement, axis, elapsed)
-        added = (1.0 - 1.0 / self._mass_scaling) * weighted / delta if delta != 0.0 else 0.0
+        added = weighted / delta if delta != 0.0 else 0.0
         if not math.isfinite(added):
             return
         self._smoothed += (added - self._smoothed) * -math.expm1(-elapsed / SMOOTHING_S)
@@ -171,13 +172,16 @@ class InertiaEstimate:
         return self.rms_n / span
 
 
-def inertia_line(mass_scaling, error, rms_n, integrator='explicit') -> str:
-    """The line every run prints about its mass scaling's estimated error."""
+def inertia_line(mass_scaling, error, rms_n, integrator='explicit', selective_fraction=0.0) -> str:
+    """The line every run prints about its mass scaling's estimated error; ``selective_fraction``:
+    the mass selective scaling added (Simulation.selective_added_fraction)."""
     if integrator == 'quasi_static':
         return ('quasi-static: no inertia, so no inertia error (its step drops the masses; a mass '
                 'scaling only sets the step when time_step_s is null)')
-    if mass_scaling <= 1.0:
+    selective = (f' and {selective_fraction:.2%} more at the smallest elements\' nodes'
+                 if selective_fraction > 0.0 else '')
+    if mass_scaling <= 1.0 and not selective:
         return 'mass scaling 1: no inertia error added'
     text = 'not estimated (no force range)' if error is None else f'{error:.3f} of the axial force range'
-    return (f'mass scaling {mass_scaling:g}: estimated inertia error {text} (rms {rms_n * 1e3:.1f} mN '
-            f'from the scaled inertia and damping and the punctures they move; first order: docs/method.md)')
+    return (f'mass scaling {mass_scaling:g}{selective}: estimated inertia error {text} (rms {rms_n * 1e3:.1f} '
+            f'mN from the scaled inertia and damping and the punctures they move; first order: docs/method.md)')
