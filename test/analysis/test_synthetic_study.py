@@ -6,7 +6,10 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.analysis.insertion import run_insertion
-from tissue_sim_ros.analysis.synthetic_study import write_synthetic_study
+from tissue_sim_ros.analysis.synthetic_study import PHANTOM_MESHES, phantom_scene, write_synthetic_study
+from tissue_sim_ros.engine.scene.build import build_mesh
+from tissue_sim_ros.engine.scene.checks import apply_schema
+from tissue_sim_ros.engine.scene.schema import SCHEMA
 from tissue_sim_ros.engine.scene.scene import Scene
 from tissue_sim_ros.io.trials.data_spec import DataSpec, load_trials
 
@@ -33,3 +36,16 @@ def test_the_trials_are_the_insertion_plus_the_noise_asked_for(tmp_path):
     noise = np.concatenate(noise)
     assert np.ptp(truth.axial_force) > 20 * 0.004                   # the curve is far above the noise
     assert noise.std() == pytest.approx(0.004, rel=0.15) and abs(noise.mean()) < 0.001
+
+
+@pytest.mark.parametrize('mesh', sorted(PHANTOM_MESHES))
+def test_no_phantom_mesh_puts_an_element_centroid_within_a_boundarys_spread_of_it(mesh):
+    """A repeat's drawn boundary depth moves where the needle meets the layer, not which elements
+    are in it: on every phantom mesh (graded across the needle's path or not) no element centroid
+    lies nearer the three-layer phantom's boundary planes than their depth spread. Truth: the
+    mesh's own element centroids."""
+    scene = phantom_scene(3, mesh)
+    built = build_mesh(apply_schema('mesh', scene['mesh'], SCHEMA['mesh']), '.')
+    z = built.rest_positions[built.tetrahedra].mean(axis=1)[:, 2]
+    for region in scene['regions'][1:]:
+        assert np.abs(z - region['select']['below_z_m']).min() >= region['depth_spread_m'] - 1e-12

@@ -15,7 +15,7 @@ node, the simulation workers), from getrusage.
 
 ``tissue-sim bench dask [--out DIR] [--workers 2]`` (:func:`dask_main`): ``compare`` on a Dask
 cluster against this process and a process pool. The study: the two-layer phantom (:func:`~tissue_sim_ros.analysis.synthetic_study.phantom_scene`,
-the 'bench' mesh, 4356 tetrahedra), two repeats at each of 1, 2 and 3 mm/s (three simulations of
+the 'bench' mesh, 4320 tetrahedra), two repeats at each of 1, 2 and 3 mm/s (three simulations of
 31-55 s each). ``compare`` of its truth scene runs three ways, each into its own directory (no
 simulation reused): in this process (``--jobs 1``), on a process pool of ``--workers``
 processes, and against a local ``dask scheduler`` with ``--workers`` ``dask worker`` processes of
