@@ -124,8 +124,8 @@ def test_tf_input_gives_the_wrench_of_the_same_motion_in_the_tissue_frame(graph,
     assert angle.max() < 1e-9
     # the wrench is the engine's for that motion: the trace run through a fresh scene gives the
     # node's wrenches bit for bit. (The hand-made poses are not run in its place: they may differ
-    # from the node's by up to 1e-9 m, and a contact onset moved by one 4 ms substep is a different
-    # impact at first contact, tenths of a newton.)
+    # from the node's by up to 1e-9 m, and two runs that far apart need not give the same wrench
+    # to 1e-9 N through the first contact.)
     recorded = np.array([[w.wrench.force.x, w.wrench.force.y, w.wrench.force.z, w.wrench.torque.x,
                           w.wrench.torque.y, w.wrench.torque.z] for w in log['wrench']])
     own, before = replay_wrenches(log['trace'], g.node.engine.threads)
