@@ -108,8 +108,7 @@ class Scene:
         self.model = build_model(self.mesh, materials, s['model'])
         self.simulation = build_simulation(self.model, s['solver'])
         build_supports(self.simulation, self.mesh, s['boundary'], point_sets_of(s, self.base_dir))
-        if s['solver']['integrator'] == 'explicit':
-            self.simulation.scale_selected_masses(s['solver']['selective_mass_scaling'])
+        self.simulation.scale_selected_masses(s['solver']['selective_mass_scaling'])  # 1 unless explicit
         check_time_step(self.simulation, s['solver'])
         #: how the tissue settled under gravity (engine.solver.settle), None without it
         self.settled = build_gravity(self.simulation, s['solver'],

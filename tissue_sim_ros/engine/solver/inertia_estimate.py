@@ -5,8 +5,9 @@ gamma_i = c m_i (solver.damping_per_s c). For the same motion the tissue's equat
 m a + gamma v = f + f_ext then carries s times the inertial and damping force of the unscaled
 tissue, of which (1 - 1/s) is what the scaling added: body forces b_i = (1 - 1/s) m_i (a_i + c v_i)
 (scaled masses). Selective mass scaling (Simulation.scale_selected_masses) gives each node its own
-s_i; b_i = (m_i - m_i / s_i) (a_i + c v_i) covers both (Simulation.added_mass). How much of them the needle feels follows from Betti's reciprocal theorem: with
-the needle a prescribed displacement delta, body forces b change its reaction by sum_i b_i . psi_i,
+s_i; b_i = (m_i - m_i / s_i) (a_i + c v_i) covers both (Simulation.added_mass). How much of them
+the needle feels follows from Betti's reciprocal theorem: with the needle a prescribed
+displacement delta, body forces b change its reaction by sum_i b_i . psi_i,
 psi the displacement field of a unit needle displacement. For a response linear in the needle's
 push psi = u / delta, u the displacement now, so
 
