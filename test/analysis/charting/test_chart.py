@@ -82,6 +82,13 @@ def test_grid_covers_the_axes():
     unscaled = [r for r in chart.configurations(1e-3, quick=False) if r['integrator'] == 'implicit'
                 and r['mass_scaling'] == 1.0]
     assert len(unscaled) == 1 and unscaled[0] not in rows     # the quick preset's time (chart.py)
+    at_scene_step = [r for r in rows if r['task'] == 'insertion' and r['integrator'] == 'implicit'
+                     and r['values']['solver.time_step_s'] == 1e-3]
+    assert at_scene_step == []                                 # dominated by the explicit row (chart.py)
+    selective = [r for r in rows if 'solver.selective_mass_scaling' in r['values'] and not r['reference']]
+    assert sorted(r['values']['solver.selective_mass_scaling'] for r in selective) == list(chart.SELECTIVE_SCALINGS)
+    assert all(r['model'] == 'full' and r['integrator'] == 'explicit' and 'solver.mass_scaling' not in r['values']
+               for r in selective)
     assert any(r['integrator'] == 'quasi_static' and r['task'] == 'insertion' for r in rows)
 
 
@@ -110,12 +117,12 @@ def test_the_chart_scores_the_insertion_a_scene_plans():
 
 
 def test_the_reference_alone_takes_the_selective_mass_scaling_asked():
-    """--reference-selective R: the reference row, and it alone, runs with
-    solver.selective_mass_scaling R; the report names it with the reference's own inertia estimate."""
+    """--reference-selective R: the reference row runs with solver.selective_mass_scaling R,
+    the other rows as without it; the report names it with the reference's own inertia estimate."""
     rows = chart.configurations(1e-3, quick=True, reference_selective=8.0)
     assert rows[0]['reference'] and rows[0]['values']['solver.selective_mass_scaling'] == 8.0
-    assert all('solver.selective_mass_scaling' not in r['values'] for r in rows[1:])
-    assert all('solver.selective_mass_scaling' not in r['values'] for r in chart.configurations(1e-3, quick=True))
+    assert rows[1:] == chart.configurations(1e-3, quick=True)[1:]
+    assert 'solver.selective_mass_scaling' not in chart.configurations(1e-3, quick=True)[0]['values']
     line = chart._reference_line([dict(rows[0], inertia_error_estimate=0.0012)])
     assert line == ('Reference: the full model, explicit, no mass scaling, selective mass scaling 8; '
                     'its estimated inertia error 0.0012.')
