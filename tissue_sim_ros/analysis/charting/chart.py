@@ -15,9 +15,12 @@ sampled every 20 ms, no retraction (:func:`insertion_task`). A configuration is 
   is the one level (chart one mesh file against another with ``--set mesh.file=...``, meshes
   that ``tissue-sim mesh --cell-mm`` makes);
 * the time step through the mass scaling (the full model on the scene's mesh, and the cheaper
-  non-linear models at two smaller scalings), and the mass-proportional damping that the mass
-  scaling multiplies (the full model at 400 and 1600 with lower damping rates);
-* the integrator (implicit and quasi-static at a multiple of the explicit step).
+  non-linear models at two smaller scalings), through the selective mass scaling (the full model
+  at 2, 4 and 8: mass only where the shortest elements set the step), and the mass-proportional
+  damping that the mass scaling multiplies (the full model at 400 and 1600 with lower damping
+  rates);
+* the integrator (implicit and quasi-static at a multiple of the explicit step; the full preset
+  adds backward Euler at the explicit step, and at 4x without mass scaling).
 
 **Error** (named ``force_nrmse``): the RMS difference of the axial force from the reference's
 over the insertion's ticks, over the reference's force range. The reference is the converged
