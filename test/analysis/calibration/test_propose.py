@@ -142,3 +142,38 @@ def test_propose_moves_the_deep_boundary_to_the_one_that_made_the_data(studies, 
     assert abs(boundary - truth) < SPREAD['regions[1].depth_spread_m']
     assert abs(boundary - truth) < abs(started - truth)
     assert fit['low'] < truth < fit['high']
+
+
+def test_propose_places_every_deeper_boundary_of_three_layers_within_its_fit_bounds(studies):
+    """Three layers, refined: the proposal's --fit bounds for both deeper boundaries contain the
+    ones that made the data (each the scene's plane less the repeats' mean depth offset)."""
+    report = propose.main(data_spec=studies['three'], scene_file=studies['root'] / 'base.yaml', refine_runs=2,
+                          out=studies['root'] / 'propose_3_refined', workers=2)
+    scene = truth_scene(3)
+    for k in (1, 2):
+        key = f'regions[{k}].select.below_z_m'
+        offsets = drawn(studies['three'], f'regions[{k}].depth_offset_m')
+        truth = scene['regions'][k]['select']['below_z_m'] - np.mean(offsets)
+        fit = next(f for f in report['fits'] if f['key'] == key)
+        print(f"{key}: started {-report['runs'][0]['values'][f'boundary_m[{k}]'] * 1e3:.2f} mm, truth "
+              f"{truth * 1e3:.2f} mm, fit bounds {fit['low'] * 1e3:.2f} to {fit['high'] * 1e3:.2f} mm")
+        assert fit['low'] < truth < fit['high']
+
+
+def test_a_deeper_boundary_moves_by_its_onset_error_and_up_when_the_simulation_shows_none():
+    """The fixed-point step (propose._boundary): by the data's onset less the simulated one, held
+    within BOUNDARY_STEP_M and BOUNDARY_GAP_M below the boundary above; a layer the simulation is
+    not seen loading within the travel (no onset: its boundary, started at the data's onset, lies
+    deeper than at rest by what the layers above compress) moves up by a whole step."""
+    from types import SimpleNamespace
+    step, gap = propose.BOUNDARY_STEP_M, propose.BOUNDARY_GAP_M
+    values = {'boundary_m[1]': 0.0165, 'boundary_m[2]': 0.0210}
+    measured = SimpleNamespace(onset_m=[0.0, 0.0160, 0.0210])
+    simulated = SimpleNamespace(onset_m=[0.0, 0.0172, None])
+    assert propose._boundary(values, measured, simulated, 1) == pytest.approx(0.0165 - 0.0012)
+    assert propose._boundary(values, measured, simulated, 2) == pytest.approx(0.0210 - step)
+    far = SimpleNamespace(onset_m=[0.0, 0.0260, 0.0210])
+    assert propose._boundary(values, measured, far, 1) == pytest.approx(0.0165 - step)
+    close = {'boundary_m[1]': 0.0195, 'boundary_m[2]': 0.0205}
+    assert propose._boundary(close, measured, simulated, 2) == pytest.approx(0.0195 + gap)
+    assert propose._boundary(values, SimpleNamespace(onset_m=[0.0, 0.016, None]), simulated, 2) == 0.0210
