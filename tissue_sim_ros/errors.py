@@ -21,6 +21,7 @@ keeps running.
         ConfigError                           a node parameter
         CommandLineError                      what only the command line sees
       SimulationDiverged (also a RuntimeError) a run that cannot go on
+      WallTimeExceeded (also a RuntimeError)  a run stopped at the wall-time limit it was given
       NodeProcessError (also a RuntimeError)  a node process that would not start or answer
       BenchError (also a RuntimeError)        a benchmark that cannot run, or a run of it failed
 """
@@ -29,7 +30,7 @@ __all__ = [
     'BenchError', 'CommandLineError', 'ConfigError', 'DataError', 'DataSpecError', 'InputError', 'LogError',
     'MaterialError', 'MeshError', 'NodeProcessError', 'NotAnMcapError', 'PoseError', 'RecoverError',
     'ReplayError', 'SceneError', 'SimulationDiverged', 'TissueSimError', 'TruncatedLogError',
-    'UnitError',
+    'UnitError', 'WallTimeExceeded',
 ]
 
 
@@ -137,6 +138,18 @@ class SimulationDiverged(TissueSimError, RuntimeError):
 
     def __reduce__(self):       # a worker process's divergence reaches its caller whole
         return type(self), (self.reason, self.step, self.time, self.time_step, self.critical_time_step)
+
+
+class WallTimeExceeded(TissueSimError, RuntimeError):
+    """A run stopped at the wall-time limit it was given: how far it got."""
+
+    def __init__(self, limit_s, simulated_s):
+        self.limit_s = limit_s
+        self.simulated_s = simulated_s
+        super().__init__(f'stopped at its wall-time limit of {limit_s:g} s, {simulated_s:.3g} s simulated')
+
+    def __reduce__(self):
+        return type(self), (self.limit_s, self.simulated_s)
 
 
 class NodeProcessError(TissueSimError, RuntimeError):

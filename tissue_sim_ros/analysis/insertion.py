@@ -45,11 +45,12 @@ class InsertionResult:
         return float(self.time[-1] / self.wall_time) if self.wall_time > 0 else float('inf')
 
 
-def run_insertion(scene, speed, travel, *, hold_s=0.0, tick=0.02, retract=True, progress=None):
+def run_insertion(scene, speed, travel, *, hold_s=0.0, tick=0.02, retract=True, progress=None,
+                  wall_limit_s=None):
     """Insert the scene's needle by ``travel`` [m] at ``speed`` [m/s] along its axis, hold
     ``hold_s`` [s] at the deepest point, then retract it; returns an InsertionResult sampled once
     per tick. ``progress``: a file to print a progress line to every simulated second (None:
-    quiet)."""
+    quiet). ``wall_limit_s``: raise WallTimeExceeded once a tick ends past that much wall time."""
     if not (speed > 0 and np.isfinite(speed)):
         raise ValueError(f'speed = {speed!r}: expected a finite speed > 0 m/s')
     if not (travel > 0 and np.isfinite(travel)):
@@ -79,6 +80,9 @@ def run_insertion(scene, speed, travel, *, hold_s=0.0, tick=0.02, retract=True, 
     target_miss = np.zeros((len(times), n_targets))
 
     def report(k, drv):
+        if wall_limit_s is not None and time.perf_counter() - wall0 > wall_limit_s:
+            from tissue_sim_ros.errors import WallTimeExceeded
+            raise WallTimeExceeded(wall_limit_s, drv.time)
         if n_targets:
             target_positions[k] = scene.target_positions()
             target_distance[k], target_miss[k], _ = scene.targets_relative_to_needle()
@@ -90,7 +94,8 @@ def run_insertion(scene, speed, travel, *, hold_s=0.0, tick=0.02, retract=True, 
             next_report[0] += 1.0
 
     samples = driver.follow(times, start + depths[:, None] * axis,
-                            progress=None if progress is None and not n_targets else report)
+                            progress=None if progress is None and not n_targets and wall_limit_s is None
+                            else report)
     return InsertionResult(samples.time, depths, samples.force, samples.torque,
                            -(samples.force @ axis), samples.phase, np.array(retracting),
                            list(scene.puncture_events), time.perf_counter() - wall0,

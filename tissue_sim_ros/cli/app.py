@@ -82,7 +82,7 @@ def _chart(args):
     scene_file, sets = _concrete(args)
     return main(scene_file=scene_file, sets=sets, quick=args.quick, speed_mm_s=args.speed_mm_s,
                 travel_mm=args.travel_mm, out=args.out, workers=args.jobs, scheduler=args.scheduler,
-                reference_selective=args.reference_selective)
+                reference_selective=args.reference_selective, row_limit_min=args.row_limit_min)
 
 
 def _recommend(args):
@@ -90,7 +90,8 @@ def _recommend(args):
     scene_file, sets = _concrete(args)
     return main(scene_file=scene_file, sets=sets, tolerance=args.tolerance, rate_hz=args.rate_hz,
                 quick=args.quick, speed_mm_s=args.speed_mm_s, travel_mm=args.travel_mm, out=args.out,
-                workers=args.jobs, scheduler=args.scheduler, reference_selective=args.reference_selective)
+                workers=args.jobs, scheduler=args.scheduler, reference_selective=args.reference_selective,
+                row_limit_min=args.row_limit_min)
 
 
 def _stability(args):
@@ -376,6 +377,9 @@ def _add_model_studies(commands):
                             help='the reference run with selective mass scaling R (solver.selective_mass_scaling): '
                                  "for an organ mesh with viscosity, whose unscaled step is microseconds; its "
                                  'estimated inertia error is reported (default 1: none)')
+        parser.add_argument('--row-limit-min', type=POSITIVE, default=None, metavar='MIN',
+                            help='stop an insertion row other than the reference after MIN minutes of wall '
+                                 'time; it is reported as stopped (default: none)')
     study('stability', "each model's and integrator's largest stable time step against the estimate, and "
           'induced failures (caught or survived)', 'the coarse mesh and shorter searches (under 5 minutes on '
           '2 cores)', _stability, 'out/stability')

@@ -126,3 +126,20 @@ def test_the_reference_alone_takes_the_selective_mass_scaling_asked():
     line = chart._reference_line([dict(rows[0], inertia_error_estimate=0.0012)])
     assert line == ('Reference: the full model, explicit, no mass scaling, selective mass scaling 8; '
                     'its estimated inertia error 0.0012.')
+
+
+def test_a_row_past_its_wall_time_limit_stops_and_says_so():
+    """row_limit_s: every insertion row but the reference gets the limit, outside the job's key
+    (a limited run resumes an unlimited one); a row past it ends as a failure naming the limit and
+    how far it got, which the chart's errors and Pareto front skip."""
+    limited = chart.jobs_for(None, [], quick=True, speed=0.005, travel=None, row_limit_s=0.0)
+    plain = chart.jobs_for(None, [], quick=True, speed=0.005, travel=None)
+    assert [j['key'] for j in limited] == [j['key'] for j in plain]
+    assert [j.get('wall_limit_s') for j in limited] == [None if j['reference'] else 0.0 for j in limited]
+    row = chart.simulate_job(next(j for j in limited if j['task'] == 'insertion' and j['mesh'] == 'coarse'))
+    assert row['failure'].startswith('stopped at its wall-time limit of 0 s, ')
+    rows = [dict(row, task='insertion'), dict(reference=True, task='insertion', failure='', axial_force=[0.0, 1.0],
+                                             puncture_depth_m=None, cost_s_per_sim_s=10.0)]
+    chart._errors(rows)
+    chart._pareto(rows)
+    assert rows[0]['error'] is None and not rows[0]['pareto']

@@ -216,7 +216,7 @@ def _insertion_job(job: dict) -> dict:
     """One configuration's insertion: the axial force per tick, the punctures, and the cost."""
     from tissue_sim_ros.analysis.insertion import run_insertion
     from tissue_sim_ros.engine.scene.scene import Scene
-    from tissue_sim_ros.errors import SceneError, SimulationDiverged
+    from tissue_sim_ros.errors import SceneError, SimulationDiverged, WallTimeExceeded
     row = {k: job[k] for k in ('key', 'model', 'mesh', 'integrator', 'reference')}
     row['task'] = 'insertion'
     row['mass_scaling'] = job.get('mass_scaling')
@@ -231,9 +231,12 @@ def _insertion_job(job: dict) -> dict:
                mass_scaling=float(scene.spec['solver']['mass_scaling']),
                damping_per_s=float(scene.spec['solver']['damping_per_s']))
     try:
-        result = run_insertion(scene, job['speed'], task['travel_m'], retract=False)
+        result = run_insertion(scene, job['speed'], task['travel_m'], retract=False,
+                               wall_limit_s=job.get('wall_limit_s'))
     except SimulationDiverged as exc:
         return dict(row, failure=f'diverged: {exc.reason}')
+    except WallTimeExceeded as exc:
+        return dict(row, failure=str(exc))
     sim_time = float(result.time[-1])
     row.update(failure='', wall_s=result.wall_time, sim_time_s=sim_time, steps=int(result.steps),
                cost_s_per_sim_s=result.wall_time / sim_time,
@@ -299,23 +302,31 @@ def make_job(config: dict, scene_file=None, sets=(), *, speed=0.005, travel=None
     return job
 
 
-def jobs_for(scene_file, sets, *, quick, speed, travel, reference_selective=1.0) -> list[dict]:
+def jobs_for(scene_file, sets, *, quick, speed, travel, reference_selective=1.0, row_limit_s=None) -> list[dict]:
+    """The grid's jobs on the scene. ``row_limit_s``: the wall time after which an insertion row
+    other than the reference stops (its failure says so); outside the job's key, so a chart run
+    with a limit resumes one without, and a stopped row stays stopped (delete its line from
+    runs.jsonl to run it again)."""
     from tissue_sim_ros.engine.scene.scene import Scene
     scene = Scene.from_file(scene_file, sets=list(sets))
-    return [make_job(config, scene_file, sets, speed=speed, travel=travel)
+    jobs = [make_job(config, scene_file, sets, speed=speed, travel=travel)
             for config in configurations(scene.dt, quick=quick, mesh_levels=scene.spec['mesh']['generator'] != 'file',
                                          reference_selective=reference_selective)]
+    for job in jobs:
+        if row_limit_s is not None and not job['reference']:
+            job['wall_limit_s'] = float(row_limit_s)
+    return jobs
 
 
 def run_chart(scene_file=None, sets=(), *, quick=False, speed=0.005, travel=None, out='out', workers=None,
-              scheduler=None, jobs=None, quiet=False, reference_selective=1.0) -> dict:
+              scheduler=None, jobs=None, quiet=False, reference_selective=1.0, row_limit_s=None) -> dict:
     """Run the grid (or ``jobs``, a subset of jobs_for's) and write the outputs; returns the report."""
     from tissue_sim_ros.analysis.jobs import run_logged
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if jobs is None:
         jobs = jobs_for(scene_file, sets, quick=quick, speed=speed, travel=travel,
-                        reference_selective=reference_selective)
+                        reference_selective=reference_selective, row_limit_s=row_limit_s)
     # the costly ones first, so the pool's last minutes are not one long run
     order = sorted(range(len(jobs)), key=lambda i: (jobs[i]['mesh'] != 'fine', not jobs[i]['reference'],
                                                     jobs[i].get('task') == 'compression',
@@ -471,10 +482,11 @@ def _plot_task(ax, rows: list[dict], families: list[str], task: str) -> None:
 
 
 def main(scene_file=None, sets=(), quick=False, speed_mm_s=5.0, travel_mm=None, out='out', workers=None,
-         scheduler=None, reference_selective=1.0) -> int:
+         scheduler=None, reference_selective=1.0, row_limit_min=None) -> int:
     run_chart(scene_file, sets, quick=quick, speed=speed_mm_s * 1e-3,
               travel=None if travel_mm is None else travel_mm * 1e-3, out=out,
-              workers=workers, scheduler=scheduler, reference_selective=reference_selective)
+              workers=workers, scheduler=scheduler, reference_selective=reference_selective,
+              row_limit_s=None if row_limit_min is None else 60.0 * row_limit_min)
     print((Path(out) / 'chart.md').read_text())
     print(f'wrote {out}/chart.csv, chart.png, chart.md, chart.json', file=sys.stderr)
     return 0

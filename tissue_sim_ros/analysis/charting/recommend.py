@@ -60,9 +60,10 @@ def choose(rows: list[dict], tolerance: float, rate_hz: float, budget: float = C
 
 def recommend(scene_file=None, sets=(), *, tolerance=0.05, rate_hz=50.0, quick=False, speed=0.005, travel=None,
               out='out', workers=None, scheduler=None, jobs=None, quiet=False, budget=CORE_BUDGET,
-              reference_selective=1.0) -> dict:
+              reference_selective=1.0, row_limit_s=None) -> dict:
     """The study (module docstring); returns recommend.json's content. ``jobs``: a subset of the
-    chart's; ``budget``: the share of a core the physics may take (CORE_BUDGET)."""
+    chart's; ``budget``: the share of a core the physics may take (CORE_BUDGET); ``row_limit_s``:
+    the chart's (:func:`.chart.jobs_for`)."""
     from tissue_sim_ros.analysis.charting import chart
     from tissue_sim_ros.engine.scene.keys import override_text
     from tissue_sim_ros.engine.scene.scene import Scene, scene_yaml
@@ -73,7 +74,7 @@ def recommend(scene_file=None, sets=(), *, tolerance=0.05, rate_hz=50.0, quick=F
     out = Path(out)
     report = chart.run_chart(scene_file, sets, quick=quick, speed=speed, travel=travel, out=out / 'chart',
                              workers=workers, scheduler=scheduler, jobs=jobs, quiet=quiet,
-                             reference_selective=reference_selective)
+                             reference_selective=reference_selective, row_limit_s=row_limit_s)
     rows = [r for r in report['rows'] if r['task'] == 'insertion']
     chosen, verdicts = choose(rows, tolerance, rate_hz, budget)
     base = Scene.from_file(scene_file, sets=list(sets))
@@ -204,10 +205,11 @@ def _markdown(r: dict) -> str:
 
 
 def main(scene_file=None, sets=(), tolerance=0.05, rate_hz=50.0, quick=False, speed_mm_s=5.0, travel_mm=None,
-         out='out', workers=None, scheduler=None, reference_selective=1.0) -> int:
+         out='out', workers=None, scheduler=None, reference_selective=1.0, row_limit_min=None) -> int:
     recommend(scene_file, sets, tolerance=tolerance, rate_hz=rate_hz, quick=quick, speed=speed_mm_s * 1e-3,
               travel=None if travel_mm is None else travel_mm * 1e-3, out=out, workers=workers, scheduler=scheduler,
-              reference_selective=reference_selective)
+              reference_selective=reference_selective,
+              row_limit_s=None if row_limit_min is None else 60.0 * row_limit_min)
     print((Path(out) / 'recommend.md').read_text())
     print(f'wrote {out}/recommended.yaml, recommend.json, recommend.csv, recommend.png, recommend.md', file=sys.stderr)
     return 0
