@@ -177,3 +177,32 @@ def test_a_deeper_boundary_moves_by_its_onset_error_and_up_when_the_simulation_s
     close = {'boundary_m[1]': 0.0195, 'boundary_m[2]': 0.0205}
     assert propose._boundary(close, measured, simulated, 2) == pytest.approx(0.0195 + gap)
     assert propose._boundary(values, SimpleNamespace(onset_m=[0.0, 0.016, None]), simulated, 2) == 0.0210
+
+
+@pytest.mark.parametrize('data', [0.05, 0.3, 0.001])
+def test_the_relaxation_scan_reads_the_relaxing_part_off_the_simulated_fractions(monkeypatch, data):
+    """The scan's simulated pause fractions (rising, far from proportional to the relaxing part:
+    the two-layer phantom's) and the data's: inside their range the relaxing part is the linear
+    interpolation (numpy's), above it the largest scanned, below it the smallest scaled down by the
+    ratio of the fractions; each scan run is a candidate proposal with its own score."""
+    from types import SimpleNamespace
+
+    from tissue_sim_ros.analysis.compare import compare as compare_module
+    fractions = dict(zip(propose.RELAX_SCAN, (0.003, 0.017, 0.036, 0.087, 0.2)))
+    monkeypatch.setattr(propose, 'layered_spec', lambda base, values, layers, top: {'relaxing': values['relaxing']})
+    monkeypatch.setattr(propose, '_trial_features', lambda comparisons, n, simulated: comparisons[0].features)
+    monkeypatch.setattr('tissue_sim_ros.engine.scene.scene.Scene', lambda spec, base_dir=None: spec)
+
+    def scenes(trials, specs, **options):
+        return [{'comparisons': [SimpleNamespace(features=SimpleNamespace(relaxing=fractions[s['relaxing']]),
+                                                 errors={'nrmse_all_samples': s['relaxing']})]} for s in specs]
+    monkeypatch.setattr(compare_module, 'compare_scenes', scenes)
+    base = SimpleNamespace(spec={}, base_dir='.')
+    chosen, rows, candidates = propose._scan_relaxing([], base, {'relaxing': 0.05}, [], 0.0, 2,
+                                                       SimpleNamespace(relaxing=data))
+    parts, simulated = list(fractions), list(fractions.values())
+    expected = (np.interp(data, simulated, parts) if simulated[0] <= data <= simulated[-1] else
+                parts[-1] if data > simulated[-1] else parts[0] * data / simulated[0])
+    assert chosen == pytest.approx(expected, rel=1e-12)
+    assert [row['simulated_fraction'] for row in rows] == simulated
+    assert [c[0] for c in candidates] == parts and [c[2]['relaxing'] for c in candidates] == parts

@@ -19,9 +19,11 @@
    above are compressed, 4 mm on the two-layer phantom, so the boundary starts there and moves
    up), the last layer's friction by the slopes after the last puncture, the relaxing part by
    the fraction of its force the pause relaxes (:func:`_relaxing`: a secant, the fraction being
-   far from proportional to it), and a deeper layer's rupture force (which starts at its peak
-   less the shaft friction read off the data: the friction per length times the travel since the
-   puncture above) set, once the simulation punctures that layer within ``SAME_LAYER_M`` of the
+   far from proportional to it; in the first run that punctures every layer within
+   ``SAME_LAYER_M`` of the data's depth, a scan of it in one parallel batch places it,
+   :func:`_scan_relaxing`, the later runs keep it, and the scan's runs are candidates too), and
+   a deeper layer's rupture force (which starts at its peak less the shaft friction read off the
+   data: the friction per length times the travel since the puncture above) set, once the simulation punctures that layer within ``SAME_LAYER_M`` of the
    data's depth, to the measured peak less the force the simulated load cell read beyond the
    membrane's contact force there (:func:`shaft_force_at_punctures`: the shaft's friction on
    the length inside, which the measured peak holds too; the data's estimate was 3x the
@@ -52,6 +54,8 @@ __all__ = ['fit_suggestions', 'layered_spec', 'main', 'propose', 'shaft_force_at
 #: part's within [1 / RELAX_CLAMP, RELAX_CLAMP] and below MAX_RELAXING (it softens every loading
 #: too: a long pause's relaxation moves the punctures)
 CLAMP, RELAX_CLAMP, MAX_RELAXING = 3.0, 2.0, 0.9
+#: the relaxing parts of the scan that places the relaxation (:func:`_scan_relaxing`)
+RELAX_SCAN = (0.1, 0.3, 0.5, 0.7, 0.9)
 #: a deeper boundary moves at most this far in one refinement run [m], and stays this far below
 #: the one above it (or the surface)
 BOUNDARY_STEP_M, BOUNDARY_GAP_M = 0.003, 0.0005
@@ -209,6 +213,54 @@ def _relaxing(values, measured, simulated, previous) -> float:
     return min(MAX_RELAXING, here * float(np.clip(factor, 1.0 / RELAX_CLAMP, RELAX_CLAMP)))
 
 
+def _score(study) -> float:
+    """A run's NRMSE over every sample, the trials' mean (inf when none has one)."""
+    nrmse = [c.errors.get('nrmse_all_samples', math.nan) for c in study['comparisons']]
+    return float(np.nanmean(nrmse)) if np.isfinite(nrmse).any() else math.inf
+
+
+def _scan_relaxing(trials, base_scene, values, layers, top, n_layers, measured, **compare) -> tuple:
+    """The relaxing part whose simulated pause relaxes the data's fraction of its force, read off
+    one parallel batch of simulations at ``RELAX_SCAN`` (every other value as ``values``): the
+    fraction climbs slowly and not in proportion (most of the pause's force is the shaft's
+    friction, which does not relax), so a fixed-point step from a small start needs more runs
+    than the proposal has. Linear between the two scan points around the data's fraction; above
+    every simulated one, the largest; below, the smallest scaled down by the ratio of the
+    fractions. Also the scan's rows (relaxing part, simulated fraction, NRMSE) and each of its
+    runs as a candidate proposal (score, spec, values, study)."""
+    from tissue_sim_ros.analysis.compare.compare import compare_scenes
+    from tissue_sim_ros.engine.scene.scene import Scene
+    specs = [layered_spec(base_scene.spec, dict(values, relaxing=part), layers, top) for part in RELAX_SCAN]
+    studies = compare_scenes(trials, [Scene(spec, base_dir=base_scene.base_dir) for spec in specs], quiet=True,
+                             **compare)
+    rows, candidates = [], []
+    for part, spec, study in zip(RELAX_SCAN, specs, studies):
+        features = _trial_features(study['comparisons'], n_layers, simulated=True)
+        rows.append({'relaxing': part, 'simulated_fraction': features.relaxing if features is not None else math.nan,
+                     'nrmse_all_samples': _score(study)})
+        candidates.append((rows[-1]['nrmse_all_samples'], spec, dict(values, relaxing=part), study))
+    data = measured.relaxing
+    pairs = [(row['relaxing'], row['simulated_fraction']) for row in rows if _finite(row['simulated_fraction'])]
+    chosen = values['relaxing']
+    if pairs and _finite(data):
+        crossing = [p0 + (data - f0) / (f1 - f0) * (p1 - p0)
+                    for (p0, f0), (p1, f1) in zip(pairs, pairs[1:]) if f0 <= data <= f1 and f1 > f0]
+        if crossing:
+            chosen = crossing[0]
+        elif data > max(f for _, f in pairs):
+            chosen = pairs[-1][0]
+        elif pairs[0][1] > 0:
+            chosen = pairs[0][0] * data / pairs[0][1]
+    return chosen, rows, candidates
+
+
+def _punctures_placed(measured, simulated, n_layers: int) -> bool:
+    """Whether the simulation punctures every layer within ``SAME_LAYER_M`` of the data's depth
+    (its pause then holds the tip where the data's does)."""
+    return all(_finite(simulated.depth_m[k]) and _finite(measured.depth_m[k])
+               and abs(simulated.depth_m[k] - measured.depth_m[k]) <= SAME_LAYER_M for k in range(n_layers))
+
+
 def _corrected(values: dict, measured, simulated, n_layers: int, factors, shaft=(), previous=None) -> dict:
     """``values`` moved by what the simulation's features miss of the data's (module docstring, 3):
     every modulus by the outer layer's loading-level ratio (``factors[0]``,
@@ -219,7 +271,7 @@ def _corrected(values: dict, measured, simulated, n_layers: int, factors, shaft=
     force to its measured peak less ``shaft`` (per layer, :func:`shaft_force_at_punctures`), at
     least ``MIN_RUPTURE_OF_PEAK`` of the peak (a layer punctured deeper has more shaft inside).
     ``previous``: the previous run's (values, simulated features), for the secants."""
-    from tissue_sim_ros.analysis.calibration.layer_estimates import MIN_RUPTURE_OF_PEAK
+    from tissue_sim_ros.analysis.calibration.layer_estimates import MIN_RELAXATION, MIN_RUPTURE_OF_PEAK
     out = dict(values)
     for k, force in enumerate(shaft):
         peak, depth = measured.peak_n[k], simulated.depth_m[k]
@@ -235,7 +287,8 @@ def _corrected(values: dict, measured, simulated, n_layers: int, factors, shaft=
         out[f'friction_n_per_m[{last}]'] *= _factor(measured.post_slope_n_per_m, simulated.post_slope_n_per_m)
     if 'relaxing' in out:
         out['relaxing'] = _relaxing(values, measured, simulated, previous)
-        out['relax_time_s'] *= _factor(measured.relax_time_s, simulated.relax_time_s)
+        if _finite(simulated.relaxing) and simulated.relaxing >= MIN_RELAXATION:   # else its time is noise's
+            out['relax_time_s'] *= _factor(measured.relax_time_s, simulated.relax_time_s)
     return out
 
 
@@ -344,7 +397,7 @@ def propose(trials, base_scene, *, refine_runs: int = 3, align: str = 'contact',
     measured = _trial_features(empty, n)
     derived = starting_values(measured, base_modulus)
     values = {name: value for name, (value, _) in derived.items()}
-    runs, best, previous = [], None, None
+    runs, best, previous, scanned = [], None, None, None
     for run in range(refine_runs + 1):
         spec = layered_spec(base_scene.spec, values, layers, top)
         try:
@@ -354,8 +407,7 @@ def propose(trials, base_scene, *, refine_runs: int = 3, align: str = 'contact',
             break
         study = compare_trials(chosen, scene, align=align, tick_s=tick_s, store=store, workers=workers,
                                scheduler=scheduler, quiet=True)
-        nrmse = [c.errors.get('nrmse_all_samples', math.nan) for c in study['comparisons']]
-        score = float(np.nanmean(nrmse)) if np.isfinite(nrmse).any() else math.inf
+        score = _score(study)
         runs.append({'run': run, 'nrmse_all_samples': score, 'values': dict(values)})
         log(f'propose: run {run}: NRMSE {score:.4f} over every sample')
         if best is None or score < best[0]:
@@ -374,6 +426,15 @@ def propose(trials, base_scene, *, refine_runs: int = 3, align: str = 'contact',
         runs[-1]['simulated']['shaft_force_at_puncture_n'] = shaft
         runs[-1]['simulated']['onset_m'] = simulated.onset_m
         corrected = _corrected(values, measured, simulated, n, factors, shaft, previous)
+        if scanned is not None:
+            corrected['relaxing'] = scanned        # the scan placed it; the moduli follow
+        elif 'relaxing' in corrected and _punctures_placed(measured, simulated, n):
+            scanned, runs[-1]['relaxation_scan'], candidates = _scan_relaxing(
+                chosen, base_scene, corrected, layers, top, n, measured, align=align, tick_s=tick_s, store=store,
+                workers=workers, scheduler=scheduler)
+            corrected['relaxing'] = scanned
+            best = min([best] + candidates, key=lambda candidate: candidate[0])
+            log(f'propose: run {run}: the relaxation scan puts the relaxing part at {scanned:.3f}')
         previous, values = (values, simulated), corrected
     score, spec, values, study = best
     return {'speed_m_s': speed, 'trials': chosen, 'layers': layers, 'measured': measured, 'derived': derived,

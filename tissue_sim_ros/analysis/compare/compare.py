@@ -43,7 +43,7 @@ from tissue_sim_ros.analysis.compare.shared_punctures import EVENT_WINDOW_M, wit
 from tissue_sim_ros.analysis.compare.simulated_curve import SimulatedCurve, simulated_curve
 
 __all__ = ['ALIGNMENTS', 'TrialComparison', 'SimulatedCurve', 'simulated_curve', 'compare_trial',
-           'measured_layers', 'plan_simulations', 'compare_trials', 'within_spread']
+           'measured_layers', 'plan_simulations', 'compare_trials', 'compare_scenes', 'within_spread']
 
 ALIGNMENTS = ('contact', 'xcorr', 'depth')
 MAX_SHIFT_S = 0.5
@@ -272,21 +272,28 @@ def plan_simulations(trials, scene, *, gap_m: float | None = None, per_trial: bo
     return Plan(jobs, schedules, motions, job_of_trial, representative)
 
 
-def run_plan(plan: Plan, *, store=None, workers=None, scheduler=None, quiet=False) -> list:
-    """The results of the plan's jobs: from ``store`` (a ResultStore) where there, else run
-    (and put there as each finishes)."""
+def run_plans(plans, *, store=None, workers=None, scheduler=None, quiet=False) -> list[list]:
+    """Per plan, the results of its jobs: from ``store`` (a ResultStore) where there, else run
+    (and put there as each finishes); every plan's jobs in one parallel batch."""
     from tissue_sim_ros.analysis.jobs import run_jobs
     from tissue_sim_ros.analysis.compare.trial_simulation import simulate
-    results = [store.get(job.key) if store is not None else None for job in plan.jobs]
+    jobs = [job for plan in plans for job in plan.jobs]
+    results = [store.get(job.key) if store is not None else None for job in jobs]
     todo = [i for i, result in enumerate(results) if result is None]
 
     def keep(position, result):
         results[todo[position]] = result
         if store is not None:
-            store.put(plan.jobs[todo[position]].key, result)
-    run_jobs(simulate, [plan.jobs[i] for i in todo], workers=workers, scheduler=scheduler,
+            store.put(jobs[todo[position]].key, result)
+    run_jobs(simulate, [jobs[i] for i in todo], workers=workers, scheduler=scheduler,
              label='simulations', on_result=keep, quiet=quiet)
-    return results
+    ends = np.cumsum([0] + [len(plan.jobs) for plan in plans])
+    return [results[a:b] for a, b in zip(ends[:-1], ends[1:])]
+
+
+def run_plan(plan: Plan, *, store=None, workers=None, scheduler=None, quiet=False) -> list:
+    """The results of the plan's jobs (:func:`run_plans`)."""
+    return run_plans([plan], store=store, workers=workers, scheduler=scheduler, quiet=quiet)[0]
 
 
 def compare_trials(trials, scene, *, align: str = 'contact', gap_m: float | None = None,
@@ -295,25 +302,38 @@ def compare_trials(trials, scene, *, align: str = 'contact', gap_m: float | None
     """Everything the report needs: the comparisons, the plan, the results, the repeats' floors
     by speed, each speed's punctures measured and simulated (with ``simulated_repeats`` runs of a
     scene that states its spread: :mod:`.puncture_spread`), and what it cost."""
+    return compare_scenes(trials, [scene], align=align, gap_m=gap_m, per_trial=per_trial, tick_s=tick_s,
+                          store=store, workers=workers, scheduler=scheduler, quiet=quiet,
+                          simulated_repeats=simulated_repeats)[0]
+
+
+def compare_scenes(trials, scenes, *, align: str = 'contact', gap_m: float | None = None,
+                   per_trial: bool = False, tick_s: float = 0.01, store=None, workers=None,
+                   scheduler=None, quiet: bool = False, simulated_repeats: int = 0) -> list[dict]:
+    """:func:`compare_trials` for each of ``scenes``, their simulations in one parallel batch (a
+    scan over one value: the cores work on every scene at once, not one scene's jobs at a time)."""
     from tissue_sim_ros.analysis.compare.puncture_spread import run_simulated_repeats, spread_by_speed
     wall0 = time.perf_counter()
-    plan = plan_simulations(trials, scene, gap_m=gap_m, per_trial=per_trial, tick_s=tick_s)
-    results = run_plan(plan, store=store, workers=workers, scheduler=scheduler, quiet=quiet)
-    curves = [simulated_curve(results[j], plan.schedules[j], plan.motions[plan.representative[j]],
-                              scene.start_gap_m) for j in range(len(plan.jobs))]
-    punctures, layers = measured_layers(trials, plan.motions)
-    comparisons = [compare_trial(trial, plan.motions[i], curves[plan.job_of_trial[i]], align,
-                                 measured_punctures=punctures[i], layers=layers[i])
-                   for i, trial in enumerate(trials)]
-    study = {'comparisons': comparisons, 'plan': plan, 'results': results, 'curves': curves, 'layers': layers,
-             'speeds': speed_groups(trials, plan.motions, comparisons), 'scene_gap_m': scene.start_gap_m}
-    repeats = run_simulated_repeats(plan, scene, simulated_repeats, store=store, workers=workers,
-                                    scheduler=scheduler, quiet=quiet)
-    study['repeat_results'] = repeats
-    for position, rows in spread_by_speed(study, repeats, scene.start_gap_m).items():
-        study['speeds'][position]['punctures'] = rows
-    study['wall_s'] = time.perf_counter() - wall0
-    return study
+    plans = [plan_simulations(trials, scene, gap_m=gap_m, per_trial=per_trial, tick_s=tick_s) for scene in scenes]
+    all_results = run_plans(plans, store=store, workers=workers, scheduler=scheduler, quiet=quiet)
+    punctures, layers = measured_layers(trials, plans[0].motions)
+    studies = []
+    for scene, plan, results in zip(scenes, plans, all_results):
+        curves = [simulated_curve(results[j], plan.schedules[j], plan.motions[plan.representative[j]],
+                                  scene.start_gap_m) for j in range(len(plan.jobs))]
+        comparisons = [compare_trial(trial, plan.motions[i], curves[plan.job_of_trial[i]], align,
+                                     measured_punctures=punctures[i], layers=layers[i])
+                       for i, trial in enumerate(trials)]
+        study = {'comparisons': comparisons, 'plan': plan, 'results': results, 'curves': curves, 'layers': layers,
+                 'speeds': speed_groups(trials, plan.motions, comparisons), 'scene_gap_m': scene.start_gap_m}
+        repeats = run_simulated_repeats(plan, scene, simulated_repeats, store=store, workers=workers,
+                                        scheduler=scheduler, quiet=quiet)
+        study['repeat_results'] = repeats
+        for position, rows in spread_by_speed(study, repeats, scene.start_gap_m).items():
+            study['speeds'][position]['punctures'] = rows
+        study['wall_s'] = time.perf_counter() - wall0
+        studies.append(study)
+    return studies
 
 
 def speed_groups(trials, motions, comparisons) -> list[dict]:
