@@ -35,8 +35,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ['CurveFeatures', 'accrued_friction', 'curve_features', 'loading_level', 'mean_features',
-           'starting_values']
+__all__ = ['CurveFeatures', 'accrued_friction', 'curve_features', 'held_friction', 'loading_level', 'mean_features',
+           'starting_values', 'unread_cuts']
 
 #: a layer's loading slope is the secant between these fractions of its rise
 SLOPE_FRACTIONS = (0.3, 0.8)
@@ -237,6 +237,43 @@ def accrued_friction(depths_m, friction_n_per_m, k: int) -> float:
     return float(total)
 
 
+def unread_cuts(measured: CurveFeatures) -> list[int]:
+    """The layers above the last whose cut cannot be read: its slope above ``MAX_CUT_OVER_VALLEY``
+    times the valley's force over its depth (the next layer's rise, :func:`starting_values`)."""
+    out = []
+    for k in range(len(measured.depth_m) - 1):
+        cut = measured.cut_slope_n_per_m[k] if k < len(measured.cut_slope_n_per_m) else math.nan
+        if not np.isfinite(cut) or cut <= 0:
+            continue
+        valley_n, valley_m = measured.valley_n[k], measured.valley_m[k]
+        readable = np.isfinite(valley_n) and np.isfinite(valley_m) and valley_m > 0
+        if readable and cut > MAX_CUT_OVER_VALLEY * valley_n / valley_m:
+            out.append(k)
+    return out
+
+
+def held_friction(measured: CurveFeatures, friction_n_per_m, boundaries_m, cutting_last_n: float) -> float:
+    """The friction per length [N/m] of the layers whose cut is unread (:func:`unread_cuts`), from
+    the line F = c + f x after the last puncture (x the travel since contact): behind the tip the
+    shaft then crosses every layer above the last over its thickness, so where the tip enters the
+    last layer (x = its boundary z_last) the line reads the last layer's cutting force plus each
+    upper layer's friction per length times its thickness: c + f z_last - cutting - (the layers'
+    whose cut was read) = (the unread ones' friction) x (their thickness). The valley right after
+    a puncture reads far less (on the layered phantoms 30 N/m for 100: the shaft's friction there
+    has not built up yet). ``boundaries_m``: per layer its top's depth below the surface (0 for
+    layer 0). NaN when the line is missing, nothing is unread, or the remainder is not positive."""
+    n = len(friction_n_per_m)
+    unread = unread_cuts(measured)
+    c, f = measured.post_intercept_n, measured.post_slope_n_per_m
+    if n < 2 or not unread or not (np.isfinite(c) and np.isfinite(f)):
+        return math.nan
+    thickness = [boundaries_m[j + 1] - boundaries_m[j] for j in range(n - 1)]
+    remainder = c + max(f, 0.0) * boundaries_m[n - 1] - cutting_last_n - sum(
+        friction_n_per_m[j] * thickness[j] for j in range(n - 1) if j not in unread)
+    length = sum(thickness[j] for j in unread)
+    return remainder / length if length > 0 and remainder > 0 else math.nan
+
+
 def starting_values(measured: CurveFeatures, base_modulus_pa: float) -> dict:
     """Starting values of a layered scene from the measured features (each with the rule it came
     from, as ``{name: (value, how)}``); layer k's keys are suffixed ``[k]``:
@@ -260,8 +297,9 @@ def starting_values(measured: CurveFeatures, base_modulus_pa: float) -> dict:
       force over its depth, the valley's force over its depth instead (the shaft's friction up to
       the valley cannot be far above the force there: layers close together leave no cut to read,
       and the next layer's rise read as a cut is several times that bound, where a true cut stays
-      near it, above it only as far as the tissue relaxes after the puncture);
-      the last layer's the slope f after the last puncture;
+      near it, above it only as far as the tissue relaxes after the puncture), and where the line
+      after the last puncture gives one, that line's (:func:`held_friction`, the boundaries at the
+      onsets); the last layer's the slope f after the last puncture;
     - ``cutting_n[k]``: the last layer c; a layer before it its valley force less f x there;
     - ``retraction_n[k]``: the retraction plateau while the tip is in it (a constant pull);
     - ``relaxing`` and ``relax_time_s``: the pause's fit, when it relaxes by MIN_RELAXATION at least.
@@ -275,16 +313,22 @@ def starting_values(measured: CurveFeatures, base_modulus_pa: float) -> dict:
         if k == n - 1 or not np.isfinite(cut) or cut <= 0:
             values[f'friction_n_per_m[{k}]'] = (f, 'the slope of the force after the last puncture')
             continue
-        valley_n, valley_m = measured.valley_n[k], measured.valley_m[k]
-        readable = np.isfinite(valley_n) and np.isfinite(valley_m) and valley_m > 0
-        most = valley_n / valley_m if readable else math.inf
-        if cut <= MAX_CUT_OVER_VALLEY * most:
+        if k not in unread_cuts(measured):
             values[f'friction_n_per_m[{k}]'] = (cut, f'the slope of the cut through it, before layer {k + 1} '
                                                      'loads')
         else:
             how = (f"its valley force over the valley's depth (the cut through it rises at {cut:.3g} N/m: "
                    'the next layer loads before its onset is seen)')
-            values[f'friction_n_per_m[{k}]'] = (max(most, 0.0), how)
+            values[f'friction_n_per_m[{k}]'] = (max(measured.valley_n[k] / measured.valley_m[k], 0.0), how)
+    c = measured.post_intercept_n
+    boundaries = [0.0] + [measured.onset_m[k] for k in range(1, n)]
+    held = held_friction(measured, [values[f'friction_n_per_m[{j}]'][0] for j in range(n)], boundaries,
+                         max(0.0, c) if np.isfinite(c) else 0.0)
+    if np.isfinite(held):
+        for k in unread_cuts(measured):
+            values[f'friction_n_per_m[{k}]'] = (held, 'the line after the last puncture at the last boundary, '
+                                                      'less the cutting force and the other layers\' friction, '
+                                                      'over the thickness of the layers whose cut is unread')
     slope0 = measured.slope_n_per_m[0] if n else math.nan
     for k in range(n):
         if k >= 1:

@@ -28,7 +28,9 @@
    membrane's contact force there (:func:`shaft_force_at_punctures`: the shaft's friction on
    the length inside, which the measured peak holds too; the data's estimate was 3x the
    simulator's on the two-layer phantom, the tissue moving with the shaft as the next layer
-   loads). A layer's cutting force stays as its own curve gave it. The values move together
+   loads), and an upper layer's friction whose cut is unread by the line after the last puncture
+   on the boundaries as they stand (:func:`~.layer_estimates.held_friction`). A layer's cutting
+   force stays as its own curve gave it. The values move together
    and pull on each other's features (a shallower deep layer stiffens the outer one's loading,
    a larger relaxing part softens every loading), so the runs need not improve one by one:
    a last run scores the result, and the best scene run is the proposal.
@@ -271,7 +273,8 @@ def _corrected(values: dict, measured, simulated, n_layers: int, factors, shaft=
     force to its measured peak less ``shaft`` (per layer, :func:`shaft_force_at_punctures`), at
     least ``MIN_RUPTURE_OF_PEAK`` of the peak (a layer punctured deeper has more shaft inside).
     ``previous``: the previous run's (values, simulated features), for the secants."""
-    from tissue_sim_ros.analysis.calibration.layer_estimates import MIN_RELAXATION, MIN_RUPTURE_OF_PEAK
+    from tissue_sim_ros.analysis.calibration.layer_estimates import MIN_RELAXATION, MIN_RUPTURE_OF_PEAK, \
+        held_friction, unread_cuts
     out = dict(values)
     for k, force in enumerate(shaft):
         peak, depth = measured.peak_n[k], simulated.depth_m[k]
@@ -282,6 +285,11 @@ def _corrected(values: dict, measured, simulated, n_layers: int, factors, shaft=
         out[f'modulus_pa[{k}]'] *= factors[0]
     for k in range(1, n_layers):
         out[f'boundary_m[{k}]'] = _boundary(out, measured, simulated, k)
+    boundaries = [0.0] + [out[f'boundary_m[{k}]'] for k in range(1, n_layers)]
+    held = held_friction(measured, [out[f'friction_n_per_m[{j}]'] for j in range(n_layers)], boundaries,
+                         out[f'cutting_n[{n_layers - 1}]'])
+    for k in unread_cuts(measured) if _finite(held) else ():
+        out[f'friction_n_per_m[{k}]'] = held          # on the boundaries as they now stand
     last = n_layers - 1
     if _finite(simulated.depth_m[last]) and abs(measured.depth_m[last] - simulated.depth_m[last]) <= SAME_LAYER_M:
         out[f'friction_n_per_m[{last}]'] *= _factor(measured.post_slope_n_per_m, simulated.post_slope_n_per_m)
