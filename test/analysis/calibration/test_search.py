@@ -112,3 +112,72 @@ def test_a_poor_start_improves_in_every_stage_and_ends_near_the_optimum():
     staged = next(entry for entry in record if entry['stage'] == 'staged start')
     assert staged['whole_after'] < 0.2 * staged['whole_before']
     np.testing.assert_allclose(u, objective.least_squares_u, atol=0.02)
+
+
+class _ScoredLinearObjective(_LinearObjective):
+    """The linear model with each evaluation's NRMSE per trial (the RMS of its residuals in
+    ``trials`` equal blocks), as a simulation's comparisons carry it."""
+
+    trials = 6
+
+    def evaluate_many(self, us, phases=None):
+        from types import SimpleNamespace
+        out = super().evaluate_many(us, phases)
+        for evaluation in out:
+            blocks = np.array_split(evaluation.residuals, self.trials)
+            evaluation.comparisons[:] = [SimpleNamespace(errors={'nrmse': float(np.sqrt(np.mean(b ** 2)))})
+                                         for b in blocks]
+        return out
+
+
+def _collinear_problem(epsilon, seed=11):
+    """Residuals of three keys where the first two act almost alike (their columns differ by
+    ``epsilon`` times noise; the data's noise as small, so the optimum stays inside the bounds),
+    and numpy's least-squares optimum."""
+    rng = np.random.default_rng(seed)
+    column = rng.normal(size=60)
+    A = np.stack([column, column + epsilon * rng.normal(size=60), rng.normal(size=60)], axis=1)
+    b = A @ np.array([0.4, 0.5, 0.6]) + 1e-3 * rng.normal(size=60)
+    keys = [parse_fit(f'a{i}=0:1') for i in range(3)]
+    return _ScoredLinearObjective(A, b, keys), np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def test_the_least_determined_combination_is_the_pair_that_acts_alike_and_the_data_cannot_tell_it():
+    """Two keys whose columns nearly coincide trade one for the other: the probe steps them in
+    opposite directions by WEAK_REACH and leaves the third key (determined on its own) out; the
+    fit at both ends is within 1 % of the optimum's, and the six trials do not agree that an end
+    fits worse, so the data cannot tell them apart."""
+    from tissue_sim_ros.analysis.calibration.search import TOLD_APART_T, WEAK_REACH, jacobian, weakest_direction
+    objective, optimum = _collinear_problem(epsilon=1e-3)
+    J = jacobian(objective, optimum, [0, 1, 2])
+    fit = float(np.sqrt(np.mean(objective.residuals(optimum) ** 2)))
+    probe = weakest_direction(objective, optimum, J, noise_floor=float('nan'))
+    print(probe)
+    assert set(probe['keys']) == {'a0', 'a1'}
+    steps = [probe['keys'][k]['plus'] - probe['keys'][k]['value'] for k in ('a0', 'a1')]
+    assert steps[0] * steps[1] < 0 and max(abs(s) for s in steps) == pytest.approx(WEAK_REACH, rel=1e-9)
+    assert abs(abs(steps[0]) - abs(steps[1])) < 0.01 * WEAK_REACH
+    low, at, high = probe['nrmse']
+    assert max(low, high) < at * 1.01
+    assert min(probe['worse_t']) < TOLD_APART_T
+    assert probe['told_apart'] is False
+
+
+def test_keys_the_data_determines_are_told_apart():
+    """Three keys with independent columns: the least-determined step raises every trial's fit
+    above its optimum (by the Gauss-Newton model's amount: the residuals are linear), so the
+    trials agree that both ends fit worse and the data tells the keys apart; with one trial
+    there are no repeats to judge by."""
+    from tissue_sim_ros.analysis.calibration.search import TOLD_APART_T, jacobian, weakest_direction
+    objective, optimum = _collinear_problem(epsilon=1.0)
+    J = jacobian(objective, optimum, [0, 1, 2])
+    probe = weakest_direction(objective, optimum, J, noise_floor=float('nan'))
+    step = np.array([probe['keys'][k]['plus'] - probe['keys'][k]['value'] if k in probe['keys'] else 0.0
+                     for k in ('a0', 'a1', 'a2')])
+    moved = np.array_split(objective.residuals(optimum) + objective.A @ step, objective.trials)
+    assert probe['nrmse'][2] == pytest.approx(np.mean([np.sqrt(np.mean(b ** 2)) for b in moved]), rel=1e-9)
+    assert min(probe['worse_t']) >= TOLD_APART_T
+    assert probe['told_apart'] is True
+    single, optimum = _collinear_problem(epsilon=1.0)
+    single.trials = 1
+    assert weakest_direction(single, optimum, J, noise_floor=float('nan'))['told_apart'] is None

@@ -137,14 +137,17 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
     from tissue_sim_ros.analysis.calibration.evaluation_log import logged_runs
     from tissue_sim_ros.analysis.calibration.objective import Budget, Objective
     from tissue_sim_ros.analysis.calibration.fine import fine_finish, refit_loading
-    from tissue_sim_ros.analysis.calibration.search import search, uncertainty, why_not_moved
+    from tissue_sim_ros.analysis.calibration.search import WEAK_EVALUATIONS, search, uncertainty, weakest_direction, \
+        why_not_moved
     from tissue_sim_ros.analysis.compare.trial_simulation import ResultStore
     log = log or (lambda text: print(text, file=sys.stderr))
     wall0 = time.perf_counter()
-    if max_evaluations is not None and max_evaluations < len(keys) + 2:
-        raise ValueError(f'--max-evaluations {max_evaluations}: expected at least {len(keys) + 2} for {len(keys)} '
-                         'key(s) (the start, a step, and the Jacobian of the standard errors at the result)')
-    budget = Budget(max_evaluations, reserve=len(keys))
+    reserve = len(keys) + WEAK_EVALUATIONS
+    if max_evaluations is not None and max_evaluations < reserve + 2:
+        raise ValueError(f'--max-evaluations {max_evaluations}: expected at least {reserve + 2} for {len(keys)} '
+                         'key(s) (the start, a step, the Jacobian of the standard errors at the result and the '
+                         'probe of what the data determines least)')
+    budget = Budget(max_evaluations, reserve=reserve)
     out = Path(out) if out is not None else None
     store = ResultStore(out / 'simulations') if out is not None else None
     log_path = out / 'evaluations.jsonl' if out is not None else None
@@ -214,6 +217,7 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
         spread['jacobian'] = ('the scene as asked, before the fine finish\'s steps' if J is not None else
                               'the scene as asked, at the optimum')
         spread['moved'] = why_not_moved(at_optimum, u0, u, spread['jacobian_matrix'], spread['correlation'])
+        spread['weakest'] = weakest_direction(at_optimum, u, spread['jacobian_matrix'], floor)
     evaluations = [e for o in used_objectives for e in o.evaluations]
     failed = [e for e in evaluations if e.failures]
     partial = sum(e.phases is not None for e in evaluations)

@@ -18,7 +18,10 @@
   evaluations.jsonl, each evaluation once), ``simulations``, ``wall_s`` (this run) and
   ``wall_s_all_runs`` (with the earlier ``runs`` of an interrupted study), ``stages`` (per stage of
   the staged start: its keys, its residuals' objective and every residual's, before and after),
-  ``stopped_at_start`` (the start was within the noise floor), ``noise_floor_nrmse``; per key in
+  ``stopped_at_start`` (the start was within the noise floor), ``noise_floor_nrmse``,
+  ``weakest_direction`` (the least-determined combination of keys probed: per key ``value``,
+  ``minus``, ``plus``; ``nrmse`` at the minus end, the optimum and the plus end, ``worse_t`` per end,
+  ``noise_floor``, ``told_apart``; null with one key); per key in
   ``parameters`` also ``moved`` and ``why_not_moved`` (at a bound, insensitive, correlated, at its
   optimum), ``outputs``.
 - ``calibrate.md``: the same for a person; ``calibrate.csv``: one row per speed and role (fit,
@@ -110,9 +113,25 @@ def _mean(comparisons) -> float:
     return _number(np.nanmean(scores)) if np.isfinite(scores).any() else None
 
 
+def _weakest_text(weakest: dict) -> str:
+    """The probed least-determined combination in words: each key's range over the probe."""
+    def change(entry, end):
+        return f"{100 * (entry[end] / entry['value'] - 1):+.0f} %" if entry['value'] else f'{entry[end]:.4g}'
+    keys = ', '.join(f"{key} {entry['minus']:.4g} to {entry['plus']:.4g} ({change(entry, 'minus')} to "
+                     f"{change(entry, 'plus')})" for key, entry in weakest['keys'].items())
+    low, at, high = weakest['nrmse']
+    minus, plus = weakest['worse_t']
+    return (f'{keys}: fit NRMSE {low:.4f} / {at:.4f} / {high:.4f} (the optimum between; the ends worse by '
+            f'{minus:.1f} and {plus:.1f} standard errors over the trials)')
+
+
 def _warnings(fit, rows, spread) -> list[str]:
     out = [f'{a} and {b} are correlated at {rho:+.3f}: the data cannot tell them apart; fix one or '
            'add data where they differ' for a, b, rho in spread['correlated_pairs']]
+    weakest = spread.get('weakest')
+    if weakest and weakest['told_apart'] is False:
+        out.append(f'the data cannot tell these values apart: {_weakest_text(weakest)}, the repeats not agreeing '
+                   'that both ends fit worse; fix some of them or add data where they differ')
     out += [f'{key} does not change the fitted curves (zero sensitivity): its value is the start'
             for key in spread['insensitive']]
     from tissue_sim_ros.analysis.calibration.fine import linear_model_warning
@@ -231,6 +250,12 @@ def _markdown(report) -> str:
                   f"{g(st.get('whole_after'))} |" for st in stages]
     lines += ['', f"Standard errors from the Jacobian of {report['jacobian']} (a lower bound: neighbouring "
                   'force samples are correlated).']
+    weakest = report.get('weakest_direction')
+    if weakest:
+        verdict = {True: 'the data tells them apart.', False: 'the data cannot tell these values apart.',
+                   None: 'one trial: no repeats to judge by.'}[weakest['told_apart']]
+        lines += ['', 'What the data determines least (the combination along the Jacobian\'s least singular '
+                  f'value, stepped either way and run): {_weakest_text(weakest)}: {verdict}']
     lines += ['', '| role | speed | trials | NRMSE start | NRMSE calibrated | noise floor | nearest other speed\'s data |',
               '|---|---|---|---|---|---|---|']
     lines += [f"| {r['role']} | {speed_label(r['speed_m_s'])} | {r['trials']} | {f(r['nrmse_start'])} | "
@@ -295,7 +320,8 @@ def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_fi
               'simulations': fit['simulations'], 'wall_s': fit['search_wall_s'],
               'runs': fit.get('runs', 1), 'wall_s_all_runs': fit.get('wall_s_all_runs', fit['search_wall_s']),
               'stages': _plain(fit.get('stages', [])), 'stopped_at_start': fit.get('stopped_at_start', False),
-              'noise_floor_nrmse': _number(fit.get('noise_floor_nrmse', float('nan')))}
+              'noise_floor_nrmse': _number(fit.get('noise_floor_nrmse', float('nan'))),
+              'weakest_direction': spread.get('weakest')}
     if held_out:
         report['validation'] = {'nrmse_mean': _mean(studies['held out'][1]['comparisons']),
                                 'nrmse_mean_start': _mean(studies['held out'][0]['comparisons']),

@@ -36,6 +36,17 @@ The objective's :class:`~tissue_sim_ros.analysis.calibration.objective.Budget` b
 evaluations (``max_evaluations`` makes one when the objective has none); when they are spent the
 best vector so far is the result.
 
+What the data cannot tell apart (:func:`weakest_direction`): the correlations name pairs; three
+keys or more can trade along one combination without any pair standing out (on a three-layer
+phantom the middle and deep moduli at -0.92, the outer one with them). The right singular vector
+of J with the least singular value is the combination the data determines least; the fit at the
+optimum stepped ``WEAK_REACH`` along it either way (in the key that moves most) is measured, not
+extrapolated. The repeats are independent measurements of one curve, so an end is told apart
+from the optimum when the repeats agree it fits worse: the mean over the trials of its NRMSE less
+the optimum's at least ``TOLD_APART_T`` standard errors of that mean (a paired comparison; the
+repeats' noise floor is no measure of it: most of the floor is the punctures' spread, which the
+pointwise errors leave out). Unless both ends are, the data cannot tell those values apart.
+
 Uncertainty: with J the Jacobian of the residuals at the optimum (unit coordinates), m residuals
 and n keys, the covariance is s^2 (J^T J)^-1 with s^2 = sum(r^2) / (m - n) (the Gauss-Newton
 estimate, as scipy's curve_fit), converted to each key's unit by its d value / d u. Neighbouring
@@ -46,7 +57,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ['FD_STEP', 'CORRELATION_WARNING', 'GLOBAL_METHODS', 'search', 'jacobian', 'uncertainty', 'why_not_moved']
+__all__ = ['FD_STEP', 'CORRELATION_WARNING', 'GLOBAL_METHODS', 'search', 'jacobian', 'uncertainty', 'why_not_moved',
+           'weakest_direction']
 
 FD_STEP = 0.03
 SCAN_POINTS = 5
@@ -58,6 +70,14 @@ OPTIMAL_GAIN = 0.02
 MOVED, AT_BOUND = 0.01, 1e-3
 #: a key whose Jacobian column is below this fraction of the largest does not change the curves
 INSENSITIVE = 1e-3
+#: the probe of the least-determined combination steps this far (unit coordinates) in the key that
+#: moves most (10-25 % of a value on the proposal's bounds); keys moving under a tenth of it are left out
+WEAK_REACH = 0.1
+#: the evaluations the probe takes (both ends, one batch)
+WEAK_EVALUATIONS = 2
+#: an end of the probe fits worse than the optimum when its mean NRMSE increase over the trials is
+#: at least this many standard errors of that mean (about a one-sided 95 % test with five repeats)
+TOLD_APART_T = 2.0
 
 
 def jacobian(objective, u, free, phases=None, fd_step=FD_STEP) -> np.ndarray:
@@ -300,3 +320,46 @@ def why_not_moved(objective, u0, u, J, correlation) -> dict:
         out[key.key] = {'moved': bool(moved), 'why': None if moved else '; '.join(reasons),
                         'at_bound': bool(u[i] <= AT_BOUND or u[i] >= 1 - AT_BOUND)}
     return out
+
+
+def _worse(end, at) -> float:
+    """The paired statistic of an end against the optimum: the mean over the trials of its NRMSE
+    less the optimum's, over that mean's standard error (inf when every difference is equal and
+    positive; NaN with fewer than two trials)."""
+    def scores(evaluation):
+        return np.array([c.errors.get('nrmse', np.nan) for c in evaluation.comparisons], dtype=float)
+    difference = scores(end) - scores(at)
+    difference = difference[np.isfinite(difference)]
+    if difference.size < 2:
+        return float('nan')
+    error = float(np.std(difference, ddof=1)) / np.sqrt(difference.size)
+    mean = float(difference.mean())
+    return mean / error if error > 0 else (np.inf if mean > 0 else -np.inf if mean < 0 else 0.0)
+
+
+def weakest_direction(objective, u, J, noise_floor: float) -> dict | None:
+    """The combination of keys the data determines least, probed (module docstring): per key
+    taking part, its value at the optimum and at both ends of the probe; the fit NRMSE at the
+    minus end, the optimum and the plus end; per end the paired statistic against the optimum
+    (``worse_t``); ``told_apart`` True when both reach ``TOLD_APART_T``, None with fewer than two
+    trials; ``noise_floor`` for the reader. None with fewer than two keys, or when the budget has
+    no room left."""
+    from tissue_sim_ros.analysis.calibration.objective import BudgetSpent
+    if J.ndim != 2 or J.shape[1] < 2 or not np.any(J):
+        return None
+    u = np.asarray(u, dtype=float)
+    vector = np.linalg.svd(J, full_matrices=False)[2][-1]
+    vector = vector / vector[np.argmax(np.abs(vector))] * WEAK_REACH      # the largest step positive
+    ends = [np.clip(u - vector, 0.0, 1.0), np.clip(u + vector, 0.0, 1.0)]
+    try:
+        probed = objective.evaluate_many(ends)
+    except BudgetSpent:
+        return None
+    at = objective.evaluate(u)
+    keys = {key.key: {'value': key.value(u[i]), 'minus': key.value(ends[0][i]), 'plus': key.value(ends[1][i])}
+            for i, key in enumerate(objective.keys) if abs(vector[i]) >= 0.1 * WEAK_REACH}
+    worse = [_worse(end, at) for end in probed]
+    told = None if not all(np.isfinite(t) or np.isinf(t) for t in worse) else \
+        bool(all(t >= TOLD_APART_T for t in worse))
+    return {'keys': keys, 'nrmse': [probed[0].nrmse_mean, at.nrmse_mean, probed[1].nrmse_mean],
+            'worse_t': [float(t) for t in worse], 'noise_floor': float(noise_floor), 'told_apart': told}
