@@ -6,18 +6,20 @@ The data (:func:`~tissue_sim_ros.analysis.synthetic_study.phantom_scene`, the 'g
 tetrahedra, a 3.3 mm cell around the needle's axis so that the force follows the moduli smoothly):
 the two-layer phantom, five repeats at each of 1, 2 and 3 mm/s, inserted 25 mm past the surface, a
 5 s pause, retracted; 5 mN of noise; each repeat draws its layers' rupture forces (0.2 N) and the
-deep boundary's depth (0.5 mm) from the phantom's spread. The three-layer phantom
-at 2 mm/s, five repeats, for the layer count. Then:
+deep boundary's depth (0.5 mm) from the phantom's spread. The three-layer phantom the same way.
+Then:
 
 1. ``propose`` on each phantom's 2 mm/s repeats from a one-layer base (15 kPa, no relaxation):
    its time, the layers it finds against the punctures the simulator made (their depth since
    contact: mean and standard deviation over the repeats);
-2. ``calibrate`` of the two-layer proposal with 8 keys (both moduli, both rupture forces, the
+2. ``calibrate`` of each proposal with 8 keys on the five 2 mm/s repeats, ``--max-evaluations``,
+   the 1 and 3 mm/s repeats held out; the two-layer one: both moduli, both rupture forces, the
    deep layer's boundary, its insertion friction, its retraction pull, the relaxing part of the
-   pause) on the five 2 mm/s repeats, ``--max-evaluations``, the 1 and 3 mm/s repeats held out:
-   its time, evaluations and simulations, each key against the truth (nominal, and the mean of
-   the repeats' draws for the spread keys), the fit and the held-out NRMSE against each speed's
-   noise floor and against reusing the nearest measured speed's mean curve.
+   pause; the three-layer one: the three moduli and rupture forces, both deeper boundaries. Its
+   time, evaluations and simulations, each key against the truth (nominal, and the mean of the
+   repeats' draws for the spread keys), the fit and the held-out NRMSE against each speed's
+   noise floor and against reusing the nearest measured speed's mean curve, and what the data
+   determines least (the calibration's probe).
 
 Printed; the runs' outputs are kept in ``DIR``.
 """
@@ -39,6 +41,10 @@ KEYS = ('regions[0].young_modulus_pa', 'regions[1].young_modulus_pa', 'regions[0
         'regions[1].membrane.rupture_force_n', 'regions[1].select.below_z_m',
         'regions[1].friction.insertion_coulomb_n_per_m', 'regions[1].friction.retraction_constant_n',
         'model.relaxation[0].relative_modulus')
+#: the three-layer phantom's 8 keys: the three moduli and rupture forces, both deeper boundaries
+KEYS_3 = ('regions[0].young_modulus_pa', 'regions[1].young_modulus_pa', 'regions[2].young_modulus_pa',
+          'regions[0].membrane.rupture_force_n', 'regions[1].membrane.rupture_force_n',
+          'regions[2].membrane.rupture_force_n', 'regions[1].select.below_z_m', 'regions[2].select.below_z_m')
 
 
 def _truth_of(scene: dict, key: str):
@@ -68,11 +74,56 @@ def _made_punctures(spec: Path) -> list[tuple]:
     return [(float(np.mean(v)), float(np.std(v, ddof=1))) for _, v in sorted(by_layer.items())]
 
 
+def _calibrate(out: Path, layers: int, fit_spec: Path, held_spec: Path, keys, truth_file: Path, max_evaluations,
+               jobs) -> dict:
+    """The calibration of one phantom's proposal (module docstring, 2): printed, its figures."""
+    import yaml
+
+    from tissue_sim_ros.analysis.calibration import calibrate as calibration
+    proposal = json.loads((out / f'propose_{layers}_layers' / 'propose.json').read_text())
+    fits = {f['key']: f['text'] for f in proposal['fits']}
+    t0 = time.perf_counter()
+    result = calibration.main(data_spec=fit_spec, validate_spec=held_spec, scene_file=out / f'propose_{layers}_layers'
+                              / 'proposed.yaml', fits=[fits[key] for key in keys], max_evaluations=max_evaluations,
+                              workers=jobs, out=out / f'calibrate_{layers}_layers')
+    wall = time.perf_counter() - t0
+    truth = yaml.safe_load(truth_file.read_text())
+    drawn = json.loads((fit_spec.parent / 'truth.json').read_text())['trials'].values()
+    print(f'\ncalibrate, {len(keys)} keys of the {layers}-layer proposal on 5 repeats at 2 mm/s ({MESH!r} mesh): '
+          f"{wall:.1f} s wall, {result['evaluations']} of {max_evaluations} evaluations, "
+          f"{result['simulations']} simulations")
+    recovered = {}
+    for key in keys:
+        entry = result['parameters'][key]
+        nominal = float(_truth_of(truth, key))
+        values = [t['drawn'][key] for t in drawn if key in t['drawn']]
+        mean = float(np.mean(values)) if values else nominal
+        if key.endswith('below_z_m'):
+            region = key[len('regions['):key.index(']')]
+            mean = nominal - float(np.mean([t['drawn'].get(f'regions[{region}].depth_offset_m', 0.0) for t in drawn]))
+        recovered[key] = (entry['value'], nominal, mean)
+        print(f"  {key:48s} {entry['value']:11.5g}  truth {nominal:9.5g} (repeats' mean {mean:9.5g}): "
+              f"{100 * (entry['value'] / mean - 1):+6.1f} %  start {entry['start']:9.5g}")
+    for row in result['speeds']:
+        print(f"  {row['role']:8s} {row['speed_m_s'] * 1e3:g} mm/s: NRMSE {row['nrmse_calibrated']:.4f} (start "
+              f"{row['nrmse_start']:.4f}); noise floor {row['noise_floor_nrmse'] or float('nan'):.4f} "
+              f"({(row['nrmse_calibrated'] or 0) / (row['noise_floor_nrmse'] or float('nan')):.2f}x); nearest "
+              f"speed's data {row['nearest_speed_nrmse'] or float('nan'):.4f}")
+    weakest = result.get('weakest_direction')
+    if weakest:
+        print('  least determined: ' + ', '.join(f"{key} {entry['minus']:.4g} to {entry['plus']:.4g}"
+                                                 for key, entry in weakest['keys'].items())
+              + f"; fit NRMSE {' / '.join(f'{n:.4f}' for n in weakest['nrmse'])}, the ends worse by "
+              f"{' and '.join(f'{t:.1f}' for t in weakest['worse_t'])} standard errors over the repeats: "
+              f"{'told apart' if weakest['told_apart'] else 'not told apart'}")
+    return {'wall_s': wall, 'evaluations': result['evaluations'], 'simulations': result['simulations'],
+            'recovered': recovered, 'speeds': result['speeds'], 'weakest_direction': weakest}
+
+
 def main(*, out='out/bench_layered', jobs=None, max_evaluations=110) -> dict:
     """``tissue-sim bench layered``: run the benchmark, print its figures."""
     import yaml
 
-    from tissue_sim_ros.analysis.calibration import calibrate as calibration
     from tissue_sim_ros.analysis.calibration import propose
     from tissue_sim_ros.analysis.synthetic_study import phantom_scene, write_layered_study
     out = Path(out)
@@ -88,8 +139,9 @@ def main(*, out='out/bench_layered', jobs=None, max_evaluations=110) -> dict:
                                     seed=2)
     three_spec = write_layered_study(out / 'three_layers_2mm_s', [], [2.0], scene_file=scenes[3], workers=jobs,
                                      seed=3)
-    print(f'data: 25 trials simulated in {time.perf_counter() - wall0:.0f} s')
-    proposals = {}
+    three_held_spec = write_layered_study(out / 'three_layers_1_3mm_s', [], [1.0, 3.0], scene_file=scenes[3],
+                                          workers=jobs, seed=4)
+    print(f'data: 35 trials simulated in {time.perf_counter() - wall0:.0f} s')
     for layers, spec in ((2, fit_spec), (3, three_spec)):
         t0 = time.perf_counter()
         report = propose.main(data_spec=spec, scene_file=_write_base(out / f'base_{layers}.yaml', layers),
@@ -102,40 +154,11 @@ def main(*, out='out/bench_layered', jobs=None, max_evaluations=110) -> dict:
         for k, ((depth, sd), (true_depth, true_sd)) in enumerate(zip(found, made)):
             print(f'  layer {k}: {depth * 1e3:6.2f} +- {sd * 1e3:.2f} mm; the simulator punctured it at '
                   f'{true_depth * 1e3:6.2f} +- {true_sd * 1e3:.2f} mm ({(depth - true_depth) / max(true_sd, 1e-9):+.2f} s.d.)')
-        proposals[layers] = report
         figures[f'propose_{layers}'] = {'wall_s': wall, 'layers': len(found), 'made': len(made), 'found': found,
                                         'punctured': made, 'nrmse': report['nrmse_all_samples']}
-    fits = {f['key']: f['text'] for f in proposals[2]['fits']}
-    t0 = time.perf_counter()
-    result = calibration.main(data_spec=fit_spec, validate_spec=held_spec, scene_file=out / 'propose_2_layers' /
-                              'proposed.yaml', fits=[fits[key] for key in KEYS], max_evaluations=max_evaluations,
-                              workers=jobs, out=out / 'calibrate_8_keys')
-    wall = time.perf_counter() - t0
-    truth = yaml.safe_load(scenes[2].read_text())
-    drawn = json.loads((fit_spec.parent / 'truth.json').read_text())['trials'].values()
-    print(f'\ncalibrate, 8 keys on 5 repeats at 2 mm/s ({MESH!r} mesh): {wall:.1f} s wall, '
-          f"{result['evaluations']} of {max_evaluations} evaluations, {result['simulations']} simulations")
-    recovered = {}
-    for key in KEYS:
-        entry = result['parameters'][key]
-        nominal = float(_truth_of(truth, key))
-        mean = nominal
-        values = [t['drawn'][key] for t in drawn if key in t['drawn']]
-        if values:
-            mean = float(np.mean(values))
-        if key.endswith('below_z_m'):
-            offsets = [t['drawn'].get('regions[1].depth_offset_m', 0.0) for t in drawn]
-            mean = nominal - float(np.mean(offsets))
-        recovered[key] = (entry['value'], nominal, mean)
-        print(f"  {key:48s} {entry['value']:11.5g}  truth {nominal:9.5g} (repeats' mean {mean:9.5g}): "
-              f"{100 * (entry['value'] / mean - 1):+6.1f} %  start {entry['start']:9.5g}")
-    for row in result['speeds']:
-        print(f"  {row['role']:8s} {row['speed_m_s'] * 1e3:g} mm/s: NRMSE {row['nrmse_calibrated']:.4f} (start "
-              f"{row['nrmse_start']:.4f}); noise floor {row['noise_floor_nrmse'] or float('nan'):.4f} "
-              f"({(row['nrmse_calibrated'] or 0) / (row['noise_floor_nrmse'] or float('nan')):.2f}x); nearest "
-              f"speed's data {row['nearest_speed_nrmse'] or float('nan'):.4f}")
-    figures['calibrate'] = {'wall_s': wall, 'evaluations': result['evaluations'], 'simulations': result['simulations'],
-                            'recovered': recovered, 'speeds': result['speeds']}
+    for layers, fit_spec_, held_spec_, keys in ((2, fit_spec, held_spec, KEYS), (3, three_spec, three_held_spec, KEYS_3)):
+        figures[f'calibrate_{layers}'] = _calibrate(out, layers, fit_spec_, held_spec_, keys, scenes[layers],
+                                                    max_evaluations, jobs)
     (out / 'figures.json').write_text(json.dumps(figures, indent=2, default=float))
     return figures
 
