@@ -23,14 +23,15 @@
    ``SAME_LAYER_M`` of the data's depth, a scan of it in one parallel batch places it,
    :func:`_scan_relaxing`, the later runs keep it, and the scan's runs are candidates too), and
    a deeper layer's rupture force (which starts at its peak less the shaft friction read off the
-   data: the friction per length times the travel since the puncture above) set, once the simulation punctures that layer within ``SAME_LAYER_M`` of the
-   data's depth, to the measured peak less the force the simulated load cell read beyond the
-   membrane's contact force there (:func:`shaft_force_at_punctures`: the shaft's friction on
-   the length inside, which the measured peak holds too; the data's estimate was 3x the
-   simulator's on the two-layer phantom, the tissue moving with the shaft as the next layer
-   loads), and an upper layer's friction whose cut is unread by the line after the last puncture
-   on the boundaries as they stand (:func:`~.layer_estimates.held_friction`). A layer's cutting
-   force stays as its own curve gave it. The values move together
+   data: the friction per length times the travel since the puncture above) set, once the
+   simulation punctures that layer within ``SAME_LAYER_M`` of the data's depth, to the measured
+   peak less the force the simulated load cell read beyond the membrane's contact force there
+   (:func:`shaft_force_at_punctures`: the shaft's friction on the length inside, which the
+   measured peak holds too; the data's estimate was 3x the simulator's on the two-layer phantom,
+   the tissue moving with the shaft as the next layer loads), and an upper layer's friction whose
+   cut is unread by the line after the last puncture on the boundaries as they stand
+   (:func:`~.layer_estimates.held_friction`). A layer's cutting force stays as its own curve gave
+   it. The values move together
    and pull on each other's features (a shallower deep layer stiffens the outer one's loading,
    a larger relaxing part softens every loading), so the runs need not improve one by one:
    a last run scores the result, and the best scene run is the proposal.

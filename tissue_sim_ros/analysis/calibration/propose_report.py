@@ -6,7 +6,8 @@
   ``force_min_n``, ``force_max_n``, ``drop_n``, ``found``, ``repeats``, ``assisted``, and the scene keys
   set for it), ``values`` (each starting value: ``value``, ``derived`` from the data's feature,
   ``refined`` after the simulation runs), ``runs`` (each refinement run's NRMSE over every sample,
-  the values it ran and the features its simulation gave),
+  the values it ran and the features its simulation gave; ``relaxation_scan`` after the run that
+  scanned the relaxing part: per part its simulated pause fraction and NRMSE),
   ``nrmse_all_samples`` (the proposal's), ``pre_drops`` (drops told from punctures), ``fits`` (the
   ``--fit`` keys and bounds: ``key``, ``low``, ``high``, ``log``, ``acts_on``, ``text``),
   ``calibrate_command``, ``wall_s``, ``outputs``;
@@ -145,6 +146,13 @@ def _markdown(report) -> str:
     lines += ['', 'Refinement (each run a simulation on the median repeat\'s motion, each value moved by what '
               'its feature missed):', '', '| run | NRMSE over every sample |', '|---|---|']
     lines += [f"| {r['run']} | {r['nrmse_all_samples']:.4f} |" for r in report['runs']]
+    for r in report['runs']:
+        if r.get('relaxation_scan'):
+            lines += ['', f"After run {r['run']}, the relaxation scan (each a simulation with that relaxing part; the "
+                      f"data's pause relaxes {report['values']['relaxing']['derived']:.4f} of its force):", '',
+                      '| relaxing part | simulated pause relaxes | NRMSE over every sample |', '|---|---|---|']
+            lines += [f"| {row['relaxing']:.2f} | {row['simulated_fraction']:.4f} | {row['nrmse_all_samples']:.4f} |"
+                      for row in r['relaxation_scan']]
     lines += ['', f"The proposal: NRMSE {report['nrmse_all_samples']:.4f}; {report['wall_s']:.1f} s.", '',
               '## Calibrate it', '', '| --fit | acts on |', '|---|---|']
     lines += [f"| `{f['text']}` | {f['acts_on']} |" for f in report['fits']]
