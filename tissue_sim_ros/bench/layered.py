@@ -113,7 +113,8 @@ def _calibrate(out: Path, layers: int, fit_spec: Path, held_spec: Path, keys, tr
     if weakest:
         print('  least determined: ' + ', '.join(f"{key} {entry['minus']:.4g} to {entry['plus']:.4g}"
                                                  for key, entry in weakest['keys'].items())
-              + f"; fit NRMSE {' / '.join(f'{n:.4f}' for n in weakest['nrmse'])}, the ends worse by "
+              + f"; fit NRMSE {' / '.join(f'{n:.4f}' for n in weakest['nrmse'])}, objective "
+              f"{' / '.join(f'{n:.4g}' for n in weakest['objective'])}, the ends worse by "
               f"{' and '.join(f'{t:.1f}' for t in weakest['worse_t'])} standard errors over the repeats: "
               f"{'told apart' if weakest['told_apart'] else 'not told apart'}")
     return {'wall_s': wall, 'evaluations': result['evaluations'], 'simulations': result['simulations'],

@@ -115,8 +115,9 @@ def test_a_poor_start_improves_in_every_stage_and_ends_near_the_optimum():
 
 
 class _ScoredLinearObjective(_LinearObjective):
-    """The linear model with each evaluation's NRMSE per trial (the RMS of its residuals in
-    ``trials`` equal blocks), as a simulation's comparisons carry it."""
+    """The linear model with its residuals in ``trials`` equal blocks, one per trial: each
+    evaluation's trial sizes, and its NRMSE per trial (the block's RMS) as a simulation's
+    comparisons carry it."""
 
     trials = 6
 
@@ -125,6 +126,7 @@ class _ScoredLinearObjective(_LinearObjective):
         out = super().evaluate_many(us, phases)
         for evaluation in out:
             blocks = np.array_split(evaluation.residuals, self.trials)
+            evaluation.trial_sizes = tuple(len(b) for b in blocks)
             evaluation.comparisons[:] = [SimpleNamespace(errors={'nrmse': float(np.sqrt(np.mean(b ** 2)))})
                                          for b in blocks]
         return out
@@ -146,7 +148,7 @@ def test_the_least_determined_combination_is_the_pair_that_acts_alike_and_the_da
     """Two keys whose columns nearly coincide trade one for the other: the probe steps them in
     opposite directions by WEAK_REACH and leaves the third key (determined on its own) out; the
     fit at both ends is within 1 % of the optimum's, and the six trials do not agree that an end
-    fits worse, so the data cannot tell them apart."""
+    fits worse (their parts of the objective), so the data cannot tell them apart."""
     from tissue_sim_ros.analysis.calibration.search import TOLD_APART_T, WEAK_REACH, jacobian, weakest_direction
     objective, optimum = _collinear_problem(epsilon=1e-3)
     J = jacobian(objective, optimum, [0, 1, 2])
@@ -176,6 +178,7 @@ def test_keys_the_data_determines_are_told_apart():
                      for k in ('a0', 'a1', 'a2')])
     moved = np.array_split(objective.residuals(optimum) + objective.A @ step, objective.trials)
     assert probe['nrmse'][2] == pytest.approx(np.mean([np.sqrt(np.mean(b ** 2)) for b in moved]), rel=1e-9)
+    assert probe['objective'][2] == pytest.approx(sum(float(b @ b) for b in moved), rel=1e-9)
     assert min(probe['worse_t']) >= TOLD_APART_T
     assert probe['told_apart'] is True
     single, optimum = _collinear_problem(epsilon=1.0)

@@ -127,6 +127,13 @@ class Evaluation:
     phases: object = None
     #: every simulation came from the store (an earlier run's)
     replayed: bool = False
+    #: per trial, how many of ``residuals`` are its (in order): the objective trial by trial
+    trial_sizes: tuple = ()
+
+    def trial_objectives(self) -> np.ndarray:
+        """Each trial's part of the objective (its residuals' sum of squares), in trial order."""
+        ends = np.cumsum((0,) + tuple(self.trial_sizes))
+        return np.array([float(self.residuals[a:b] @ self.residuals[a:b]) for a, b in zip(ends[:-1], ends[1:])])
 
     @property
     def objective(self) -> float:
@@ -390,10 +397,10 @@ class Objective:
         if self._points is None:
             self._points = [self._choose_points(c) for c in comparisons]
         failures = sorted({r.diverged for r in results if r.diverged})
-        residuals = np.concatenate([self._trial_residuals(c, *points)
-                                    for c, points in zip(comparisons, self._points)])
-        return Evaluation(u, self.values(u), residuals, comparisons, list(results), failures,
-                          None if all(end is None for end in ends) else phases)
+        per_trial = [self._trial_residuals(c, *points) for c, points in zip(comparisons, self._points)]
+        return Evaluation(u, self.values(u), np.concatenate(per_trial), comparisons, list(results), failures,
+                          None if all(end is None for end in ends) else phases,
+                          trial_sizes=tuple(len(r) for r in per_trial))
 
     def _choose_points(self, comparison):
         """The samples a trial is scored at: after its contact (the insertion only with the

@@ -20,8 +20,8 @@
   the staged start: its keys, its residuals' objective and every residual's, before and after),
   ``stopped_at_start`` (the start was within the noise floor), ``noise_floor_nrmse``,
   ``weakest_direction`` (the least-determined combination of keys probed: per key ``value``,
-  ``minus``, ``plus``; ``nrmse`` at the minus end, the optimum and the plus end, ``worse_t`` per end,
-  ``noise_floor``, ``told_apart``; null with one key); per key in
+  ``minus``, ``plus``; ``nrmse`` and ``objective`` at the minus end, the optimum and the plus end,
+  ``worse_t`` per end, ``noise_floor``, ``told_apart``; null with one key); per key in
   ``parameters`` also ``moved`` and ``why_not_moved`` (at a bound, insensitive, correlated, at its
   optimum), ``outputs``.
 - ``calibrate.md``: the same for a person; ``calibrate.csv``: one row per speed and role (fit,
@@ -121,8 +121,9 @@ def _weakest_text(weakest: dict) -> str:
                      f"{change(entry, 'plus')})" for key, entry in weakest['keys'].items())
     low, at, high = weakest['nrmse']
     minus, plus = weakest['worse_t']
-    return (f'{keys}: fit NRMSE {low:.4f} / {at:.4f} / {high:.4f} (the optimum between; the ends worse by '
-            f'{minus:.1f} and {plus:.1f} standard errors over the trials)')
+    objective = ' / '.join(f'{value:.4g}' for value in weakest['objective'])
+    return (f'{keys}: fit NRMSE {low:.4f} / {at:.4f} / {high:.4f}, objective {objective} (the optimum between; '
+            f'the ends worse by {minus:.1f} and {plus:.1f} standard errors of the objective over the trials)')
 
 
 def _warnings(fit, rows, spread) -> list[str]:

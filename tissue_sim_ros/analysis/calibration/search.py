@@ -42,10 +42,12 @@ phantom the middle and deep moduli at -0.92, the outer one with them). The right
 of J with the least singular value is the combination the data determines least; the fit at the
 optimum stepped ``WEAK_REACH`` along it either way (in the key that moves most) is measured, not
 extrapolated. The repeats are independent measurements of one curve, so an end is told apart
-from the optimum when the repeats agree it fits worse: the mean over the trials of its NRMSE less
-the optimum's at least ``TOLD_APART_T`` standard errors of that mean (a paired comparison; the
-repeats' noise floor is no measure of it: most of the floor is the punctures' spread, which the
-pointwise errors leave out). Unless both ends are, the data cannot tell those values apart.
+from the optimum when the repeats agree it fits worse: the mean over the trials of its part of
+the objective less the optimum's at least ``TOLD_APART_T`` standard errors of that mean (a paired
+comparison, on what the search minimises: the NRMSE leaves the samples at a puncture out and the
+objective holds the punctures' force and depth errors, so the NRMSE can favour an end the
+objective does not; the repeats' noise floor is no measure of it either: most of it is the
+punctures' spread). Unless both ends are told apart, the data cannot tell those values apart.
 
 Uncertainty: with J the Jacobian of the residuals at the optimum (unit coordinates), m residuals
 and n keys, the covariance is s^2 (J^T J)^-1 with s^2 = sum(r^2) / (m - n) (the Gauss-Newton
@@ -323,15 +325,12 @@ def why_not_moved(objective, u0, u, J, correlation) -> dict:
 
 
 def _worse(end, at) -> float:
-    """The paired statistic of an end against the optimum: the mean over the trials of its NRMSE
-    less the optimum's, over that mean's standard error (inf when every difference is equal and
-    positive; NaN with fewer than two trials)."""
-    def scores(evaluation):
-        return np.array([c.errors.get('nrmse', np.nan) for c in evaluation.comparisons], dtype=float)
-    difference = scores(end) - scores(at)
-    difference = difference[np.isfinite(difference)]
-    if difference.size < 2:
+    """The paired statistic of an end against the optimum: the mean over the trials of its part of
+    the objective less the optimum's, over that mean's standard error (inf when every difference
+    is equal and positive; NaN with fewer than two trials)."""
+    if len(end.trial_sizes) < 2 or len(at.trial_sizes) != len(end.trial_sizes):
         return float('nan')
+    difference = end.trial_objectives() - at.trial_objectives()
     error = float(np.std(difference, ddof=1)) / np.sqrt(difference.size)
     mean = float(difference.mean())
     return mean / error if error > 0 else (np.inf if mean > 0 else -np.inf if mean < 0 else 0.0)
@@ -339,8 +338,9 @@ def _worse(end, at) -> float:
 
 def weakest_direction(objective, u, J, noise_floor: float) -> dict | None:
     """The combination of keys the data determines least, probed (module docstring): per key
-    taking part, its value at the optimum and at both ends of the probe; the fit NRMSE at the
-    minus end, the optimum and the plus end; per end the paired statistic against the optimum
+    taking part, its value at the optimum and at both ends of the probe; the fit NRMSE and the
+    objective at the minus end, the optimum and the plus end; per end the paired statistic against
+    the optimum
     (``worse_t``); ``told_apart`` True when both reach ``TOLD_APART_T``, None with fewer than two
     trials; ``noise_floor`` for the reader. None with fewer than two keys, or when the budget has
     no room left."""
@@ -362,4 +362,5 @@ def weakest_direction(objective, u, J, noise_floor: float) -> dict | None:
     told = None if not all(np.isfinite(t) or np.isinf(t) for t in worse) else \
         bool(all(t >= TOLD_APART_T for t in worse))
     return {'keys': keys, 'nrmse': [probed[0].nrmse_mean, at.nrmse_mean, probed[1].nrmse_mean],
+            'objective': [probed[0].objective, at.objective, probed[1].objective],
             'worse_t': [float(t) for t in worse], 'noise_floor': float(noise_floor), 'told_apart': told}
