@@ -38,7 +38,7 @@ best vector so far is the result.
 
 What the data cannot tell apart (:func:`weakest_direction`): the correlations name pairs; three
 keys or more can trade along one combination without any pair standing out (on a three-layer
-phantom the middle and deep moduli at -0.92, the outer one with them). The right singular vector
+phantom the middle and core moduli at -0.92, the outer one with them). The right singular vector
 of J with the least singular value is the combination the data determines least; the fit at the
 optimum stepped ``WEAK_REACH`` along it either way (in the key that moves most) is measured, not
 extrapolated. The repeats are independent measurements of one curve, so an end is told apart
@@ -77,8 +77,9 @@ INSENSITIVE = 1e-3
 WEAK_REACH = 0.1
 #: the evaluations the probe takes (both ends, one batch)
 WEAK_EVALUATIONS = 2
-#: an end of the probe fits worse than the optimum when its mean NRMSE increase over the trials is
-#: at least this many standard errors of that mean (about a one-sided 95 % test with five repeats)
+#: an end of the probe fits worse than the optimum when the mean over the trials of its part of the
+#: objective's increase is at least this many standard errors of that mean (about a one-sided 95 %
+#: test with five repeats)
 TOLD_APART_T = 2.0
 
 
@@ -340,10 +341,9 @@ def weakest_direction(objective, u, J, noise_floor: float) -> dict | None:
     """The combination of keys the data determines least, probed (module docstring): per key
     taking part, its value at the optimum and at both ends of the probe; the fit NRMSE and the
     objective at the minus end, the optimum and the plus end; per end the paired statistic against
-    the optimum
-    (``worse_t``); ``told_apart`` True when both reach ``TOLD_APART_T``, None with fewer than two
-    trials; ``noise_floor`` for the reader. None with fewer than two keys, or when the budget has
-    no room left."""
+    the optimum (``worse_t``); ``told_apart`` True when both reach ``TOLD_APART_T``, None with
+    fewer than two trials; ``noise_floor`` for the reader. None with fewer than two keys, or when
+    the budget has no room left."""
     from tissue_sim_ros.analysis.calibration.objective import BudgetSpent
     if J.ndim != 2 or J.shape[1] < 2 or not np.any(J):
         return None
