@@ -184,3 +184,15 @@ def test_keys_the_data_determines_are_told_apart():
     single, optimum = _collinear_problem(epsilon=1.0)
     single.trials = 1
     assert weakest_direction(single, optimum, J, noise_floor=float('nan'))['told_apart'] is None
+
+
+def test_the_report_gives_the_probe_its_verdict_and_no_statistic_without_repeats():
+    """The report's words for the probe: each key's range, the fits, and the paired statistic
+    only where there were repeats to pair (one trial: no verdict, no statistic)."""
+    from tissue_sim_ros.analysis.calibration.report import _weakest_text
+    probe = {'keys': {'a0': {'value': 0.5, 'minus': 0.4, 'plus': 0.6}}, 'nrmse': [0.03, 0.02, 0.03],
+             'objective': [0.002, 0.001, 0.002], 'worse_t': [3.0, 2.5], 'noise_floor': 0.05, 'told_apart': True}
+    text = _weakest_text(probe)
+    assert 'a0 0.4 to 0.6 (-20 % to +20 %)' in text and 'worse by 3.0 and 2.5 standard errors' in text
+    alone = _weakest_text(dict(probe, worse_t=[float('nan')] * 2, told_apart=None))
+    assert 'nan' not in alone and 'standard errors' not in alone

@@ -122,8 +122,9 @@ def _weakest_text(weakest: dict) -> str:
     low, at, high = weakest['nrmse']
     minus, plus = weakest['worse_t']
     objective = ' / '.join(f'{value:.4g}' for value in weakest['objective'])
-    return (f'{keys}: fit NRMSE {low:.4f} / {at:.4f} / {high:.4f}, objective {objective} (the optimum between; '
-            f'the ends worse by {minus:.1f} and {plus:.1f} standard errors of the objective over the trials)')
+    worse = (f'; the ends worse by {minus:.1f} and {plus:.1f} standard errors of the objective over the trials'
+             if weakest['told_apart'] is not None else '')
+    return f'{keys}: fit NRMSE {low:.4f} / {at:.4f} / {high:.4f}, objective {objective} (the optimum between{worse})'
 
 
 def _warnings(fit, rows, spread) -> list[str]:
