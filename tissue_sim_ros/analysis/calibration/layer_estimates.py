@@ -252,8 +252,9 @@ def unread_cuts(measured: CurveFeatures) -> list[int]:
     return out
 
 
-def held_friction(measured: CurveFeatures, friction_n_per_m, boundaries_m, cutting_last_n: float) -> float:
-    """The friction per length [N/m] of the layers whose cut is unread (:func:`unread_cuts`), from
+def held_friction(measured: CurveFeatures, friction_n_per_m, boundaries_m, cutting_last_n: float,
+                  unread) -> float:
+    """The friction per length [N/m] of the ``unread`` layers (:func:`unread_cuts`), from
     the line F = c + f x after the last puncture (x the travel since contact): behind the tip the
     shaft then crosses every layer above the last over its thickness, so where the tip enters the
     last layer (x = its boundary z_last) the line reads the last layer's cutting force plus each
@@ -263,7 +264,6 @@ def held_friction(measured: CurveFeatures, friction_n_per_m, boundaries_m, cutti
     has not built up yet). ``boundaries_m``: per layer its top's depth below the surface (0 for
     layer 0). NaN when the line is missing, nothing is unread, or the remainder is not positive."""
     n = len(friction_n_per_m)
-    unread = unread_cuts(measured)
     c, f = measured.post_intercept_n, measured.post_slope_n_per_m
     if n < 2 or not unread or not (np.isfinite(c) and np.isfinite(f)):
         return math.nan
@@ -308,12 +308,13 @@ def starting_values(measured: CurveFeatures, base_modulus_pa: float) -> dict:
     f = measured.post_slope_n_per_m if np.isfinite(measured.post_slope_n_per_m) else 0.0
     f = max(f, 0.0)
     values = {}
+    unread = unread_cuts(measured)
     for k in range(n):
         cut = measured.cut_slope_n_per_m[k] if k < len(measured.cut_slope_n_per_m) else math.nan
         if k == n - 1 or not np.isfinite(cut) or cut <= 0:
             values[f'friction_n_per_m[{k}]'] = (f, 'the slope of the force after the last puncture')
             continue
-        if k not in unread_cuts(measured):
+        if k not in unread:
             values[f'friction_n_per_m[{k}]'] = (cut, f'the slope of the cut through it, before layer {k + 1} '
                                                      'loads')
         else:
@@ -323,9 +324,9 @@ def starting_values(measured: CurveFeatures, base_modulus_pa: float) -> dict:
     c = measured.post_intercept_n
     boundaries = [0.0] + [measured.onset_m[k] for k in range(1, n)]
     held = held_friction(measured, [values[f'friction_n_per_m[{j}]'][0] for j in range(n)], boundaries,
-                         max(0.0, c) if np.isfinite(c) else 0.0)
+                         max(0.0, c) if np.isfinite(c) else 0.0, unread)
     if np.isfinite(held):
-        for k in unread_cuts(measured):
+        for k in unread:
             values[f'friction_n_per_m[{k}]'] = (held, 'the line after the last puncture at the last boundary, '
                                                       'less the cutting force and the other layers\' friction, '
                                                       'over the thickness of the layers whose cut is unread')

@@ -287,9 +287,10 @@ def _corrected(values: dict, measured, simulated, n_layers: int, factors, shaft=
     for k in range(1, n_layers):
         out[f'boundary_m[{k}]'] = _boundary(out, measured, simulated, k)
     boundaries = [0.0] + [out[f'boundary_m[{k}]'] for k in range(1, n_layers)]
+    unread = unread_cuts(measured)
     held = held_friction(measured, [out[f'friction_n_per_m[{j}]'] for j in range(n_layers)], boundaries,
-                         out[f'cutting_n[{n_layers - 1}]'])
-    for k in unread_cuts(measured) if _finite(held) else ():
+                         out[f'cutting_n[{n_layers - 1}]'], unread)
+    for k in unread if _finite(held) else ():
         out[f'friction_n_per_m[{k}]'] = held          # on the boundaries as they now stand
     last = n_layers - 1
     if _finite(simulated.depth_m[last]) and abs(measured.depth_m[last] - simulated.depth_m[last]) <= SAME_LAYER_M:
