@@ -11,7 +11,7 @@ from support.scenes import TWO_LAYERS
 from tissue_sim_ros.engine.scene.checks import apply_schema
 from tissue_sim_ros.engine.scene.keys import get_key, set_key
 from tissue_sim_ros.engine.scene.schema import SCHEMA
-from tissue_sim_ros.engine.scene.variation import drawn_regions
+from tissue_sim_ros.engine.scene.variation import MIN_RUPTURE_FRACTION, drawn_regions, moved_regions
 from tissue_sim_ros.errors import SceneError
 
 
@@ -40,6 +40,25 @@ def test_the_draws_are_normal_with_the_stated_spread_and_each_seed_its_own():
     assert drawn_regions(spec) == (spec['regions'], {})
     again = drawn_regions(checked(set_key(spec, 'variation.seed', 7)))
     assert again == drawn_regions(checked(set_key(spec, 'variation.seed', 7)))
+
+
+def test_a_repeats_offsets_move_its_rupture_force_and_its_boundary_down_and_nothing_else():
+    """A repeat's own offsets: the force added (held to its least fraction), a plane, a box's
+    corners and a sphere's centre moved down by the depth; a region without a depth keeps its
+    selector; the nominal regions are left as they were."""
+    spec = checked(TWO_LAYERS)
+    regions = spec['regions'] + [dict(spec['regions'][1], select={'box_m': [[0, 0, -0.02], [0.01, 0.01, -0.01]]}),
+                                 dict(spec['regions'][1], select={'sphere_m': [0, 0, -0.01, 0.003]})]
+    before = [dict(r, membrane=dict(r['membrane'])) for r in regions]
+    moved = moved_regions(regions, {0: (0.25, 0.002), 1: (-0.1, 0.0005), 2: (-5.0, -0.001), 3: (0.0, 0.001)})
+    assert regions == before
+    assert moved[0]['select'] == 'all' and moved[0]['membrane']['rupture_force_n'] == pytest.approx(0.8 + 0.25)
+    assert moved[1]['select']['below_z_m'] == pytest.approx(-0.011 - 0.0005)
+    assert moved[1]['membrane']['rupture_force_n'] == pytest.approx(1.0 - 0.1)
+    assert moved[2]['membrane']['rupture_force_n'] == pytest.approx(MIN_RUPTURE_FRACTION * 1.0)
+    assert moved[2]['select']['box_m'] == [[0, 0, pytest.approx(-0.019)], [0.01, 0.01, pytest.approx(-0.009)]]
+    assert moved[3]['select']['sphere_m'] == [0, 0, pytest.approx(-0.011), 0.003]
+    assert moved_regions(regions, {}) == regions
 
 
 def test_a_spread_of_depth_needs_a_boundary_with_a_depth():

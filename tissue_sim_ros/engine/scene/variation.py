@@ -25,7 +25,7 @@ import copy
 
 import numpy as np
 
-__all__ = ['MIN_RUPTURE_FRACTION', 'drawn_regions', 'has_spread']
+__all__ = ['MIN_RUPTURE_FRACTION', 'drawn_regions', 'has_spread', 'has_depth', 'moved_regions']
 
 #: a drawn rupture force is held to at least this fraction of the nominal one
 MIN_RUPTURE_FRACTION = 0.1
@@ -45,21 +45,42 @@ def drawn_regions(spec: dict) -> tuple[list, dict]:
     if seed == 0 or not has_spread(spec):
         return regions, {}
     normals = np.random.default_rng(seed).standard_normal(2 * len(regions))
-    out, drawn = [], {}
+    offsets, drawn = {}, {}
     for k, region in enumerate(regions):
-        region = copy.deepcopy(region)
-        membrane = region['membrane']
-        if membrane['rupture_force_spread_n'] > 0:
-            nominal = membrane['rupture_force_n']
-            membrane['rupture_force_n'] = max(MIN_RUPTURE_FRACTION * nominal,
-                                              nominal + membrane['rupture_force_spread_n'] * normals[2 * k])
-            drawn[f'regions[{k}].membrane.rupture_force_n'] = membrane['rupture_force_n']
+        force = region['membrane']['rupture_force_spread_n'] * normals[2 * k]
+        depth = float(region['depth_spread_m'] * normals[2 * k + 1])
+        offsets[k] = (force, depth)
+    out = moved_regions(regions, offsets)
+    for k, region in enumerate(regions):
+        if region['membrane']['rupture_force_spread_n'] > 0:
+            drawn[f'regions[{k}].membrane.rupture_force_n'] = out[k]['membrane']['rupture_force_n']
         if region['depth_spread_m'] > 0:
-            offset = float(region['depth_spread_m'] * normals[2 * k + 1])
-            region['select'] = _moved_down(region['select'], offset)
-            drawn[f'regions[{k}].depth_offset_m'] = offset
-        out.append(region)
+            drawn[f'regions[{k}].depth_offset_m'] = offsets[k][1]
     return out, drawn
+
+
+def has_depth(select) -> bool:
+    """Whether a region's selector has a depth a run can move (not ``all``, a tag or a half-space)."""
+    return isinstance(select, dict) and any(key in select for key in ('below_z_m', 'above_z_m', 'box_m', 'sphere_m'))
+
+
+def moved_regions(regions, offsets: dict) -> list:
+    """The scene's ``regions`` as one run builds them: ``offsets`` {region index: (rupture force
+    offset [N], depth offset [m], positive deeper)}, the rupture force held to at least
+    MIN_RUPTURE_FRACTION of the nominal one, the selector moved down; a region with no depth to
+    move keeps its selector. The same rule for a seeded draw and for a repeat's own offsets."""
+    out = []
+    for k, region in enumerate(regions):
+        force, depth = offsets.get(k, (0.0, 0.0))
+        if force or (depth and has_depth(region['select'])):
+            region = copy.deepcopy(region)
+            nominal = region['membrane']['rupture_force_n']
+            if force:
+                region['membrane']['rupture_force_n'] = max(MIN_RUPTURE_FRACTION * nominal, nominal + force)
+            if depth and has_depth(region['select']):
+                region['select'] = _moved_down(region['select'], depth)
+        out.append(region)
+    return out
 
 
 def _moved_down(select, offset: float):
