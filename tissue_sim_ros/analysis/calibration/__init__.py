@@ -4,6 +4,7 @@ cross-validated across speeds, and the layered scene that starts them.
 - :mod:`.parameters`: the fitted keys (``--fit KEY=LOW:HIGH[:log]``) and the phase each acts on;
 - :mod:`.stages`: the staged start layer by layer: which samples each fitted key acts on;
 - :mod:`.objective`: the comparison's residuals of every fitted trial as one vector;
+- :mod:`.repeat_draws`: each repeat's own rupture forces and layer depths, read from its punctures;
 - :mod:`.evaluation_log`: ``evaluations.jsonl``, each evaluation once across resumes;
 - :mod:`.search`: the staged start, the global stage, the joint bounded refinement;
 - :mod:`.fine`: coarse to fine, the finish on the scene as asked;
@@ -14,4 +15,4 @@ cross-validated across speeds, and the layered scene that starts them.
 - :mod:`.propose`: the command ``propose``: the layers the repeats share, as a scene.
 """
 __all__ = ['calibrate', 'evaluation_log', 'fine', 'layer_estimates', 'objective', 'parameters', 'propose',
-           'propose_report', 'report', 'search', 'stages']
+           'propose_report', 'repeat_draws', 'report', 'search', 'stages']

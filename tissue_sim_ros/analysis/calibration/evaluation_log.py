@@ -5,7 +5,9 @@ A line: ``time``, ``values`` (the fitted keys), ``phases`` (a stage's scope, nul
 evaluation), ``objective`` and ``nrmse_mean`` (whole evaluations) or ``stage_objective`` (a
 stage's), ``failures``, ``mass_scaling``, ``run`` (1 for the first run of a study, one more per
 resume), ``elapsed_s`` (since that run started) and ``replayed`` (every simulation from an earlier
-run's store). A line cut by a kill is skipped when read back.
+run's store), and with ``calibrate --per-repeat`` ``draws`` (which set of each repeat's offsets it
+ran with: the same parameters under other offsets are another evaluation). A line cut by a kill
+is skipped when read back.
 """
 from __future__ import annotations
 
@@ -20,7 +22,7 @@ def log_evaluation(path: Path, logged: set, evaluation, stage, *, run: int, elap
     """Append ``evaluation`` to the log at ``path`` unless ``logged`` (the keys already there)
     holds it; ``stage``: a partial evaluation's stage residuals (None: a whole one)."""
     phases = None if evaluation.phases is None else str(evaluation.phases)
-    key = _log_key(evaluation.values, phases)
+    key = _log_key(evaluation.values, phases, evaluation.draws)
     if key in logged:
         return
     logged.add(key)
@@ -31,12 +33,14 @@ def log_evaluation(path: Path, logged: set, evaluation, stage, *, run: int, elap
               'failures': evaluation.failures,
               'mass_scaling': max((r.mass_scaling for r in evaluation.results), default=float('nan')),
               'run': run, 'elapsed_s': elapsed_s, 'replayed': bool(evaluation.replayed)}
+    if evaluation.draws:
+        record['draws'] = evaluation.draws
     with path.open('a') as log:
         log.write(json.dumps(record, default=float) + '\n')
 
 
-def _log_key(values: dict, phases) -> str:
-    return json.dumps([values, phases], sort_keys=True, default=float)
+def _log_key(values: dict, phases, draws: int = 0) -> str:
+    return json.dumps([values, phases] + ([draws] if draws else []), sort_keys=True, default=float)
 
 
 def logged_keys(path) -> tuple[set, int]:
@@ -54,7 +58,7 @@ def logged_keys(path) -> tuple[set, int]:
             record = json.loads(line)
         except json.JSONDecodeError:
             continue
-        keys.add(_log_key(record.get('values'), record.get('phases')))
+        keys.add(_log_key(record.get('values'), record.get('phases'), record.get('draws', 0)))
         last = max(last, int(record.get('run') or 1))
     return keys, last + 1
 

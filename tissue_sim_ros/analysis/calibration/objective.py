@@ -2,8 +2,9 @@
 
 A parameter vector (unit coordinates, :mod:`~tissue_sim_ros.analysis.calibration.parameters`)
 becomes one simulation per speed of the study (the comparison's plan: the median repeat's
-measured motion, :func:`~tissue_sim_ros.analysis.compare.compare.plan_simulations`), and each trial is
-compared with its speed's simulation by :func:`~tissue_sim_ros.analysis.compare.compare.compare_trial`,
+measured motion, :func:`~tissue_sim_ros.analysis.compare.compare.plan_simulations`; with
+``per_repeat``, one per trial, its regions moved by its own offsets: :mod:`~tissue_sim_ros.
+analysis.calibration.repeat_draws`), and each trial is compared with its speed's simulation by :func:`~tissue_sim_ros.analysis.compare.compare.compare_trial`,
 the same comparison ``tissue-sim compare`` reports. The residuals of a trial are the simulated
 minus the measured force at fixed samples (chosen once: evenly over the compared part of the
 trial, at most ``points_per_trial``), divided by the trial's force range (so each residual is an
@@ -13,17 +14,13 @@ puncture of either curve count 0, as compare's NRMSE leaves them out (a one-samp
 when the force drops would dominate the sum); the puncture stage fits the events themselves.
 
 A simulated puncture later (or earlier) than the measured one puts the samples between the two
-on opposite sides of the drop: each misses by the drop, and how many there are changes in whole
-samples as the parameters move, a staircase no finite difference reads: two such samples can
-hold most of a trial's objective, and a Jacobian's predictions then miss by an order of
-magnitude. So those samples count 0 too, and each measured
-puncture adds one residual instead: the measured drop over the force range times the signed root
-of the Huber cost of the matched simulated puncture's shift (the same layer's) counted in scored
-samples, with the inserted phase's weight (:func:`huber_root`). Its square grows as the shift's
-square within half a sample (smooth where the finish works) and by one sample's cost per sample
-beyond, as the samples it replaces would. Growing as the square all the way, a shift of ten
-samples would weigh ten times what the pointwise error does, and the search would trade the
-curve for the puncture's depth.
+on opposite sides of the drop, each missing by the drop, their count a staircase in the
+parameters that no finite difference reads. So those samples count 0 too, and each measured
+puncture adds one residual: the measured drop over the force range times the signed root of the
+Huber cost of the matched simulated puncture's shift (the same layer's) counted in scored samples,
+with the inserted phase's weight (:func:`huber_root`): the shift's square within half a sample,
+one sample's cost per sample beyond, as the samples it replaces would (growing as the square all
+the way, the search would trade the curve for the puncture's depth).
 
 A run that diverges, trips the watchdog, or whose keys the scene refuses, scores 1 at every
 residual (a miss by the whole force range: worse than any run that finishes) and its reason is
@@ -94,8 +91,7 @@ class BudgetSpent(Exception):
 
 class Budget:
     """Evaluations a calibration may make (``limit``; None: no limit), ``used`` so far (run or
-    replayed), ``replayed`` of them; ``reserve``: kept back from the search for the Jacobian the
-    standard errors need at its result."""
+    replayed), ``replayed`` of them; ``reserve``: kept back from the search for its result's checks."""
 
     def __init__(self, limit: int | None = None, reserve: int = 0):
         self.limit, self.reserve, self.used, self.replayed = limit, int(reserve), 0, 0
@@ -123,12 +119,10 @@ class Evaluation:
     comparisons: list
     results: list
     failures: list = field(default_factory=list)
-    #: the phases a partial evaluation ran for (module docstring); None: the whole curves
-    phases: object = None
-    #: every simulation came from the store (an earlier run's)
-    replayed: bool = False
-    #: per trial, how many of ``residuals`` are its (in order): the objective trial by trial
-    trial_sizes: tuple = ()
+    phases: object = None      # the phases a partial evaluation ran for (module docstring); None: whole
+    replayed: bool = False     # every simulation came from the store (an earlier run's)
+    trial_sizes: tuple = ()    # per trial, how many of ``residuals`` are its (in order)
+    draws: int = 0             # the set of repeat offsets it ran with (one more each time they are set)
 
     def trial_objectives(self) -> np.ndarray:
         """Each trial's part of the objective (its residuals' sum of squares), in trial order."""
@@ -147,13 +141,11 @@ class Evaluation:
 
 def puncture_shift_residuals(comparison, indices, error, scale):
     """``error`` (a trial's residuals at the scored samples ``indices``) with the samples strictly
-    between each measured puncture and the simulated one of its layer (``pair_punctures``) set to
-    0, and per measured puncture its shift as one residual: the measured drop over the force
-    range ``scale`` times the Huber root of the simulated puncture's shift counted in scored
-    samples; a puncture the simulation has no drop of costs as one shifted past every scored
-    sample up to the next measured puncture (or the end): a run that stops puncturing a layer, or
-    punctures it without a drop, is not let off the samples the missing drop leaves on the wrong
-    side. See the module docstring."""
+    between each measured puncture and the simulated one of its layer set to 0, and per measured
+    puncture its shift as one residual: the measured drop over the force range ``scale`` times the
+    Huber root of the shift counted in scored samples; a puncture the simulation lacks costs as one
+    shifted past every scored sample up to the next measured puncture (or the end), so a run that
+    stops puncturing a layer is not let off the samples the missing drop leaves on the wrong side."""
     travel = comparison.travel_since_contact_m
     spacing = np.diff(travel[indices])
     spacing = float(np.median(spacing[spacing > 0])) if np.any(spacing > 0) else 0.0
@@ -178,9 +170,8 @@ def puncture_shift_residuals(comparison, indices, error, scale):
 
 
 def huber_root(samples):
-    """The signed root of the Huber cost of a shift counted in samples: its square is samples^2
-    up to half a sample and |samples| - 1/4 beyond (continuous with its slope), the cost of the
-    samples a shift puts on the wrong side of a drop, which grows by one sample's cost per sample."""
+    """The signed root of the Huber cost of a shift counted in samples: samples^2 up to half a
+    sample, |samples| - 1/4 beyond (continuous with its slope; one sample's cost per sample)."""
     samples = np.asarray(samples, dtype=float)
     cost = np.where(np.abs(samples) <= 0.5, samples * samples, np.abs(samples) - 0.25)
     return np.sign(samples) * np.sqrt(cost)
@@ -191,13 +182,15 @@ class Objective:
 
     def __init__(self, trials, scene, keys, *, sets_spec=None, align='contact', gap_m=None, tick_s=0.01,
                  points_per_trial=200, phase_weights=None, keep_time_step_s=None, max_mass_scaling=None,
-                 store=None, log_path=None, workers=None, scheduler=None, pool=None):
+                 store=None, log_path=None, workers=None, scheduler=None, pool=None, per_repeat=False):
         from tissue_sim_ros.analysis.compare.compare import plan_simulations
         self.trials, self.keys, self.align = list(trials), list(keys), align
         self.base_spec = sets_spec if sets_spec is not None else scene.spec
         self.base_dir = str(scene.base_dir)
         self.scene_gap_m = scene.start_gap_m
-        self.plan = plan_simulations(self.trials, scene, gap_m=gap_m, tick_s=tick_s)
+        self.plan = plan_simulations(self.trials, scene, gap_m=gap_m, tick_s=tick_s, per_trial=per_repeat)
+        #: per trial {region: (rupture force [N], depth [m]) offsets} (repeat_draws); None: the scene's
+        self.repeat_offsets, self.draws = ([{} for _ in self.trials] if per_repeat else None), 0
         self.points_per_trial = int(points_per_trial)
         self.phase_weights = dict(phase_weights or {})
         self.keep_time_step_s, self.max_mass_scaling = keep_time_step_s, max_mass_scaling
@@ -234,12 +227,21 @@ class Objective:
 
     def jobs_for(self, u, ends=None) -> list:
         """The simulation jobs of ``u``; ``ends``: per job the schedule's end index (None: whole)."""
+        from tissue_sim_ros.engine.scene.variation import moved_regions
         spec = self.spec_for(u)
         ends = ends or [None] * len(self.plan.jobs)
+        specs = [spec if self.repeat_offsets is None else
+                 {**spec, 'regions': moved_regions(spec['regions'], self.repeat_offsets[self.plan.representative[j]])}
+                 for j in range(len(self.plan.jobs))]
         return [replace(job, scene_spec=spec, keep_time_step_s=self.keep_time_step_s,
                         max_mass_scaling=self.max_mass_scaling, times_s=job.times_s[:end],
                         positions=job.positions[:end])
-                for job, end in zip(self.plan.jobs, ends)]
+                for job, spec, end in zip(self.plan.jobs, specs, ends)]
+
+    def set_repeat_offsets(self, offsets) -> None:
+        """Each repeat's offsets (per trial); earlier evaluations no longer hold, nor the best."""
+        self.repeat_offsets = [dict(o) for o in offsets]
+        self._cache, self.best, self.draws = {}, None, self.draws + 1
 
     # -- horizons -----------------------------------------------------------------------------------
     def horizon(self, phases):
@@ -279,9 +281,8 @@ class Objective:
         from tissue_sim_ros.analysis.compare.force_events import PUNCTURE_WINDOW_M
         if not all(label.startswith('segment ') or label == 'hold' for label in labels):
             return None
-        first = next(iter(self._cache.values()))       # the first evaluation (whole: it chose the points)
         needed = [0.0] * len(self.plan.jobs)           # per job: time since contact
-        for i, (comparison, (indices, _, sample_labels)) in enumerate(zip(first.comparisons, self._points)):
+        for i, (comparison, (indices, _, sample_labels)) in enumerate(zip(self._first_comparisons, self._points)):
             since = comparison.time_since_contact_s
             times = [float(since[inside].max()) for inside in [indices[np.isin(sample_labels, labels)]] if inside.size]
             for layer in events:
@@ -394,13 +395,13 @@ class Objective:
         comparisons = [compare_trial(trial, plan.motions[i], curves[plan.job_of_trial[i]], self.align,
                                      measured_punctures=self._measured[i], layers=self._layers[i])
                        for i, trial in enumerate(self.trials)]
-        if self._points is None:
-            self._points = [self._choose_points(c) for c in comparisons]
+        if self._points is None:     # the first evaluation (whole) chooses the points
+            self._points, self._first_comparisons = [self._choose_points(c) for c in comparisons], comparisons
         failures = sorted({r.diverged for r in results if r.diverged})
         per_trial = [self._trial_residuals(c, *points) for c, points in zip(comparisons, self._points)]
         return Evaluation(u, self.values(u), np.concatenate(per_trial), comparisons, list(results), failures,
                           None if all(end is None for end in ends) else phases,
-                          trial_sizes=tuple(len(r) for r in per_trial))
+                          trial_sizes=tuple(len(r) for r in per_trial), draws=self.draws)
 
     def _choose_points(self, comparison):
         """The samples a trial is scored at: after its contact (the insertion only with the
@@ -487,6 +488,11 @@ def _cut(schedule, end):
 
 def calibrated_spec(fit: dict) -> dict:
     """The scene keys of a calibration's optimum, with the mass scaling it ran with (and the
-    damping rate that keeps the scene's damping force at it)."""
+    damping rate that keeps the scene's damping force at it); fitted repeat by repeat, the mean
+    repeat with the repeats' spread (``repeat_draws.folded_spec``)."""
+    from tissue_sim_ros.analysis.calibration.repeat_draws import folded_spec
     from tissue_sim_ros.engine.scene.keys import with_mass_scaling
-    return with_mass_scaling(fit['objective'].spec_for(fit['u']), fit['inertia']['mass_scaling_at_optimum'])
+    spec = fit['objective'].spec_for(fit['u'])
+    if fit.get('repeat_offsets'):         # each repeat simulated with its own draws: the mean repeat
+        spec = folded_spec(spec, fit['repeat_offsets'])
+    return with_mass_scaling(spec, fit['inertia']['mass_scaling_at_optimum'])
