@@ -112,7 +112,7 @@ def _calibrate(args):
          sets=args.set, coarse_sets=args.coarse_set, align=args.align, gap_mm=args.start_gap_mm,
          max_depth_mm=args.max_depth_mm,
          tick_ms=args.tick_ms, phase_weights=args.phase_weight, inertia_bound=args.inertia_bound,
-         global_search=args.global_search, max_evaluations=args.max_evaluations,
+         global_search=args.global_search, max_evaluations=args.max_evaluations, per_repeat=args.per_repeat,
          refit_steps=args.refit_steps, fine_steps=args.fine_steps, workers=args.jobs,
          scheduler=args.scheduler, out=args.out)
 
@@ -278,6 +278,11 @@ def build_parser():
     calibrate.add_argument('--max-evaluations', type=number(1, inclusive=True, whole=True), default=150,
                            help='parameter vectors the search may evaluate (each: one simulation per '
                                 'speed; default 150); then the best so far is the result')
+    calibrate.add_argument('--per-repeat', action='store_true',
+                           help="simulate each repeat with its own layers' rupture forces and depths, matched "
+                                'to its punctures at the start (one simulation per repeat per evaluation, and 3 '
+                                'evaluations to match): the spread between repeats does not pull the shared '
+                                'keys; the scene written is the mean repeat with the matched spread')
     calibrate.add_argument('--refit-steps', type=number(0, inclusive=True, whole=True), default=3,
                            help='with --coarse-set: Gauss-Newton steps of the loading keys\' re-fit on the '
                                 'scene as asked, on the loading (its simulations stop at the first puncture; '

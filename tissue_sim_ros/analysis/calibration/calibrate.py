@@ -130,12 +130,13 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
               phase_weights=None, inertia_bound=INERTIA_BOUND, staged=True, global_search=False,
               generations=5, stage_evaluations=6, joint_evaluations=20, max_evaluations=150,
               refit_steps=REFIT_STEPS, fine_steps=3, out=None, workers=None, scheduler=None, quiet=False,
-              log=None) -> dict:
+              log=None, per_repeat=False) -> dict:
     """Fit ``keys`` (FittedKey) of ``scene`` to ``trials``; everything the report needs."""
     from tqdm import tqdm
 
     from tissue_sim_ros.analysis.calibration.evaluation_log import logged_runs
     from tissue_sim_ros.analysis.calibration.objective import Budget, Objective
+    from tissue_sim_ros.analysis.calibration.repeat_draws import MATCH_ROUNDS, absorb_means, match_repeat_draws
     from tissue_sim_ros.analysis.calibration.fine import fine_finish, refit_loading
     from tissue_sim_ros.analysis.calibration.search import WEAK_EVALUATIONS, search, uncertainty, weakest_direction, \
         why_not_moved
@@ -143,10 +144,12 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
     log = log or (lambda text: print(text, file=sys.stderr))
     wall0 = time.perf_counter()
     reserve = len(keys) + WEAK_EVALUATIONS
-    if max_evaluations is not None and max_evaluations < reserve + 2:
-        raise ValueError(f'--max-evaluations {max_evaluations}: expected at least {reserve + 2} for {len(keys)} '
-                         'key(s) (the start, a step, the Jacobian of the standard errors at the result and the '
-                         'probe of what the data determines least)')
+    matching = MATCH_ROUNDS + 1 if per_repeat else 0     # the rounds, and the search's start moved by them
+    if max_evaluations is not None and max_evaluations < reserve + 2 + matching:
+        raise ValueError(f'--max-evaluations {max_evaluations}: expected at least {reserve + 2 + matching} for '
+                         f'{len(keys)} key(s) (the start, a step, the Jacobian of the standard errors at the result, '
+                         'the probe of what the data determines least'
+                         + (f' and {matching} matching each repeat\'s draws)' if matching else ')'))
     budget = Budget(max_evaluations, reserve=reserve)
     out = Path(out) if out is not None else None
     store = ResultStore(out / 'simulations') if out is not None else None
@@ -165,10 +168,19 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
         cap = m0 * max(1.0, inertia_bound / e0) if np.isfinite(e0) and e0 > 0 else m0
         return dict(inertia, cap=cap, bound=inertia_bound)
 
+    offsets = None
+
     def objective_for(a_scene, inertia):
+        nonlocal offsets
         made = Objective(trials, a_scene, keys, keep_time_step_s=a_scene.dt, max_mass_scaling=inertia['cap'],
-                         **options)
+                         per_repeat=per_repeat, **options)
         made.budget = budget
+        if per_repeat and offsets is None:
+            offsets = match_repeat_draws(made, u0)
+            log(f'each repeat\'s draws matched to its punctures in {MATCH_ROUNDS} rounds: '
+                f'{_spread_text(made.spec_for(u0), offsets)}')
+        elif per_repeat:
+            made.set_repeat_offsets(offsets)
         return made
 
     bar = tqdm(desc='calibration', unit='eval', file=sys.stderr, disable=quiet, dynamic_ncols=True)
@@ -185,6 +197,10 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
         inertia = inertia_for(search_scene)
         objective = objective_for(search_scene, inertia)
         used_objectives = [progress(objective)]
+        u_search = u0
+        if per_repeat:                            # the fitted keys take the repeats' mean draw
+            u_search, offsets = absorb_means(keys, u0, objective.spec_for(u0), offsets)
+            objective.set_repeat_offsets(offsets)
         start = objective.evaluate(u0)
         floor = noise_floor(objective, start)
 
@@ -192,7 +208,7 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
             return bool(np.isfinite(floor) and evaluation.nrmse_mean <= floor)
         stages: list = []
         # with a coarse scene the joint refinement is the fine finish's, on the scene as asked
-        u = search(objective, u0, staged=staged, global_search=global_search, generations=generations,
+        u = search(objective, u_search, staged=staged, global_search=global_search, generations=generations,
                    stage_evaluations=stage_evaluations, joint_evaluations=joint_evaluations,
                    joint=coarse_scene is None or not staged, log=log, record=stages,
                    enough=enough if coarse_scene is None else None)
@@ -234,7 +250,14 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
             'search_wall_s': wall, 'wall_s_all_runs': earlier + wall, 'runs': len(earlier_runs) + 1,
             'evaluations_logged': sum(run['evaluations'] for run in logged_runs(log_path).values()),
             'finish': finish, 'stages': stages, 'noise_floor_nrmse': floor, 'stopped_at_start': stopped_at_start,
-            'evaluations_in_memory': len(evaluations)}
+            'evaluations_in_memory': len(evaluations), 'repeat_offsets': offsets}
+
+
+def _spread_text(spec, offsets) -> str:
+    """Each region's matched offsets as standard deviations over the repeats."""
+    from tissue_sim_ros.analysis.calibration.repeat_draws import spreads
+    return '; '.join(f"{spec['regions'][k]['name']}: rupture force s.d. {force:.3g} N, depth s.d. {depth * 1e3:.3g} mm"
+                     for k, (force, depth) in spreads(offsets).items()) or 'no puncture matched'
 
 
 def parse_phase_weights(texts) -> dict:
@@ -284,7 +307,7 @@ def _fit_and_report(trials, held_out, out, *, scene, coarse, keys, scene_file, s
 def main(*, data_spec, fits, validate_spec=None, leave_one_speed_out=False, scene_file=None, sets=(), coarse_sets=(),
          align='contact', gap_mm=None, max_depth_mm=None, tick_ms=10.0, phase_weights=(), inertia_bound=INERTIA_BOUND,
          global_search=False, max_evaluations=150, refit_steps=REFIT_STEPS, fine_steps=3, workers=None, scheduler=None,
-         out='out/calibrate', stream=None) -> dict:
+         out='out/calibrate', stream=None, per_repeat=False) -> dict:
     """The ``tissue-sim calibrate`` command; with ``leave_one_speed_out`` first one calibration per
     speed without it (each in ``out/leave_out_<speed>``), whose predictions of it the report
     gives as the cross-validation."""
@@ -319,7 +342,7 @@ def main(*, data_spec, fits, validate_spec=None, leave_one_speed_out=False, scen
                    gap_m=None if gap_mm is None else gap_mm * 1e-3, tick_s=tick_ms * 1e-3, stream=stream,
                    phase_weights=weights, inertia_bound=inertia_bound, global_search=global_search,
                    max_evaluations=max_evaluations, refit_steps=refit_steps, fine_steps=fine_steps, workers=workers,
-                   scheduler=scheduler)
+                   scheduler=scheduler, per_repeat=per_repeat)
     cross_validation = []
     for speed, fitted, left in folds:
         label = speed_label(speed)

@@ -23,7 +23,10 @@
   ``minus``, ``plus``; ``nrmse`` and ``objective`` at the minus end, the optimum and the plus end,
   ``worse_t`` per end, ``noise_floor``, ``told_apart``; null with one key); per key in
   ``parameters`` also ``moved`` and ``why_not_moved`` (at a bound, insensitive, correlated, at its
-  optimum), ``outputs``.
+  optimum), ``repeat_draws`` (with ``--per-repeat``: per fitted trial its ``file`` and per region
+  its matched ``rupture_force_offset_n`` and ``depth_offset_m``; per region the offsets' ``mean``
+  and ``spread``, the spread written into calibrated.yaml; the fit's NRMSE is then each repeat's
+  against its own draws, the held-out trials' against the mean repeat), ``outputs``.
 - ``calibrate.md``: the same for a person; ``calibrate.csv``: one row per speed and role (fit,
   held out, left out);
   ``evaluations.jsonl``: every evaluation of the search (written as it ran);
@@ -258,6 +261,13 @@ def _markdown(report) -> str:
                    None: 'one trial: no repeats to judge by.'}[weakest['told_apart']]
         lines += ['', 'What the data determines least (the combination along the Jacobian\'s least singular '
                   f'value, stepped either way and run): {_weakest_text(weakest)}: {verdict}']
+    draws = report.get('repeat_draws')
+    if draws:
+        lines += ['', 'Each repeat simulated with its own rupture forces and layer depths, matched to its punctures '
+                  'at the start (the fit\'s NRMSE: each repeat against its own; held out: the mean repeat). '
+                  'Their spread, written into calibrated.yaml: ' + '; '.join(
+                      f"{name} {v['rupture_force_spread_n']:.3g} N, {v['depth_spread_m'] * 1e3:.3g} mm"
+                      for name, v in draws['spread'].items()) + '.']
     lines += ['', '| role | speed | trials | NRMSE start | NRMSE calibrated | noise floor | nearest other speed\'s data |',
               '|---|---|---|---|---|---|---|']
     lines += [f"| {r['role']} | {speed_label(r['speed_m_s'])} | {r['trials']} | {f(r['nrmse_start'])} | "
@@ -280,6 +290,20 @@ def _markdown(report) -> str:
     if report['warnings']:
         lines += ['', '## Warnings', ''] + [f'- {w}' for w in report['warnings']]
     return '\n'.join(lines) + '\n'
+
+
+def _repeat_draws(fit, spec) -> dict:
+    """Each fitted repeat's matched offsets by region name, their means and spreads."""
+    from tissue_sim_ros.analysis.calibration.repeat_draws import means, spreads
+    offsets = fit['repeat_offsets']
+    names = [region['name'] for region in spec['regions']]
+
+    def by_name(values, force_key, depth_key):
+        return {names[r]: {force_key: float(force), depth_key: float(depth)} for r, (force, depth) in values.items()}
+    return {'trials': [{'file': str(trial.file), 'regions': by_name(own, 'rupture_force_offset_n', 'depth_offset_m')}
+                       for trial, own in zip(fit['objective'].trials, offsets)],
+            'mean': by_name(means(offsets), 'rupture_force_offset_n', 'depth_offset_m'),
+            'spread': by_name(spreads(offsets), 'rupture_force_spread_n', 'depth_spread_m')}
 
 
 def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_file, sets, data_spec,
@@ -324,6 +348,8 @@ def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_fi
               'stages': _plain(fit.get('stages', [])), 'stopped_at_start': fit.get('stopped_at_start', False),
               'noise_floor_nrmse': _number(fit.get('noise_floor_nrmse', float('nan'))),
               'weakest_direction': spread.get('weakest')}
+    if fit.get('repeat_offsets'):
+        report['repeat_draws'] = _repeat_draws(fit, final_scene.spec)
     if held_out:
         report['validation'] = {'nrmse_mean': _mean(studies['held out'][1]['comparisons']),
                                 'nrmse_mean_start': _mean(studies['held out'][0]['comparisons']),
