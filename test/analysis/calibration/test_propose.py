@@ -38,7 +38,8 @@ def test_propose_finds_the_layers_and_their_depths_within_the_jitter(studies, tw
     """The layer count the scene made, and each layer's depth (travel since contact) within the
     standard deviation of the depths the simulator punctured it at (and 0.3 mm: the contact's and
     the puncture's detection); the proposal a scene with one region per layer, its deeper
-    boundaries planes below the surface, and calibrate's --fit keys."""
+    boundaries planes below the surface, and calibrate's --fit keys; each layer's thickness along the
+    needle from one boundary to the next, in the mesh's elements there, warned under three."""
     from tissue_sim_ros.engine.scene.scene import Scene
     spec = studies['fit'] if layers == 2 else studies['three']
     report = two_layer_proposal if layers == 2 else propose.main(
@@ -55,6 +56,13 @@ def test_propose_finds_the_layers_and_their_depths_within_the_jitter(studies, tw
     assert [r['select'] == 'all' for r in scene.spec['regions']] == [True] + [False] * (layers - 1)
     assert all(f['key'] in {k['key'] for k in report['fits']} for f in report['fits'])
     assert (studies['root'] / f'propose_{layers}' / 'propose.png').stat().st_size > 0
+    top = float(scene.mesh.rest_positions[:, 2].max())
+    boundaries = [top - r['select']['below_z_m'] for r in scene.spec['regions'][1:]]
+    thickness = [r['thickness_m'] for r in report['resolution']]
+    assert thickness[:-1] == pytest.approx(np.diff([0.0] + boundaries))
+    assert [r['elements_across'] * report['path_edge_m'] for r in report['resolution']] == pytest.approx(thickness)
+    warned = {int(w.split()[1]) for w in report['warnings']}
+    assert warned == {k for k, r in enumerate(report['resolution']) if r['elements_across'] < 3.0}
 
 
 def test_calibrate_from_the_proposal_recovers_the_layers_and_predicts_a_held_out_speed(studies, two_layer_proposal):

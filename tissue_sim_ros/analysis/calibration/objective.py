@@ -3,9 +3,9 @@
 A parameter vector (unit coordinates, :mod:`~tissue_sim_ros.analysis.calibration.parameters`)
 becomes one simulation per speed of the study (the comparison's plan: the median repeat's
 measured motion, :func:`~tissue_sim_ros.analysis.compare.compare.plan_simulations`; with
-``per_repeat``, one per trial, its regions moved by its own offsets: :mod:`~tissue_sim_ros.
-analysis.calibration.repeat_draws`), and each trial is compared with its speed's simulation by :func:`~tissue_sim_ros.analysis.compare.compare.compare_trial`,
-the same comparison ``tissue-sim compare`` reports. The residuals of a trial are the simulated
+``per_repeat``, one per trial, its regions moved by its own offsets: :mod:`.repeat_draws`), and
+each trial is compared with its simulation by :func:`~tissue_sim_ros.analysis.compare.compare.
+compare_trial`, the same comparison ``tissue-sim compare`` reports. The residuals of a trial are the simulated
 minus the measured force at fixed samples (chosen once: evenly over the compared part of the
 trial, at most ``points_per_trial``), divided by the trial's force range (so each residual is an
 NRMSE contribution) and by the square root of the number of residuals, times the weight of the

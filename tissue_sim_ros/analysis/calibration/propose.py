@@ -375,6 +375,8 @@ def propose(trials, base_scene, *, refine_runs: int = 3, align: str = 'contact',
             out=None, workers=None, scheduler=None, log=print) -> dict:
     """Everything the outputs need (module docstring)."""
     from tissue_sim_ros.analysis.calibration.layer_estimates import starting_values
+    from tissue_sim_ros.analysis.calibration.layer_resolution import elements_across, path_edge_length, \
+        resolution_warnings
     from tissue_sim_ros.analysis.compare.compare import compare_trials, measured_layers
     from tissue_sim_ros.analysis.compare.measured_motion import measured_motion
     from tissue_sim_ros.analysis.compare.trial_simulation import ResultStore
@@ -447,7 +449,11 @@ def propose(trials, base_scene, *, refine_runs: int = 3, align: str = 'contact',
             log(f'propose: run {run}: the relaxation scan puts the relaxing part at {scanned:.3f}')
         previous, values = (values, simulated), corrected
     score, spec, values, study = best
-    return {'speed_m_s': speed, 'trials': chosen, 'layers': layers, 'measured': measured, 'derived': derived,
+    edge = path_edge_length(base_scene.mesh.rest_positions, base_scene.mesh.tetrahedra, base_scene.needle_pose[0], axis)
+    deepest = max(float(np.nanmax(c.travel_since_contact_m)) for c in empty)
+    resolution = elements_across([top - r['select']['below_z_m'] for r in spec['regions'][1:n]], deepest, edge)
+    return {'resolution': resolution, 'path_edge_m': edge, 'warnings': resolution_warnings(resolution, edge),
+            'speed_m_s': speed, 'trials': chosen, 'layers': layers, 'measured': measured, 'derived': derived,
             'values': values, 'spec': spec, 'runs': runs, 'nrmse_all_samples': score, 'study': study,
             'fits': fit_suggestions(spec, n, layers), 'base_dir': base_scene.base_dir,
             'pre_drops': sum(len(_pre_drops(c)) for c in study['comparisons']),
@@ -485,6 +491,8 @@ def main(*, data_spec, scene_file=None, sets=(), out='out/propose', refine_runs=
     report = write_proposal(Path(out), proposal, data_spec=str(data_spec), scene_file=scene_file, sets=sets)
     print(f"proposed {len(proposal['layers'])} layer(s); NRMSE {proposal['nrmse_all_samples']:.4f} over every "
           f"sample of {len(proposal['trials'])} repeat(s); {proposal['wall_s']:.1f} s", file=stream)
+    for warning in report['warnings']:
+        print(f'  warning: {warning}', file=stream)
     print('calibrate it with:\n  ' + report['calibrate_command'], file=stream)
     print(f"wrote {', '.join(report['outputs'].values())}", file=stream)
     return report

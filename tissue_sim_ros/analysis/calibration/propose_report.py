@@ -10,7 +10,10 @@
   scanned the relaxing part: per part its simulated pause fraction and NRMSE),
   ``nrmse_all_samples`` (the proposal's), ``pre_drops`` (drops told from punctures), ``fits`` (the
   ``--fit`` keys and bounds: ``key``, ``low``, ``high``, ``log``, ``acts_on``, ``text``),
-  ``calibrate_command``, ``wall_s``, ``outputs``;
+  ``calibrate_command``, ``resolution`` (per layer its ``thickness_m`` along the needle and
+  ``elements_across``: that over ``path_edge_m``, the mesh's mean edge along the path), ``warnings``
+  (a layer too few elements thick to be told from its neighbours: ``layer_resolution``),
+  ``wall_s``, ``outputs``;
 - ``propose.md``: the same for a person; ``propose.csv``: a row per layer;
 - ``propose.png``: the repeats by depth since contact and by time since contact, their punctures
   (circles) and pre-drops (triangles), each layer's depths (a band over the repeats' range) and
@@ -103,7 +106,9 @@ def write_proposal(out: Path, proposal: dict, *, data_spec, scene_file, sets) ->
               'sets': list(sets), 'speed_m_s': proposal['speed_m_s'], 'repeats': len(proposal['trials']),
               'layers': layers, 'values': values, 'runs': proposal['runs'],
               'nrmse_all_samples': proposal['nrmse_all_samples'], 'pre_drops': proposal['pre_drops'],
-              'fits': fits, 'calibrate_command': command, 'wall_s': proposal['wall_s'], 'outputs': outputs}
+              'fits': fits, 'calibrate_command': command, 'resolution': proposal['resolution'],
+              'path_edge_m': proposal['path_edge_m'], 'warnings': proposal['warnings'], 'wall_s': proposal['wall_s'],
+              'outputs': outputs}
     header = ['A layered scene proposed by tissue-sim propose from the data (every key; `tissue-sim scene-keys`).',
               f'data: {data_spec}; base scene: {scene_file or "the packaged default"}'
               + (f' with {" ".join("--set " + s for s in sets)}' if sets else ''),
@@ -153,6 +158,10 @@ def _markdown(report) -> str:
                       '| relaxing part | simulated pause relaxes | NRMSE over every sample |', '|---|---|---|']
             lines += [f"| {row['relaxing']:.2f} | {row['simulated_fraction']:.4f} | {row['nrmse_all_samples']:.4f} |"
                       for row in r['relaxation_scan']]
+    lines += ['', f"Layers along the needle, in the mesh's elements ({report['path_edge_m'] * 1e3:.2f} mm mean edge "
+              'there): ' + ', '.join(f"layer {k} {r['thickness_m'] * 1e3:.1f} mm, {r['elements_across']:.1f}"
+                                     for k, r in enumerate(report['resolution'])) + '.']
+    lines += [f'- warning: {w}' for w in report['warnings']]
     lines += ['', f"The proposal: NRMSE {report['nrmse_all_samples']:.4f}; {report['wall_s']:.1f} s.", '',
               '## Calibrate it', '', '| --fit | acts on |', '|---|---|']
     lines += [f"| `{f['text']}` | {f['acts_on']} |" for f in report['fits']]

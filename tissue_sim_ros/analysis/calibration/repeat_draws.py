@@ -41,8 +41,8 @@ import re
 
 import numpy as np
 
-__all__ = ['MATCH_ROUNDS', 'SLOPE_REACH_M', 'absorb_means', 'folded_spec', 'loading_slope', 'match_repeat_draws', 'means',
-           'membrane_regions', 'spreads']
+__all__ = ['MATCH_ROUNDS', 'SLOPE_REACH_M', 'absorb_means', 'folded_spec', 'loading_slope', 'match_repeat_draws',
+           'means', 'membrane_regions', 'spreads']
 
 #: rounds of simulating every repeat and moving its offsets by its punctures' misses
 MATCH_ROUNDS = 3
