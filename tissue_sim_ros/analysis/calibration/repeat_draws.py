@@ -91,8 +91,8 @@ def _moved(offsets: list, evaluation, regions: list, deep: set) -> list:
 
 
 def spreads(offsets: list) -> dict:
-    """{region: (mean rupture force offset [N], mean depth offset [m]), ...} over the repeats that
-    have the region, and {region: (their standard deviations)} (sample; 0 with one repeat)."""
+    """{region: (the rupture force offsets' [N], the depth offsets' [m] sample standard deviation)}
+    over the repeats that have the region (0 with one repeat)."""
     regions = sorted({r for own in offsets for r in own})
     values = {r: np.array([own[r] for own in offsets if r in own]) for r in regions}
     return {r: tuple(v.std(axis=0, ddof=1)) if len(v) > 1 else (0.0, 0.0) for r, v in values.items()}
