@@ -199,8 +199,10 @@ def calibrate(trials, scene, keys, *, coarse_scene=None, align='contact', gap_m=
         used_objectives = [progress(objective)]
         u_search = u0
         if per_repeat:                            # the fitted keys take the repeats' mean draw
-            u_search, offsets = absorb_means(keys, u0, objective.spec_for(u0), offsets)
-            objective.set_repeat_offsets(offsets)
+            u_search, absorbed = absorb_means(keys, u0, objective.spec_for(u0), offsets)
+            if absorbed != offsets:
+                offsets = absorbed
+                objective.set_repeat_offsets(offsets)
         start = objective.evaluate(u0)
         floor = noise_floor(objective, start)
 

@@ -3,10 +3,11 @@
 Repeats of one insertion puncture each layer at their own force and depth (the spread
 ``shared_punctures`` measures). Scored against one nominal simulation, a repeat whose layer gave
 way 0.5 mm deeper than the mean charges the model for a shift no parameter of the mean scene can
-remove, and those shift residuals dominate a layered objective: on a three-layer phantom they
-are most of it and flat along the trade between the two deeper layers' moduli, so the moduli are
-not told apart. Simulating each repeat with its own rupture forces and boundaries (known on a
-phantom) makes the same objective rise several-fold along that trade (docs/performance.md).
+remove; on the three-layer phantom those shift residuals are most of the objective, and they pull
+the shared rupture forces and boundaries toward the repeats' median puncture. Simulated with its
+own draws, each repeat is charged only for what the shared keys get wrong: the rupture forces come
+to the repeats' mean and the draws' spread is read (docs/performance.md, which also shows what
+this does not free: moduli a coarse mesh blends).
 
 On data the draws are not known; they are read from the repeat's punctures by simulation
 (:func:`match_repeat_draws`). At the calibration's start every repeat is simulated with its
@@ -145,7 +146,7 @@ def folded_spec(spec: dict, offsets: list) -> dict:
 def match_repeat_draws(objective, u, rounds: int = MATCH_ROUNDS) -> list:
     """Per trial of ``objective`` (built with ``per_repeat=True``), its offsets matched to its
     punctures at the parameters ``u`` (module docstring); left set on the objective. Each round
-    is one evaluation of the calibration's budget."""
+    is one evaluation of the calibration's budget; a round that moves nothing ends the matching."""
     from tissue_sim_ros.engine.scene.variation import has_depth
     spec = objective.spec_for(u)
     regions = membrane_regions(spec)
@@ -153,6 +154,9 @@ def match_repeat_draws(objective, u, rounds: int = MATCH_ROUNDS) -> list:
     offsets = [dict(own) for own in objective.repeat_offsets]
     for _ in range(rounds):
         objective.set_repeat_offsets(offsets)
-        offsets = _moved(offsets, objective.evaluate(u), regions, deep)
+        moved = _moved(offsets, objective.evaluate(u), regions, deep)
+        if moved == offsets:              # nothing to move (no puncture paired): the next round would repeat it
+            return offsets
+        offsets = moved
     objective.set_repeat_offsets(offsets)
     return offsets

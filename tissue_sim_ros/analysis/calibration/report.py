@@ -267,7 +267,8 @@ def _markdown(report) -> str:
                   'at the start (the fit\'s NRMSE: each repeat against its own; held out: the mean repeat). '
                   'Their spread, written into calibrated.yaml: ' + '; '.join(
                       f"{name} {v['rupture_force_spread_n']:.3g} N, {v['depth_spread_m'] * 1e3:.3g} mm"
-                      for name, v in draws['spread'].items()) + '.']
+                      for name, v in draws['spread'].items()) + '.' if draws['spread'] else
+                  'Each repeat simulated on its own motion; no puncture to match its draws to.']
     lines += ['', '| role | speed | trials | NRMSE start | NRMSE calibrated | noise floor | nearest other speed\'s data |',
               '|---|---|---|---|---|---|---|']
     lines += [f"| {r['role']} | {speed_label(r['speed_m_s'])} | {r['trials']} | {f(r['nrmse_start'])} | "
