@@ -62,9 +62,17 @@ def test_a_repeats_offsets_move_its_rupture_force_and_its_boundary_down_and_noth
 
 
 def test_a_spread_of_depth_needs_a_boundary_with_a_depth():
+    """'all' has no depth: refused where the value enters; a half-space has one: its plane's
+    point is moved down by the drawn offset (it once passed the check and then had no rule)."""
     from tissue_sim_ros.engine.scene.build import check_combinations
     with pytest.raises(SceneError, match=r'regions\[0\].depth_spread_m = 0.001 with regions\[0\].select = .all.'):
         check_combinations(checked(set_key(TWO_LAYERS, 'regions[0].depth_spread_m', 0.001)))
+    spec = checked(set_key(set_key(TWO_LAYERS, 'regions[1].select', {'half_space_m': [0, 0, -0.011, 0, 0, 1]}),
+                           'variation.seed', 2))
+    check_combinations(spec)
+    regions, drawn = drawn_regions(spec)
+    assert regions[1]['select']['half_space_m'] == pytest.approx([0, 0, -0.011 - drawn['regions[1].depth_offset_m'],
+                                                                   0, 0, 1])
 
 
 def test_seed_zero_is_the_nominal_scene_bit_for_bit_and_a_seed_punctures_at_its_draw():

@@ -19,6 +19,7 @@ from tissue_sim_ros.engine.mesh.selectors import node_mask
 from tissue_sim_ros.engine.mesh.generators import box_axes, graded_box_axes, grid_elements, grid_mesh
 from tissue_sim_ros.engine.model.material import Material, MeanRatioLaw, Viscosity
 from tissue_sim_ros.engine.model.tensor_mass import TensorMassModel
+from tissue_sim_ros.engine.scene.variation import DEPTH_SELECTORS, has_depth
 from tissue_sim_ros.engine.needle.parameters import (FlexibleShaft, Friction, Membrane, NeedleGeometry,
                                                      RegionInteraction, TipShape)
 from tissue_sim_ros.engine.solver.explicit import Simulation
@@ -39,10 +40,10 @@ def check_combinations(spec: dict) -> None:
                          f"{model['precision']!r}: its Newton tangent differences forces 1e-8 of the body "
                          "size apart, below float32 arithmetic's resolution (1e-7)")
     for k, region in enumerate(spec['regions']):
-        if region['depth_spread_m'] > 0 and (region['select'] == 'all' or 'tag' in region['select']):
+        if region['depth_spread_m'] > 0 and not has_depth(region['select']):
             raise SceneError(f"regions[{k}].depth_spread_m = {region['depth_spread_m']!r} with "
                              f"regions[{k}].select = {region['select']!r}: a spread of depth needs a boundary "
-                             'with a depth (below_z_m, above_z_m, box_m or sphere_m)')
+                             f"with a depth ({', '.join(DEPTH_SELECTORS)})")
     if integrator != 'explicit' and spec['solver']['selective_mass_scaling'] != 1.0:
         raise SceneError(f"solver.selective_mass_scaling = {spec['solver']['selective_mass_scaling']!r} with "
                          f'solver.integrator = {integrator!r}: it raises the explicit step; the implicit '

@@ -72,7 +72,7 @@ SCHEMA = {
         },
         'depth_spread_m': (0.0, 'float0', 'standard deviation of the depth of this layer\'s boundary between '
                                           'repeats [m]: a run with variation.seed k >= 1 moves the selector '
-                                          'down by a drawn offset (a plane, box or sphere; 0: no offset)'),
+                                          'down by a drawn offset (a plane, box, sphere or half-space; 0: no offset)'),
         'cutting_force_n': (0.0, 'float0', 'cutting force at the tip while advancing inside [N]'),
         'friction': {
             'insertion_static_n_per_m': (0.0, 'float0', 'Karnopp static limit D per inserted length, insertion [N/m]'),

@@ -14,7 +14,8 @@ region's draw does not change when another region's spread does): z_f and z_d, a
 
     rupture force = F0 + s_f z_f, held to at least ``MIN_RUPTURE_FRACTION`` F0,
     depth offset  = s_d z_d (positive: deeper), the region's selector moved down by it
-                    (``below_z_m``, ``above_z_m``, a box's or a sphere's z),
+                    (``below_z_m``, ``above_z_m``, a box's, a sphere's or a half-space's
+                    point's z),
 
 a normal distribution truncated where a rupture force would not be positive. A spread of depth
 needs a selector with a depth (not ``all`` or a tag: refused in ``build.check_combinations``).
@@ -25,7 +26,7 @@ import copy
 
 import numpy as np
 
-__all__ = ['MIN_RUPTURE_FRACTION', 'drawn_regions', 'has_spread', 'has_depth', 'moved_regions']
+__all__ = ['DEPTH_SELECTORS', 'MIN_RUPTURE_FRACTION', 'drawn_regions', 'has_depth', 'has_spread', 'moved_regions']
 
 #: a drawn rupture force is held to at least this fraction of the nominal one
 MIN_RUPTURE_FRACTION = 0.1
@@ -59,9 +60,13 @@ def drawn_regions(spec: dict) -> tuple[list, dict]:
     return out, drawn
 
 
+#: the selectors a run can move down (``all`` and a tag have no depth)
+DEPTH_SELECTORS = ('below_z_m', 'above_z_m', 'box_m', 'sphere_m', 'half_space_m')
+
+
 def has_depth(select) -> bool:
-    """Whether a region's selector has a depth a run can move (not ``all``, a tag or a half-space)."""
-    return isinstance(select, dict) and any(key in select for key in ('below_z_m', 'above_z_m', 'box_m', 'sphere_m'))
+    """Whether a region's selector has a depth a run can move (DEPTH_SELECTORS)."""
+    return isinstance(select, dict) and any(key in select for key in DEPTH_SELECTORS)
 
 
 def moved_regions(regions, offsets: dict) -> list:
@@ -91,5 +96,8 @@ def _moved_down(select, offset: float):
         return {'above_z_m': select['above_z_m'] - offset}
     if 'box_m' in select:
         return {'box_m': [[c[0], c[1], c[2] - offset] for c in select['box_m']]}
+    if 'half_space_m' in select:                 # its plane through a point moved down
+        x, y, z, nx, ny, nz = select['half_space_m']
+        return {'half_space_m': [x, y, z - offset, nx, ny, nz]}
     x, y, z, radius = select['sphere_m']
     return {'sphere_m': [x, y, z - offset, radius]}
