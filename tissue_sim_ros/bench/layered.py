@@ -1,13 +1,13 @@
 """Benchmark of ``propose`` and ``calibrate`` on layered tissue: synthetic phantoms, known values.
 
-``tissue-sim bench layered [--out DIR] [--jobs N] [--max-evaluations 110] [--mesh graded|fine]``
+``tissue-sim bench layered [--out DIR] [--jobs N] [--max-evaluations 110] [--mesh graded|fine] [--layers 2 3]``
 
 The data (:func:`~tissue_sim_ros.analysis.synthetic_study.phantom_scene`, the 'graded' mesh: 5880
-tetrahedra, a 3.3 mm cell around the needle's axis so that the force follows the moduli smoothly):
-the two-layer phantom, five repeats at each of 1, 2 and 3 mm/s, inserted 25 mm past the surface, a
-5 s pause, retracted; 5 mN of noise; each repeat draws its layers' rupture forces (0.2 N) and the
-deep boundary's depth (0.5 mm) from the phantom's spread. The three-layer phantom the same way.
-Then:
+tetrahedra, a 3.3 mm cell around the needle's axis so that the force follows the moduli smoothly;
+or the 'fine' one, 1.65 mm there): the two-layer phantom, five repeats at each of 1, 2 and 3 mm/s,
+inserted 25 mm past the surface (``TRAVEL_M``), a 5 s pause, retracted; 5 mN of noise; each repeat
+draws its layers' rupture forces (0.2 N) and the deep boundary's depth (0.5 mm) from the phantom's
+spread. The three-layer phantom the same way. Then:
 
 1. ``propose`` on each phantom's 2 mm/s repeats from a one-layer base (15 kPa, no relaxation):
    its time, the layers it finds against the punctures the simulator made (their depth since
@@ -36,6 +36,13 @@ __all__ = ['main']
 #: the phantoms' mesh by default (:data:`~tissue_sim_ros.analysis.synthetic_study.PHANTOM_MESHES`);
 #: ``--mesh fine`` resolves the three-layer phantom's middle layer (about 3.7x the cost)
 MESH = 'graded'
+
+#: per phantom (its layer count): its directories' prefix and the seed of its first study
+PHANTOMS = {2: ('two_layers', 1), 3: ('three_layers', 3)}
+#: the needle's travel [m] (1 mm of gap, then past the surface) by mesh and phantom: on 'fine' the
+#: outer layer gives way about 3 mm deeper (its elements lock less), and the three-layer phantom's
+#: core only past 25 mm (at about 25.5 mm since contact)
+TRAVEL_M = {('graded', 2): 0.026, ('graded', 3): 0.026, ('fine', 2): 0.026, ('fine', 3): 0.032}
 
 #: the 8 keys calibrated (the proposal's bounds)
 KEYS = ('regions[0].young_modulus_pa', 'regions[1].young_modulus_pa', 'regions[0].membrane.rupture_force_n',
@@ -122,8 +129,9 @@ def _calibrate(out: Path, layers: int, fit_spec: Path, held_spec: Path, keys, tr
             'recovered': recovered, 'speeds': result['speeds'], 'weakest_direction': weakest}
 
 
-def main(*, out='out/bench_layered', jobs=None, max_evaluations=110, mesh=MESH) -> dict:
-    """``tissue-sim bench layered``: run the benchmark, print its figures."""
+def main(*, out='out/bench_layered', jobs=None, max_evaluations=110, mesh=MESH, layers=(2, 3)) -> dict:
+    """``tissue-sim bench layered``: run the benchmark on the phantoms with ``layers`` layers, print its
+    figures."""
     import yaml
 
     from tissue_sim_ros.analysis.calibration import propose
@@ -131,36 +139,33 @@ def main(*, out='out/bench_layered', jobs=None, max_evaluations=110, mesh=MESH) 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     figures = {}
-    scenes = {}
-    for layers in (2, 3):
-        scenes[layers] = out / f'truth_{layers}_layers.yaml'
-        scenes[layers].write_text(yaml.safe_dump(phantom_scene(layers, mesh)))
+    specs = {}
     wall0 = time.perf_counter()
-    fit_spec = write_layered_study(out / 'two_layers_2mm_s', [], [2.0], scene_file=scenes[2], workers=jobs, seed=1)
-    held_spec = write_layered_study(out / 'two_layers_1_3mm_s', [], [1.0, 3.0], scene_file=scenes[2], workers=jobs,
-                                    seed=2)
-    three_spec = write_layered_study(out / 'three_layers_2mm_s', [], [2.0], scene_file=scenes[3], workers=jobs,
-                                     seed=3)
-    three_held_spec = write_layered_study(out / 'three_layers_1_3mm_s', [], [1.0, 3.0], scene_file=scenes[3],
-                                          workers=jobs, seed=4)
-    print(f'data: 35 trials simulated in {time.perf_counter() - wall0:.0f} s')
-    for layers, spec in ((2, fit_spec), (3, three_spec)):
+    for count in layers:
+        truth = out / f'truth_{count}_layers.yaml'
+        truth.write_text(yaml.safe_dump(phantom_scene(count, mesh)))
+        name, seed = PHANTOMS[count]
+        specs[count] = [write_layered_study(out / f'{name}_{label}', [], speeds, scene_file=truth, workers=jobs,
+                                            travel_m=TRAVEL_M[mesh, count], seed=seed + k)
+                        for k, (label, speeds) in enumerate((('2mm_s', [2.0]), ('1_3mm_s', [1.0, 3.0])))]
+    print(f'data: {15 * len(layers)} trials simulated in {time.perf_counter() - wall0:.0f} s')
+    for count in layers:
         t0 = time.perf_counter()
-        report = propose.main(data_spec=spec, scene_file=_write_base(out / f'base_{layers}.yaml', layers, mesh),
-                              out=out / f'propose_{layers}_layers', workers=jobs)
+        report = propose.main(data_spec=specs[count][0], scene_file=_write_base(out / f'base_{count}.yaml', count, mesh),
+                              out=out / f'propose_{count}_layers', workers=jobs)
         wall = time.perf_counter() - t0
-        made = _made_punctures(spec)
+        made = _made_punctures(specs[count][0])
         found = [(l['depth_m'], l['depth_sd_m']) for l in report['layers']]
-        print(f'\npropose, {layers}-layer phantom: {len(found)} layer(s) found (made {len(made)}) in {wall:.1f} s; '
+        print(f'\npropose, {count}-layer phantom: {len(found)} layer(s) found (made {len(made)}) in {wall:.1f} s; '
               f'proposal NRMSE {report["nrmse_all_samples"]:.4f} over every sample')
         for k, ((depth, sd), (true_depth, true_sd)) in enumerate(zip(found, made)):
             print(f'  layer {k}: {depth * 1e3:6.2f} +- {sd * 1e3:.2f} mm; the simulator punctured it at '
                   f'{true_depth * 1e3:6.2f} +- {true_sd * 1e3:.2f} mm ({(depth - true_depth) / max(true_sd, 1e-9):+.2f} s.d.)')
-        figures[f'propose_{layers}'] = {'wall_s': wall, 'layers': len(found), 'made': len(made), 'found': found,
-                                        'punctured': made, 'nrmse': report['nrmse_all_samples']}
-    for layers, fit_spec_, held_spec_, keys in ((2, fit_spec, held_spec, KEYS), (3, three_spec, three_held_spec, KEYS_3)):
-        figures[f'calibrate_{layers}'] = _calibrate(out, layers, fit_spec_, held_spec_, keys, scenes[layers],
-                                                    max_evaluations, jobs, mesh)
+        figures[f'propose_{count}'] = {'wall_s': wall, 'layers': len(found), 'made': len(made), 'found': found,
+                                       'punctured': made, 'nrmse': report['nrmse_all_samples']}
+    for count in layers:
+        figures[f'calibrate_{count}'] = _calibrate(out, count, *specs[count], KEYS if count == 2 else KEYS_3,
+                                                   out / f'truth_{count}_layers.yaml', max_evaluations, jobs, mesh)
     (out / 'figures.json').write_text(json.dumps(figures, indent=2, default=float))
     return figures
 

@@ -62,7 +62,8 @@ def _steering(args):
 
 def _layered(args):
     from tissue_sim_ros.bench import layered
-    layered.main(out=args.out, jobs=args.jobs, max_evaluations=args.max_evaluations, mesh=args.mesh)
+    layered.main(out=args.out, jobs=args.jobs, max_evaluations=args.max_evaluations, mesh=args.mesh,
+                 layers=args.layers)
 
 
 def _dask(args):
@@ -170,6 +171,8 @@ def add_bench_commands(commands):
     layered.add_argument('--mesh', choices=['graded', 'fine'], default='graded',
                          help="the phantoms' mesh: 'graded' (5880 tetrahedra, default) or 'fine' (14520, a 1.65 mm "
                               "cell around the needle: the three-layer moduli act apart; about 3.7x the time)")
+    layered.add_argument('--layers', type=int, nargs='+', choices=[2, 3], default=[2, 3],
+                         help='which phantoms, by their layer count (default: both)')
     layered.set_defaults(run=_layered)
     dask = which.add_parser('dask', help='compare in this process, on a process pool and on a local Dask '
                             'scheduler with its own workers')
