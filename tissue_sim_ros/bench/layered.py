@@ -90,6 +90,11 @@ def _calibrate(out: Path, layers: int, fit_spec: Path, held_spec: Path, keys, tr
     from tissue_sim_ros.analysis.calibration import calibrate as calibration
     proposal = json.loads((out / f'propose_{layers}_layers' / 'propose.json').read_text())
     fits = {f['key']: f['text'] for f in proposal['fits']}
+    missing = [key for key in keys if key not in fits]
+    if missing:
+        print(f"\ncalibrate, {layers}-layer proposal: not run: it proposes {len(proposal['layers'])} layer(s), so it has "
+              f"no {', '.join(missing)} to fit (did the needle puncture every layer?)")
+        return {'skipped': missing}
     t0 = time.perf_counter()
     result = calibration.main(data_spec=fit_spec, validate_spec=held_spec, scene_file=out / f'propose_{layers}_layers'
                               / 'proposed.yaml', fits=[fits[key] for key in keys], max_evaluations=max_evaluations,
