@@ -196,3 +196,26 @@ def test_the_report_gives_the_probe_its_verdict_and_no_statistic_without_repeats
     assert 'a0 0.4 to 0.6 (-20 % to +20 %)' in text and 'worse by 3.0 and 2.5 standard errors' in text
     alone = _weakest_text(dict(probe, worse_t=[float('nan')] * 2, told_apart=None))
     assert 'nan' not in alone and 'standard errors' not in alone
+
+
+def test_a_key_whose_optimum_lies_past_its_bound_is_reported_pushed_past_it_moved_or_not():
+    """Two keys, the least-squares optimum of the first at 1.4 in unit coordinates, beyond its
+    bound at 1: the search stops it there; it moved, and the report says it ended at its upper
+    bound with the fit pushing past it (warned: the other key makes up for it). The second key,
+    inside its bounds, is not. Truth: numpy's unbounded least squares."""
+    from tissue_sim_ros.analysis.calibration.report import _moved_text
+    from tissue_sim_ros.analysis.calibration.search import uncertainty, why_not_moved
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(30, 2))
+    b = A @ np.array([1.4, 0.5])
+    objective = _LinearObjective(A, b, [parse_fit(f'a{i}=0:1') for i in range(2)])
+    assert np.linalg.lstsq(A, b, rcond=None)[0][0] == pytest.approx(1.4)
+    u0 = np.array([0.5, 0.5])
+    u = np.array([1.0, 0.5 + np.linalg.lstsq(A[:, 1:], b - A[:, 0], rcond=None)[0][0]])   # the bounded optimum
+    spread = uncertainty(objective, u)
+    moved = why_not_moved(objective, u0, u, spread['jacobian_matrix'], spread['correlation'])
+    assert moved['a0']['moved'] and moved['a0']['pushed_past'] == 'upper'
+    assert moved['a1']['pushed_past'] is None
+    assert _moved_text({'moved': True, 'pushed_past': 'upper'}) == 'yes, to its upper bound'
+    still = why_not_moved(objective, u, u, spread['jacobian_matrix'], spread['correlation'])
+    assert not still['a0']['moved'] and still['a0']['pushed_past'] == 'upper' and 'upper bound' in still['a0']['why']

@@ -22,10 +22,11 @@
   ``weakest_direction`` (the least-determined combination of keys probed: per key ``value``,
   ``minus``, ``plus``; ``nrmse`` and ``objective`` at the minus end, the optimum and the plus end,
   ``worse_t`` per end, ``noise_floor``, ``told_apart``; null with one key); per key in
-  ``parameters`` also ``moved`` and ``why_not_moved`` (at a bound, insensitive, correlated, at its
-  optimum), ``repeat_draws`` (with ``--per-repeat``: per fitted trial its ``file`` and per region
-  its matched ``rupture_force_offset_n`` and ``depth_offset_m``; per region the offsets' ``mean``
-  and ``spread``, the spread written into calibrated.yaml; the fit's NRMSE is then each repeat's
+  ``parameters`` also ``moved``, ``why_not_moved`` (at a bound, insensitive, correlated, at its
+  optimum) and ``pushed_past`` (the bound it ended at with the fit pushing past it: warned),
+  ``repeat_draws`` (with ``--per-repeat``: per fitted trial its ``file`` and per region its matched
+  ``rupture_force_offset_n`` and ``depth_offset_m``; per region the offsets' ``mean`` and
+  ``spread``, the spread written into calibrated.yaml; the fit's NRMSE is then each repeat's
   against its own draws, the held-out trials' against the mean repeat), ``outputs``.
 - ``calibrate.md``: the same for a person; ``calibrate.csv``: one row per speed and role (fit,
   held out, left out);
@@ -130,6 +131,12 @@ def _weakest_text(weakest: dict) -> str:
     return f'{keys}: fit NRMSE {low:.4f} / {at:.4f} / {high:.4f}, objective {objective} (the optimum between{worse})'
 
 
+def _moved_text(entry) -> str:
+    if not entry.get('moved'):
+        return 'no: ' + (entry.get('why_not_moved') or '')
+    return f"yes, to its {entry['pushed_past']} bound" if entry.get('pushed_past') else 'yes'
+
+
 def _warnings(fit, rows, spread) -> list[str]:
     out = [f'{a} and {b} are correlated at {rho:+.3f}: the data cannot tell them apart; fix one or '
            'add data where they differ' for a, b, rho in spread['correlated_pairs']]
@@ -139,6 +146,9 @@ def _warnings(fit, rows, spread) -> list[str]:
                    'that both ends fit worse; fix some of them or add data where they differ')
     out += [f'{key} does not change the fitted curves (zero sensitivity): its value is the start'
             for key in spread['insensitive']]
+    out += [f"{key} ended at its {entry['pushed_past']} bound with the fit pushing past it: the other keys make "
+            'up for it; widen its --fit bounds and calibrate again' for key, entry in spread.get('moved', {}).items()
+            if entry.get('pushed_past')]
     from tissue_sim_ros.analysis.calibration.fine import linear_model_warning
     nonlinear = linear_model_warning(fit.get('finish', []))
     if nonlinear:
@@ -242,7 +252,7 @@ def _markdown(report) -> str:
                   'the noise floor): nothing to fit; the search ended there.**', '']
     lines += ['| key | start | calibrated | standard error | bounds | moved |', '|---|---|---|---|---|---|']
     lines += [f"| `{k}` | {p['start']:.6g} | {p['value']:.6g} | {p['stderr']:.2g} | {p['low']:g} to {p['high']:g}"
-              f"{' (log)' if p['log'] else ''} | {'yes' if p.get('moved') else 'no: ' + (p.get('why_not_moved') or '')} |"
+              f"{' (log)' if p['log'] else ''} | {_moved_text(p)} |"
               for k, p in report['parameters'].items()]
     stages = [st for st in report.get('stages', []) if 'objective_before' in st]
     if stages:
@@ -328,7 +338,8 @@ def write_report(out: Path, fit, *, held_out, start_scene, final_scene, scene_fi
     moved = spread.get('moved', {})
     parameters = {k.key: {'value': k.value(x), 'stderr': float(se), 'start': k.value(x0), 'low': k.low,
                           'high': k.high, 'log': k.log, 'phase': k.phase,
-                          'moved': moved.get(k.key, {}).get('moved'), 'why_not_moved': moved.get(k.key, {}).get('why')}
+                          'moved': moved.get(k.key, {}).get('moved'), 'why_not_moved': moved.get(k.key, {}).get('why'),
+                          'pushed_past': moved.get(k.key, {}).get('pushed_past')}
                   for k, x, x0, se in zip(keys, fit['u'], fit['u0'], spread['stderr'])}
     report = {'data_spec': str(data_spec), 'validate_spec': str(validate_spec) if validate_spec else None,
               'scene': str(scene_file or 'the packaged default'), 'sets': list(sets), 'align': align,

@@ -301,7 +301,9 @@ def why_not_moved(objective, u0, u, J, correlation) -> dict:
     and, when not, why: at a bound (its gradient pushing past it), insensitive (its Jacobian column
     below ``INSENSITIVE`` of the largest: it does not change the fitted curves), correlated with
     another key (above ``CORRELATION_WARNING``: the data cannot tell them apart), or at its optimum
-    (its gradient there is zero to the data's precision, so the start was already its best value)."""
+    (its gradient there is zero to the data's precision, so the start was already its best value);
+    ``pushed_past``: the bound ('lower', 'upper') it ended at with the fit pushing past it, moved or
+    not (the other keys then make up for it), else None."""
     r = objective.evaluate(u).residuals
     gradient = J.T @ r if J.size else np.zeros(len(u))
     norms = np.linalg.norm(J, axis=0) if J.size else np.zeros(len(u))
@@ -310,8 +312,10 @@ def why_not_moved(objective, u0, u, J, correlation) -> dict:
     for i, key in enumerate(objective.keys):
         moved = abs(float(u[i]) - float(u0[i])) > MOVED
         reasons = []
+        past = None
         if u[i] <= AT_BOUND and gradient[i] > 0 or u[i] >= 1 - AT_BOUND and gradient[i] < 0:
-            reasons.append(f'at its {"lower" if u[i] <= AT_BOUND else "upper"} bound, the fit pushing past it')
+            past = 'lower' if u[i] <= AT_BOUND else 'upper'
+            reasons.append(f'at its {past} bound, the fit pushing past it')
         if largest > 0 and norms[i] < INSENSITIVE * largest or largest == 0:
             reasons.append('insensitive: it does not change the fitted curves')
         partners = [objective.keys[j].key for j in range(len(u))
@@ -321,7 +325,7 @@ def why_not_moved(objective, u0, u, J, correlation) -> dict:
         if not reasons:
             reasons.append('at its optimum: the start was already its best value')
         out[key.key] = {'moved': bool(moved), 'why': None if moved else '; '.join(reasons),
-                        'at_bound': bool(u[i] <= AT_BOUND or u[i] >= 1 - AT_BOUND)}
+                        'at_bound': bool(u[i] <= AT_BOUND or u[i] >= 1 - AT_BOUND), 'pushed_past': past}
     return out
 
 
