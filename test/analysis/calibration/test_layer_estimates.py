@@ -55,3 +55,34 @@ def test_an_unread_cut_takes_its_friction_from_the_line_after_the_last_puncture(
     assert features.onset_m[1] == pytest.approx(BOUNDARY_M, abs=2e-4)
     assert OUTER_FRICTION - 2.0 <= outer <= OUTER_FRICTION + CUTTING_N / BOUNDARY_M + 2.0
     assert values['friction_n_per_m[1]'][0] == pytest.approx(DEEP_FRICTION, rel=0.02)
+
+
+def test_a_deep_layer_left_soon_after_the_turn_is_bounded_by_the_strongest_pull():
+    """The retraction as on a soft mesh: the force falls from the hold's level to the deep layer's
+    pull (1.8 N) over the first 9 mm back (the tissue dragged along), holds it, and steps to the
+    outer layer's (1.2 N) 4 mm later. The deep layer's window (back from the deepest travel to its
+    onset, 9.5 mm) holds mostly the transition and its plateau reads low, so twice it is no bound
+    for the pull; the strongest pull is the deep layer's, and the --fit bound takes
+    fit_bounds.PULL_MARGIN times it."""
+    from tissue_sim_ros.analysis.calibration.fit_bounds import PULL_MARGIN, fit_suggestions
+    time, travel, force, punctures = the_curve()
+    back = np.flatnonzero(np.arange(len(travel)) >= len(travel) - int(DEPTH_M / SPEED_M_S * RATE_HZ))
+    since_turn = DEPTH_M - travel[back]
+    hold = insertion_force(DEPTH_M)
+    force = force.copy()
+    force[back] = np.where(since_turn < 0.009, hold + (-1.8 - hold) * since_turn / 0.009,
+                           np.where(since_turn < 0.013, -1.8, -1.2))
+    features = curve_features(time, travel, force, punctures, n_layers=2)
+    assert features.strongest_pull_n == pytest.approx(-1.8, abs=1e-9)
+    assert -features.retraction_n[1] < 0.5 * 1.8        # the window reads the transition
+    region = {'young_modulus_pa': 3e4, 'membrane': {'rupture_force_n': 3.0}, 'cutting_force_n': 0.3,
+              'friction': {'insertion_coulomb_n_per_m': 0.0}}
+    spec = {'regions': [dict(region, friction={'insertion_coulomb_n_per_m': 0.0, 'retraction_constant_n': -r})
+                        for r in features.retraction_n], 'model': {'relaxation': []}}
+    spec['regions'][1]['select'] = {'below_z_m': -BOUNDARY_M}
+    layers = [None, type('Layer', (), {'depth_sd_m': 0.0003})()]
+    bounds = {f['key']: f for f in fit_suggestions(spec, 2, layers, features.strongest_pull_n)}
+    deep = bounds['regions[1].friction.retraction_constant_n']
+    assert deep['high'] == pytest.approx(PULL_MARGIN * 1.8) and deep['low'] <= 1.8 <= deep['high']
+    unbounded = {f['key']: f for f in fit_suggestions(spec, 2, layers)}
+    assert unbounded['regions[1].friction.retraction_constant_n']['high'] < 1.8

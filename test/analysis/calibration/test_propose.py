@@ -114,6 +114,16 @@ def test_propose_moves_the_deep_boundary_to_the_one_that_made_the_data(studies, 
     assert fit['low'] < truth < fit['high']
 
 
+def test_propose_bounds_each_layers_retraction_pull_around_the_phantoms(two_layer_proposal):
+    """The --fit bounds the proposal suggests for each layer's retraction pull contain the pull that
+    made the data (the phantom's, the same in every repeat)."""
+    for k, region in enumerate(truth_scene(2)['regions']):
+        key = f'regions[{k}].friction.retraction_constant_n'
+        fit = next(f for f in two_layer_proposal['fits'] if f['key'] == key)
+        print(f"{key}: truth {region['friction']['retraction_constant_n']} N, bounds {fit['low']:.3f} to {fit['high']:.3f}")
+        assert fit['low'] <= region['friction']['retraction_constant_n'] <= fit['high']
+
+
 def test_propose_places_every_deeper_boundary_of_three_layers_within_its_fit_bounds(studies):
     """Three layers, refined: the proposal's --fit bounds for both deeper boundaries contain the
     ones that made the data (each the scene's plane less the repeats' mean depth offset)."""

@@ -12,8 +12,9 @@ cross-validated across speeds, and the layered scene that starts them.
 - :mod:`.calibrate`: the command;
 - :mod:`.layer_estimates`: a layered curve's features and the starting values they give;
 - :mod:`.layer_resolution`: how many of the mesh's elements a layer is thick along the needle;
+- :mod:`.fit_bounds`: the ``--fit`` keys and bounds a proposal is calibrated with;
 - :mod:`.propose_report`: what ``propose`` writes;
 - :mod:`.propose`: the command ``propose``: the layers the repeats share, as a scene.
 """
-__all__ = ['calibrate', 'evaluation_log', 'fine', 'layer_estimates', 'layer_resolution', 'objective', 'parameters',
+__all__ = ['calibrate', 'evaluation_log', 'fine', 'fit_bounds', 'layer_estimates', 'layer_resolution', 'objective', 'parameters',
            'propose', 'propose_report', 'repeat_draws', 'report', 'search', 'stages']

@@ -23,7 +23,10 @@ punctures by layer), the numbers a scene's keys set, each where that key acts:
 - the retraction: per layer, the median force of the second half (in time) of the samples while
   the tip is within the layer (between the onsets: the boundaries it crosses going back), the
   plateau after the pull-out's transition, and the step between layers (the layers' onsets: the
-  boundaries the tip crosses on its way out).
+  boundaries the tip crosses on its way out); and the strongest pull anywhere in it (the
+  smoothed force's least value), which no one layer's pull exceeds: where the tip leaves a layer
+  soon after the turn (dragging the tissue), that layer's window holds the transition and reads
+  low, and the calibration's bound for it then comes from the strongest pull.
 
 :func:`starting_values` turns the features of several repeats into scene keys (the rules are
 in its docstring); :mod:`.propose` refines them against simulations of the scene.
@@ -62,7 +65,7 @@ class CurveFeatures:
     and ``valley_n`` (after the puncture),
     ``slope_n_per_m`` (the loading); ``post_intercept_n`` and ``post_slope_n_per_m`` (after the
     last puncture); ``hold_start_n``, ``hold_end_n``, ``relaxing`` (fraction), ``relax_time_s``;
-    ``retraction_n`` per layer (negative: the pull)."""
+    ``retraction_n`` per layer (negative: the pull); ``strongest_pull_n`` (negative)."""
 
     depth_m: list = field(default_factory=list)
     onset_m: list = field(default_factory=list)
@@ -78,6 +81,7 @@ class CurveFeatures:
     relaxing: float = math.nan
     relax_time_s: float = math.nan
     retraction_n: list = field(default_factory=list)
+    strongest_pull_n: float = math.nan
 
 
 def _secant_slope(travel, force, start, peak, start_level) -> float:
@@ -204,6 +208,8 @@ def curve_features(time_s, travel_m, force_n, punctures, n_layers: int) -> Curve
         low, high = (edges[layer], edges[layer + 1]) if layer + 1 < len(edges) else (math.nan, math.nan)
         inside = np.flatnonzero(back & (travel > low) & (travel <= high))
         out.retraction_n.append(float(np.median(force[inside[len(inside) // 2:]])) if inside.size >= 4 else math.nan)
+    if np.count_nonzero(back) >= 4:
+        out.strongest_pull_n = float(min(smooth[back].min(), 0.0))
     return out
 
 
@@ -221,7 +227,7 @@ def mean_features(features: list[CurveFeatures]) -> CurveFeatures:
         setattr(out, name, [_nanmean([getattr(f, name)[k] if k < len(getattr(f, name)) else math.nan
                                       for f in features]) for k in range(n)])
     for name in ('post_intercept_n', 'post_slope_n_per_m', 'hold_start_n', 'hold_end_n', 'relaxing',
-                 'relax_time_s'):
+                 'relax_time_s', 'strongest_pull_n'):
         setattr(out, name, _nanmean([getattr(f, name) for f in features]))
     return out
 

@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ['fit_suggestions', 'layered_spec', 'main', 'propose', 'shaft_force_at_punctures']
+__all__ = ['layered_spec', 'main', 'propose', 'shaft_force_at_punctures']
 
 #: a correction factor of one refinement run is held within [1 / CLAMP, CLAMP]; the relaxing
 #: part's within [1 / RELAX_CLAMP, RELAX_CLAMP] and below MAX_RELAXING (it softens every loading
@@ -302,42 +302,6 @@ def _corrected(values: dict, measured, simulated, n_layers: int, factors, shaft=
     return out
 
 
-def fit_suggestions(spec: dict, n_layers: int, layers) -> list[dict]:
-    """The ``--fit`` keys a calibration of the proposal takes, with bounds around each value."""
-    rows = []
-
-    def add(key, low, high, log=False, acts=''):
-        rows.append({'key': key, 'low': float(low), 'high': float(high), 'log': log, 'acts_on': acts,
-                     'text': f'{key}={low:.6g}:{high:.6g}' + (':log' if log else '')})
-    for k, region in enumerate(spec['regions'][:n_layers]):
-        add(f'regions[{k}].young_modulus_pa', region['young_modulus_pa'] / 3, region['young_modulus_pa'] * 3, True,
-            f'layer {k} loading')
-        if k >= 1:
-            z = region['select']['below_z_m']
-            margin = max(3 * layers[k].depth_sd_m, 0.002)
-            add(f'regions[{k}].select.below_z_m', z - margin, min(z + margin, -1e-4), False,
-                f'where layer {k} loading starts, its puncture depth')
-        rupture = region['membrane']['rupture_force_n']
-        add(f'regions[{k}].membrane.rupture_force_n', 0.5 * rupture, 1.5 * rupture, False, f'puncture {k}')
-        cutting = region['cutting_force_n']
-        add(f'regions[{k}].cutting_force_n', 0.0, max(2 * cutting, cutting + 0.5), False,
-            f'after puncture {k}')
-        retraction = region['friction']['retraction_constant_n']
-        add(f'regions[{k}].friction.retraction_constant_n', 0.0, max(2 * retraction, 0.5), False,
-            f'retraction with the tip in layer {k}')
-    for k, region in enumerate(spec['regions'][:n_layers]):
-        coulomb = region['friction']['insertion_coulomb_n_per_m']
-        if coulomb > 0:
-            add(f'regions[{k}].friction.insertion_coulomb_n_per_m', coulomb / 3, coulomb * 3, True,
-                f'after puncture {k}')
-    if spec['model']['relaxation']:
-        term = spec['model']['relaxation'][0]
-        add('model.relaxation[0].relative_modulus', 0.05, 0.95, False, 'the pause')
-        add('model.relaxation[0].time_constant_s', term['time_constant_s'] / 5, term['time_constant_s'] * 5, True,
-            'the pause')
-    return rows
-
-
 def _trial_features(comparisons, n_layers, simulated=False):
     from tissue_sim_ros.analysis.calibration.layer_estimates import curve_features, mean_features
     features = []
@@ -374,6 +338,7 @@ def _with_events(comparison, force):
 def propose(trials, base_scene, *, refine_runs: int = 3, align: str = 'contact', tick_s: float = 0.01,
             out=None, workers=None, scheduler=None, log=print) -> dict:
     """Everything the outputs need (module docstring)."""
+    from tissue_sim_ros.analysis.calibration.fit_bounds import fit_suggestions
     from tissue_sim_ros.analysis.calibration.layer_estimates import starting_values
     from tissue_sim_ros.analysis.calibration.layer_resolution import elements_across, path_edge_length, \
         resolution_warnings
@@ -449,13 +414,16 @@ def propose(trials, base_scene, *, refine_runs: int = 3, align: str = 'contact',
             log(f'propose: run {run}: the relaxation scan puts the relaxing part at {scanned:.3f}')
         previous, values = (values, simulated), corrected
     score, spec, values, study = best
+    simulated = _trial_features(study['comparisons'], n, simulated=True)
+    onset_miss = [simulated.onset_m[k] - measured.onset_m[k] if simulated and k < len(simulated.onset_m)
+                  and k < len(measured.onset_m) else math.nan for k in range(n)]
     edge = path_edge_length(base_scene.mesh.rest_positions, base_scene.mesh.tetrahedra, base_scene.needle_pose[0], axis)
     deepest = max(float(np.nanmax(c.travel_since_contact_m)) for c in empty)
     resolution = elements_across([top - r['select']['below_z_m'] for r in spec['regions'][1:n]], deepest, edge)
     return {'resolution': resolution, 'path_edge_m': edge, 'warnings': resolution_warnings(resolution, edge),
             'speed_m_s': speed, 'trials': chosen, 'layers': layers, 'measured': measured, 'derived': derived,
             'values': values, 'spec': spec, 'runs': runs, 'nrmse_all_samples': score, 'study': study,
-            'fits': fit_suggestions(spec, n, layers), 'base_dir': base_scene.base_dir,
+            'fits': fit_suggestions(spec, n, layers, measured.strongest_pull_n, onset_miss), 'base_dir': base_scene.base_dir,
             'pre_drops': sum(len(_pre_drops(c)) for c in study['comparisons']),
             'wall_s': time.perf_counter() - wall0}
 
