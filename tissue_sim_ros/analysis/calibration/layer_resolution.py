@@ -4,8 +4,8 @@ A layer a few elements thick shares its tip's load with its neighbours: the axia
 reads a blend of their moduli, and no calibration on that mesh tells them apart. Measured on the
 three-layer bench phantom (docs/performance.md), a 6 mm middle layer: the calibration's
 Jacobian columns for the middle and core moduli have cosine 0.96 with elements of 4.1 mm mean
-edge along the path (1.5 across the layer; 0.91 at 3.8 mm, 1.6 across) and 0.74 with elements
-of 1.8 mm (3.4 across). So
+edge along the path (1.5 across the layer; 0.91 at 3.8 mm, 1.6 across), 0.76 at 2.2 mm (2.8
+across) and 0.74 at 1.8 mm (3.4 across). So
 ``propose`` reports each layer's thickness in elements (its thickness over the mean edge length
 of the elements nearest the needle's path) and warns under ``MIN_ELEMENTS_ACROSS``.
 
