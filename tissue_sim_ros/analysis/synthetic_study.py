@@ -33,7 +33,7 @@ SPEC = ("files: ['trial_*.csv']\ntime: {column: time, unit: s}\nforce: {column: 
 #: needle's axis: a 3.3 mm cell around it, 5.1 mm beside, 6.6 mm farther out; 2 mm in z; 5880
 #: tetrahedra: the layered benchmark) and 'fine' (as 'graded' with a 1.65 mm cell around the axis
 #: and 5 mm far out; 14520 tetrahedra, about 3.7x a run's cost: the tip's load spreads over fewer mm
-#: of the layer below, so the layers' moduli act apart). On 'bench' the force takes one of two paths
+#: of the layer below, so the layers' moduli act less alike). On 'bench' the force takes one of two paths
 #: that part a few mm after contact, which one turning on the outer modulus within 2 %; on 'graded'
 #: it follows the moduli smoothly. All put the elements' centroids off the planes every 3 (2) mm the
 #: layers' boundaries lie on (z is uniform).

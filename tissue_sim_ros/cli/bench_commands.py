@@ -170,7 +170,7 @@ def add_bench_commands(commands):
                          help="the 8-key calibration's budget (default 110)")
     layered.add_argument('--mesh', choices=['graded', 'fine'], default='graded',
                          help="the phantoms' mesh: 'graded' (5880 tetrahedra, default) or 'fine' (14520, a 1.65 mm "
-                              "cell around the needle: the three-layer moduli act apart; about 3.7x the time)")
+                              "cell around the needle: the layers' moduli act less alike; about 3.7x the time)")
     layered.add_argument('--layers', type=int, nargs='+', choices=[2, 3], default=[2, 3],
                          help='which phantoms, by their layer count (default: both)')
     layered.set_defaults(run=_layered)

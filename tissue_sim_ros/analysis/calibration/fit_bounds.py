@@ -1,15 +1,16 @@
 """The ``--fit`` keys and bounds a calibration of a proposed layered scene takes (``propose``
 writes them into its report and its calibrate command).
 
-Per layer: its modulus within 3x of the proposal's (log), a deeper boundary within three depth
+Per layer: its modulus within 3x of the proposal's (log); a deeper boundary within three depth
 spreads or 2 mm and, on the side the proposal's own simulation says it lies, further by the
-travel its loading still starts off the data's (the refinement moves a boundary by that miss a run
-and may stop short: its last runs score the other values too), its rupture force within 50 %, its cutting force up to twice (or 0.5 N more),
-its retraction pull up to twice (or 0.5 N) and at least ``PULL_MARGIN`` times the data's
-strongest pull: a layer the tip leaves soon after the turn (dragging the tissue with it) has a
-window that holds only the transition and reads low, yet no one layer pulls harder than the
-whole retraction does. Then each layer's insertion friction within 3x (log) and the pause's
-relaxation (its relaxing part over 0.05 to 0.95, its time within 5x).
+travel its loading still starts off the data's (the refinement moves a boundary by that miss a
+run and may stop short: its last runs score the other values too); its rupture force within
+50 %; its cutting force up to twice (or 0.5 N more); its retraction pull up to twice (or 0.5 N)
+and at least ``PULL_MARGIN`` times the data's strongest pull: a layer the tip leaves soon after
+the turn (dragging the tissue with it) has a window that holds only the transition and reads
+low, yet no one layer pulls harder than the whole retraction does. Then each layer's insertion
+friction within 3x (log) and the pause's relaxation (its relaxing part over 0.05 to 0.95, its
+time within 5x).
 """
 from __future__ import annotations
 

@@ -423,7 +423,8 @@ def propose(trials, base_scene, *, refine_runs: int = 3, align: str = 'contact',
     return {'resolution': resolution, 'path_edge_m': edge, 'warnings': resolution_warnings(resolution, edge),
             'speed_m_s': speed, 'trials': chosen, 'layers': layers, 'measured': measured, 'derived': derived,
             'values': values, 'spec': spec, 'runs': runs, 'nrmse_all_samples': score, 'study': study,
-            'fits': fit_suggestions(spec, n, layers, measured.strongest_pull_n, onset_miss), 'base_dir': base_scene.base_dir,
+            'fits': fit_suggestions(spec, n, layers, measured.strongest_pull_n, onset_miss),
+            'base_dir': base_scene.base_dir,
             'pre_drops': sum(len(_pre_drops(c)) for c in study['comparisons']),
             'wall_s': time.perf_counter() - wall0}
 
