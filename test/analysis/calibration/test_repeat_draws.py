@@ -42,13 +42,17 @@ def test_the_written_scene_is_the_mean_repeat_with_the_matched_spread():
 
 def test_each_repeat_is_matched_to_the_draws_that_made_it(studies):
     """Four repeats of the two-layer phantom, each simulated at the truth's moduli with the offsets
-    matched to its punctures: each simulated puncture lands on the measured one (within 0.05 mm
-    and 0.03 N); the outer rupture force and the deep boundary are the ones the repeat drew (less
-    their mean, which the shared keys hold) within a third of the spread they were drawn with; and
-    scored against its own draws the repeats fit at least three times better than against one
-    scene. The deep layer's rupture force is not compared: where the tip reaches the deep boundary
-    already pressing harder than it, the layer gives way at the boundary, and any rupture force
-    under that makes the same curve."""
+    matched to its punctures: each simulated puncture lands on the measured one in what its offset
+    sets (the outer layer's force within 0.03 N, the deep layer's travel within 0.05 mm) and
+    within 2.5 samples of travel for the outer one (the data's contact, which its travel counts
+    from, moves by up to 2 samples with the noise, the onset's 5-sample centred average; the
+    simulation's is where it lands on average); the outer rupture force and the deep boundary are
+    the ones the repeat drew (less their mean, which the shared keys hold) within a third of the
+    spread they were drawn with; and scored against its own draws the repeats fit at least three
+    times better than against one scene. The deep layer's force is not compared: where the tip
+    reaches the deep boundary already pressing harder than its rupture force, the layer gives way
+    at the boundary, and any rupture force under that makes the same curve; its peak then follows
+    the loading, a sample of contact jitter at 1 N/mm moving it by 0.03 N."""
     from tissue_sim_ros.analysis.calibration.objective import Objective
     from tissue_sim_ros.analysis.calibration.parameters import parse_fit
     from tissue_sim_ros.analysis.compare.shared_punctures import pair_punctures
@@ -67,12 +71,14 @@ def test_each_repeat_is_matched_to_the_draws_that_made_it(studies):
     one_scene = objective.evaluate(u).objective
     offsets = match_repeat_draws(objective, u)
     matched = objective.evaluate(u)
+    sample_m = trials[0].speed_m_s * float(np.median(np.diff(trials[0].time_s)))
     for comparison in matched.comparisons:
         pairs = pair_punctures(comparison.measured_punctures, comparison.simulated_punctures)
         assert len(pairs) == 2
-        for measured, simulated in pairs:
-            assert simulated.travel_m == pytest.approx(measured.travel_m, abs=5e-5)
-            assert simulated.force_n == pytest.approx(measured.force_n, abs=0.03)
+        (outer, outer_simulated), (deep, deep_simulated) = pairs
+        assert outer_simulated.force_n == pytest.approx(outer.force_n, abs=0.03)
+        assert outer_simulated.travel_m == pytest.approx(outer.travel_m, abs=2.5 * sample_m)
+        assert deep_simulated.travel_m == pytest.approx(deep.travel_m, abs=5e-5)
     for drawn_key, region, part, spread in (('regions[0].membrane.rupture_force_n', 0, 0, 0.1),
                                             ('regions[1].depth_offset_m', 1, 1, 0.0003)):
         truth_values = np.array([d[drawn_key] for d in draws])

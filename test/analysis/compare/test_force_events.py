@@ -207,3 +207,44 @@ def test_a_recording_that_starts_just_above_the_tissue_keeps_its_noise_and_its_p
     assert abs(baseline) < 0.003 and 0.003 < noise < 0.010
     assert abs(travel[contact] - 0.001) < 3e-4
     assert len(punctures) == 1 and abs(punctures[0].travel_m - 0.011) < 2e-4
+
+
+def test_a_short_approach_in_a_long_record_keeps_the_baseline_the_noise_and_the_contact():
+    """0.5 s before contact in a 36 s record at 100 Hz: the first tenth of the record (and its
+    first third) reaches 0.2 mm into a loading of 0.1 N/mm. Truth: the noise added (5 mN), the
+    baseline 0, the contact made at 1 mm of travel."""
+    from tissue_sim_ros.analysis.compare.force_events import baseline_and_noise
+    record = insertion(np.random.default_rng(7), rate_hz=(100.0, 100.0), gap=1e-3, rest_s=0.0, hold_s=10.0,
+                       onset='ramp', stiffness=100.0, force_noise=0.005)
+    baseline, noise = baseline_and_noise(record['force_n'])
+    contact = detect_contact(record['time_s'], record['force_n'], record['travel_m'])
+    print(f'baseline {baseline * 1e3:.2f} mN, noise {noise * 1e3:.2f} mN (made 0 and 5); contact at '
+          f'{record["travel_m"][contact] * 1e3:.3f} mm (made at 1)')
+    assert abs(baseline) < 0.002 and 0.004 < noise < 0.006
+    # the walk back's level sits 2 noise / sqrt(5) + 1 mN up: 0.055 mm of this loading, 0.1 mm with noise
+    assert 0.0 <= record['travel_m'][contact] - 1e-3 < 1e-4
+
+
+def test_a_noiseless_curve_s_contact_in_the_data_s_noise_lags_as_the_data_s_does():
+    """A slow quadratic onset under 20 mN of noise at 100 Hz: the detector finds contact in a noisy
+    record well after it finds it on the noiseless curve. Truth: the mean contact over 40 noisy
+    records of the same curve (independent noise); ``contact_in_noise`` must land on it within
+    3 standard errors, where the noiseless detection misses it by several."""
+    from tissue_sim_ros.analysis.compare.force_events import baseline_and_noise, contact_in_noise
+    clean = insertion(np.random.default_rng(0), rate_hz=(100.0, 100.0), gap=1e-3, rest_s=0.5,
+                      stiffness=1e4, force_noise=0.0)
+    time, force, travel = clean['time_s'], clean['true_force_n'], clean['true_travel_m']
+    rng = np.random.default_rng(1)
+    records = [force + rng.normal(0.0, 0.02, force.size) for _ in range(40)]
+    found = np.array([time[detect_contact(time, noisy, travel)] for noisy in records])
+    noise = baseline_and_noise(records[0])[1]
+    in_noise = time[contact_in_noise(time, force, travel, noise_n=noise, record_time_s=time)]
+    noiseless = time[detect_contact(time, force, travel, noise_n=noise)]
+    error = found.std(ddof=1) / np.sqrt(found.size)
+    print(f'noisy records {found.mean():.3f} +- {error:.3f} s; in noise {in_noise:.3f} s; noiseless '
+          f'{noiseless:.3f} s (touched at {clean["contact_s"]:.3f} s)')
+    assert abs(in_noise - found.mean()) < 3 * error
+    assert found.mean() - noiseless > 6 * error
+    # no noise: the noiseless curve's own contact
+    assert contact_in_noise(time, force, travel, noise_n=0.0, record_time_s=time) == \
+        detect_contact(time, force, travel, noise_n=0.0)

@@ -97,7 +97,7 @@ def compare_trial(trial, motion, curve: SimulatedCurve, align: str = 'contact', 
     if curve.diverged:
         simulated = np.full_like(force, np.nan)
     else:
-        curve = _at_its_contact(curve, force)
+        curve = _at_its_contact(curve, since, force)
         if align == 'depth':
             simulated = _on_travel(curve, travel, phases)
         else:
@@ -203,15 +203,17 @@ def measured_layers(trials, motions) -> tuple[list, list]:
     return punctures, layers
 
 
-def _at_its_contact(curve: SimulatedCurve, measured_force) -> SimulatedCurve:
+def _at_its_contact(curve: SimulatedCurve, since_contact_s, measured_force) -> SimulatedCurve:
     """The simulated curve with its time and travel counted from its own contact, found by the
-    detector that found the data's, with the data's noise level: a threshold detector finds a
-    contact late by an amount that depends on the noise and the curve's onset; the same rule on
-    both curves makes that lag the same on both, so it cancels."""
-    from tissue_sim_ros.analysis.compare.force_events import baseline_and_noise, detect_contact
+    detector that found the data's, as it finds it in the data's record (its sample times
+    ``since_contact_s``, from the data's contact, and its noise: :func:`~.force_events.
+    contact_in_noise`): a threshold detector finds a contact late by an amount that depends on
+    the noise, the record and the curve's onset; the same rule on the same record makes that lag
+    the same on both curves, so it cancels."""
+    from tissue_sim_ros.analysis.compare.force_events import baseline_and_noise, contact_in_noise
     _, noise = baseline_and_noise(measured_force)
-    index = detect_contact(curve.time_since_contact_s, curve.axial_force_n,
-                           curve.travel_since_contact_m, noise_n=noise)
+    index = contact_in_noise(curve.time_since_contact_s, curve.axial_force_n, curve.travel_since_contact_m,
+                             noise_n=noise, record_time_s=since_contact_s)
     if index is None:
         return curve
     shift = float(curve.travel_since_contact_m[index])
@@ -438,7 +440,7 @@ def compare_with_reference(time_s, travel_m, axial_force_n, *, study=None, plot=
                            np.asarray(axial_force_n, dtype=float))
     comparison = compare_trial(trial, motion, curve, align='depth')
     if plot is not None:
-        shown = _at_its_contact(curve, trial.axial_force_n)
+        shown = _at_its_contact(curve, motion.time_s - motion.time_s[motion.contact_index], trial.axial_force_n)
         plot_comparison(plot, [{'title': title or f'{Path(trial.file).name}: NRMSE '
                                 f'{comparison.errors.get("nrmse", float("nan")):.3f} (insertion)',
                                 'comparisons': [comparison], 'simulations': [(shown, comparison)]}],

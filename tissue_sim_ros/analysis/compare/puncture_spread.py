@@ -12,7 +12,7 @@ repeats' spread when its mean depth is (``shared_punctures.within_spread``'s rul
 deviations, or half the range, and the puncture window).
 
 The scene's own puncture events give the simulated depths and forces (the depth since the
-simulated contact, found by the detector the data's contact was found by, with the data's noise).
+simulated contact, found by the detector the data's contact was found by, in the data's noise).
 """
 from __future__ import annotations
 
@@ -51,12 +51,12 @@ def run_simulated_repeats(plan, scene, count: int, *, store=None, workers=None, 
 def _events_since_contact(result, schedule, motion, scene_gap_m, noise_n):
     """(depth since the simulated contact [m], force [N], layer) of a run's puncture events."""
     from tissue_sim_ros.analysis.compare.simulated_curve import simulated_curve
-    from tissue_sim_ros.analysis.compare.force_events import detect_contact
+    from tissue_sim_ros.analysis.compare.force_events import contact_in_noise
     if result.diverged:
         return []
     curve = simulated_curve(result, schedule, motion, scene_gap_m)
-    index = detect_contact(curve.time_since_contact_s, curve.axial_force_n, curve.travel_since_contact_m,
-                           noise_n=noise_n)
+    index = contact_in_noise(curve.time_since_contact_s, curve.axial_force_n, curve.travel_since_contact_m,
+                             noise_n=noise_n, record_time_s=motion.time_s - motion.time_s[motion.contact_index])
     shift = float(curve.travel_since_contact_m[index]) if index is not None else 0.0
     return [(float(t) - scene_gap_m - shift, float(f), int(layer))
             for t, f, layer in zip(result.puncture_travel_m, result.puncture_force_n, result.puncture_layer)]
