@@ -49,3 +49,34 @@ def test_no_phantom_mesh_puts_an_element_centroid_within_a_boundarys_spread_of_i
     z = built.rest_positions[built.tetrahedra].mean(axis=1)[:, 2]
     for region in scene['regions'][1:]:
         assert np.abs(z - region['select']['below_z_m']).min() >= region['depth_spread_m'] - 1e-12
+
+
+def test_a_layered_study_made_again_with_the_same_inputs_is_kept_and_with_others_made_anew(tmp_path, monkeypatch):
+    """A benchmark resumed keeps its data: the second call finds what made the study in its
+    truth.json and simulates nothing (the simulation runner is made to fail); another noise, or a
+    trial file gone, makes it again. Truth: the files' own bytes, and the insertion run again here with the noise's statistics."""
+    from tissue_sim_ros.analysis import jobs
+    from tissue_sim_ros.analysis.synthetic_study import write_layered_study
+    options = dict(travel_m=0.005, hold_s=0.2, repeats=2, seed=3, workers=1)
+    spec = write_layered_study(tmp_path, SETS, [6.0], noise_n=0.004, **options)
+    files = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    real = jobs.run_jobs
+
+    def refuse(*args, **kwargs):
+        raise AssertionError('simulated again')
+    monkeypatch.setattr(jobs, 'run_jobs', refuse)
+    assert write_layered_study(tmp_path, SETS, [6.0], noise_n=0.004, **options) == spec
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == files
+    with pytest.raises(AssertionError, match='simulated again'):
+        write_layered_study(tmp_path, SETS, [6.0], noise_n=0.002, **options)
+    assert not (tmp_path / 'truth.json').exists()         # a study cut short is not taken for whole
+    monkeypatch.setattr(jobs, 'run_jobs', real)
+    write_layered_study(tmp_path, SETS, [6.0], noise_n=0.002, **options)
+    truth = run_insertion(Scene.from_file(None, sets=SETS), 0.006, 0.005, hold_s=0.2, tick=0.01)
+    noise = np.concatenate([t.axial_force_n - np.interp(t.time_s, truth.time, truth.axial_force)
+                            for t in load_trials(DataSpec.from_file(spec))])
+    assert noise.std() == pytest.approx(0.002, rel=0.2)    # made anew, with the noise now asked for
+    (tmp_path / 'trial_6_2.csv').unlink()
+    monkeypatch.setattr(jobs, 'run_jobs', refuse)
+    with pytest.raises(AssertionError, match='simulated again'):
+        write_layered_study(tmp_path, SETS, [6.0], noise_n=0.002, **options)

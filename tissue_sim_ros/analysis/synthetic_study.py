@@ -11,7 +11,10 @@ of the scene's spread between repeats (``regions[].membrane.rupture_force_spread
 ``regions[].depth_spread_m``; trial k of the study, from 1, runs ``variation.seed`` 1000 seed + k:
 draws of their own, not those of a simulated study's seeds 1..N), so each
 layer punctures at its own force and depth in every repeat; the values drawn are written beside
-the data (``truth.json``) with the nominal scene keys.
+the data (``truth.json``) with the nominal scene keys and what made the study (the scene file's
+text, the keys set, speeds, travel, hold, repeats, noise, seed): a second call with the same
+inputs finds them there, with every trial's file, and keeps the study instead of simulating it
+again (a benchmark resumed).
 """
 from __future__ import annotations
 
@@ -129,11 +132,18 @@ def write_layered_study(directory, scene_sets, speeds_mm_s, *, scene_file=None, 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     trials = [(speed, repeat) for speed in speeds_mm_s for repeat in range(1, repeats + 1)]
+    made_with = {'scene': None if scene_file is None else Path(scene_file).read_text(), 'sets': list(scene_sets),
+                 'speeds_mm_s': [float(speed) for speed in speeds_mm_s], 'travel_m': float(travel_m),
+                 'hold_s': float(hold_s), 'repeats': int(repeats), 'noise_n': float(noise_n), 'seed': int(seed)}
+    spec = directory / 'spec.yaml'
+    if _made_with(directory) == made_with and spec.is_file():
+        return spec
+    (directory / 'truth.json').unlink(missing_ok=True)
     tasks = [(None if scene_file is None else str(scene_file), list(scene_sets) + [f'variation.seed={1000 * seed + k}'],
               speed * 1e-3, travel_m, hold_s) for k, (speed, _) in enumerate(trials, 1)]
     runs = run_jobs(_one_layered_trial, tasks, workers=workers, label='synthetic trials', quiet=True)
     truth = {'scene_file': None if scene_file is None else str(scene_file), 'sets': list(scene_sets),
-             'noise_n': noise_n, 'trials': {}}
+             'noise_n': noise_n, 'trials': {}, 'made_with': made_with}
     for (speed, repeat), (run, drawn) in zip(trials, runs):
         name = f'trial_{speed:g}_{repeat}.csv'
         _write_trial(directory / name, run, rng, noise_n)
@@ -141,7 +151,18 @@ def write_layered_study(directory, scene_sets, speeds_mm_s, *, scene_file=None, 
                                  'punctures': [{'region': e['region'], 'tip_depth_m': float(e['tip_depth_m']),
                                                 'axial_force_n': float(e['axial_force_n'])}
                                                for e in run.puncture_events]}
-    (directory / 'truth.json').write_text(json.dumps(truth, indent=2))
-    spec = directory / 'spec.yaml'
     spec.write_text(SPEC)
+    (directory / 'truth.json').write_text(json.dumps(truth, indent=2))    # last: it marks the study whole
     return spec
+
+
+def _made_with(directory: Path):
+    """What made the study in ``directory`` (its ``truth.json``'s record), None when it has none or
+    a trial file it names is missing."""
+    try:
+        truth = json.loads((directory / 'truth.json').read_text())
+    except (OSError, ValueError):
+        return None
+    if not all((directory / name).is_file() for name in truth.get('trials', {})):
+        return None
+    return truth.get('made_with')

@@ -153,7 +153,8 @@ def main(*, out='out/bench_layered', jobs=None, max_evaluations=110, mesh=MESH, 
         specs[count] = [write_layered_study(out / f'{name}_{label}', [], speeds, scene_file=truth, workers=jobs,
                                             travel_m=TRAVEL_M[mesh, count], seed=seed + k)
                         for k, (label, speeds) in enumerate((('2mm_s', [2.0]), ('1_3mm_s', [1.0, 3.0])))]
-    print(f'data: {15 * len(layers)} trials simulated in {time.perf_counter() - wall0:.0f} s')
+    print(f'data: {15 * len(layers)} trials in {time.perf_counter() - wall0:.0f} s (a study made before from the same '
+          'inputs is kept)')
     for count in layers:
         t0 = time.perf_counter()
         report = propose.main(data_spec=specs[count][0], scene_file=_write_base(out / f'base_{count}.yaml', count, mesh),
