@@ -64,8 +64,8 @@ from scipy.signal import find_peaks
 
 from tissue_sim_ros.analysis.compare.alignment import increasing_time, sample_array
 
-__all__ = ['PHASES', 'PRE_DROP', 'PUNCTURE', 'Puncture', 'baseline_and_noise', 'contact_in_noise', 'depth_bounds', 'detect_contact',
-           'detect_drops', 'detect_punctures', 'sample_noise_n', 'segment_phases', 'travel_noise_m']
+__all__ = ['PHASES', 'PRE_DROP', 'PUNCTURE', 'Puncture', 'baseline_and_noise', 'contact_in_noise', 'depth_bounds',
+           'detect_contact', 'detect_drops', 'detect_punctures', 'sample_noise_n', 'segment_phases', 'travel_noise_m']
 
 PHASES = ('approach', 'loading', 'inserted', 'hold', 'retraction')
 MAD_TO_SIGMA = 1.4826
